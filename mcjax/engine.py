@@ -1,0 +1,103 @@
+"""The batch engine: ``vmap`` over runs of ``lax.scan`` over time, cut into fixed-size chunks.
+
+A *scenario* is a module with ``Config``, ``Params``, ``init``, ``step`` and ``summarize``
+(design.md, "The contract of a scenario"). A sweep is ``points × seeds`` runs, ordered
+point-major (run r = point ``r // n_seeds``, seed ``r % n_seeds``). Runs are cut into chunks
+of one fixed size, the last one padded and trimmed, so one compiled program serves every
+chunk and memory is bounded by the chunk, not the sweep.
+
+Run r's key is ``fold_in(PRNGKey(base_seed), seed_index)``: a seed index draws the same
+noise at every sweep point (common random numbers) and results do not depend on the chunk
+size. Step t's key is ``fold_in(run_key, t)`` (noise drawn per step, never pre-drawn).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from types import ModuleType
+from typing import Callable, Iterator
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def run_key(base_seed: int, seed_index) -> jax.Array:
+    """The key of seed ``seed_index`` (the same at every sweep point)."""
+    return jax.random.fold_in(jax.random.PRNGKey(base_seed), seed_index)
+
+
+def _run(scenario, cfg, params, key):
+    state = scenario.init(cfg, params, jax.random.fold_in(key, 0x7FFFFFFF))
+
+    def body(state, t):
+        return scenario.step(cfg, params, state, jax.random.fold_in(key, t))
+
+    _, records = jax.lax.scan(body, state, jnp.arange(cfg.n_steps))
+    return records
+
+
+def simulate(scenario: ModuleType, cfg, params, keys, *, summarize: bool = True):
+    """Run a batch: ``params`` and ``keys`` carry a leading run axis.
+
+    Returns the per-run summaries (``summarize=True``) or the records stacked over time
+    (run, time, …) — the caller chooses what is kept, so a large sweep need not keep every
+    trajectory. Not jitted: see :func:`compiled`.
+    """
+
+    def one(p, k):
+        records = _run(scenario, cfg, p, k)
+        return scenario.summarize(cfg, records, p) if summarize else records
+
+    return jax.vmap(one)(params, keys)
+
+
+@lru_cache(maxsize=32)
+def compiled(scenario: ModuleType, cfg, summarize: bool = True) -> Callable:
+    """The jitted :func:`simulate` for one scenario and config (defined once per process)."""
+    return jax.jit(lambda params, keys: simulate(scenario, cfg, params, keys, summarize=summarize))
+
+
+def stack_points(points: list) -> object:
+    """Stack a list of Params (one per sweep point) into one Params with a point axis."""
+    return jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *points)
+
+
+def chunk_plan(n_runs: int, chunk_size: int) -> list[tuple[int, int]]:
+    """``[(start, stop), …]`` of the chunks covering ``n_runs`` runs."""
+    if chunk_size < 1:
+        raise ValueError(f"chunk_size must be >= 1; got {chunk_size}")
+    return [(s, min(s + chunk_size, n_runs)) for s in range(0, n_runs, chunk_size)]
+
+
+def chunk_inputs(point_params, n_seeds: int, base_seed: int, start: int, stop: int, size: int):
+    """Params and keys of runs ``start … stop−1``, padded to ``size`` by repeating the last run."""
+    runs = np.arange(start, stop)
+    runs = np.concatenate([runs, np.full(size - len(runs), stop - 1)])
+    point_idx, seed_idx = runs // n_seeds, runs % n_seeds
+    params = jax.tree.map(lambda a: np.asarray(a)[point_idx], point_params)
+    keys = jax.vmap(lambda s: run_key(base_seed, s))(jnp.asarray(seed_idx, jnp.uint32))
+    return params, keys
+
+
+def run_chunks(scenario: ModuleType, cfg, point_params, n_seeds: int, *, base_seed: int = 0,
+               chunk_size: int = 1000, chunks: list[int] | None = None,
+               summarize: bool = True) -> Iterator[tuple[int, int, int, dict]]:
+    """Run a sweep chunk by chunk; yields ``(chunk_index, start, stop, outputs)`` with the
+    outputs trimmed to the chunk's real runs and converted to numpy.
+
+    ``point_params``: Params with a leading point axis. ``chunks`` restricts the run to those
+    chunk indices (for resuming). The chunk size is capped at the run count, so a small
+    sweep does not compute padding.
+    """
+    n_points = int(jax.tree.leaves(point_params)[0].shape[0])
+    n_runs = n_points * n_seeds
+    size = min(chunk_size, n_runs)
+    fn = compiled(scenario, cfg, summarize)
+    for idx, (start, stop) in enumerate(chunk_plan(n_runs, size)):
+        if chunks is not None and idx not in chunks:
+            continue
+        params, keys = chunk_inputs(point_params, n_seeds, base_seed, start, stop, size)
+        out = fn(params, keys)
+        out = jax.tree.map(lambda a: np.asarray(a)[: stop - start], out)
+        yield idx, start, stop, out

@@ -1,0 +1,345 @@
+"""Communication topology of a team and its metrics (shared/algorithms.md §1).
+
+Every function is pure, jit- and vmap-friendly, and accepts any leading batch shape: agent
+positions are ``(..., n, d)``, adjacency matrices ``(..., n, n)``. The only Python loops run
+over the static number of agents ``n``. Results keep the floating dtype of the input
+(float32 or float64); integer positions are promoted to JAX's default float.
+
+Conventions:
+
+* ``radius`` is a scalar (one comm range for everybody) or one range per agent, anything
+  broadcastable to ``positions.shape[:-1]`` — so a batch of graphs with one scalar range
+  each passes ``radius`` as ``(B, 1)``.
+* An adjacency matrix is a float 0/1 matrix, symmetric, with a zero diagonal. Functions
+  that take an adjacency ignore its diagonal (self-loops are dropped), so a matrix with
+  ones on the diagonal gives the same result as the same matrix without them.
+* Distances use :func:`mcjax.numerics.safe_norm`, so gradients stay finite (zero) when two
+  agents coincide.
+* Margins and robustness values are in the units of the positions (metres in mcjax); the
+  ``temperature`` of the smooth forms is in the same units.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+
+from mcjax.numerics import safe_norm, softmax_value, softmin
+
+WEIGHT_KINDS = ("eq11", "metropolis", "max_degree")
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _float_positions(positions) -> jax.Array:
+    positions = jnp.asarray(positions)
+    if not jnp.issubdtype(positions.dtype, jnp.floating):
+        positions = positions.astype(jnp.result_type(float))
+    return positions
+
+
+def _pair_range(positions: jax.Array, radius) -> jax.Array:
+    """``R_ij = min(r_i, r_j)`` (..., n, n) in the dtype of ``positions``."""
+    r = jnp.broadcast_to(jnp.asarray(radius, dtype=positions.dtype), positions.shape[:-1])
+    return jnp.minimum(r[..., :, None], r[..., None, :])
+
+
+def _offdiag_mask(n: int) -> jax.Array:
+    return ~jnp.eye(n, dtype=bool)
+
+
+def _clean_adjacency(adj) -> jax.Array:
+    """Adjacency as a float array with its diagonal zeroed (self-loops dropped)."""
+    adj = jnp.asarray(adj)
+    if not jnp.issubdtype(adj.dtype, jnp.floating):
+        adj = adj.astype(jnp.result_type(float))
+    return jnp.where(_offdiag_mask(adj.shape[-1]), adj, jnp.zeros((), adj.dtype))
+
+
+# --------------------------------------------------------------------------- topology
+
+
+def pairwise_distances(positions) -> jax.Array:
+    """Inter-agent distances ``l_ij = ‖q_i − q_j‖`` (Sun et al. 2011 (seed 000) eq. 13).
+
+    ``positions`` (..., n, d) -> (..., n, n), zero diagonal. Uses the double-``where`` safe
+    norm, so ``jax.grad`` is finite (zero) where two agents coincide.
+    """
+    positions = _float_positions(positions)
+    diff = positions[..., :, None, :] - positions[..., None, :, :]
+    return safe_norm(diff, axis=-1)
+
+
+def link_margins(positions, radius) -> jax.Array:
+    """Signed link margins ``m_ij = min(r_i, r_j) − l_ij`` (Sun et al. 2011 (seed 000) eqs. 13–14).
+
+    ``m_ij ≥ 0`` iff i and j are linked (eq. 13); a non-link has a negative margin. The
+    diagonal is ``+inf`` (an agent is always "linked" to itself with infinite margin, the
+    neutral element of the (max, min) path algebra used by :func:`pair_robustness`).
+    Returns (..., n, n).
+    """
+    positions = _float_positions(positions)
+    n = positions.shape[-2]
+    m = _pair_range(positions, radius) - pairwise_distances(positions)
+    return jnp.where(_offdiag_mask(n), m, jnp.inf)
+
+
+def adjacency(positions, radius, alive=None) -> jax.Array:
+    """Comm-graph adjacency: link i–j iff ``l_ij ≤ min(r_i, r_j)`` (Sun et al. 2011 (seed 000) eq. 13).
+
+    ``positions`` (..., n, d); ``radius`` scalar or per agent (..., n); ``alive`` optional
+    bool (..., n) — a dead agent has no links. Returns a float 0/1 matrix (..., n, n),
+    symmetric, with a zero diagonal, in the dtype of ``positions``.
+    """
+    positions = _float_positions(positions)
+    n = positions.shape[-2]
+    linked = pairwise_distances(positions) <= _pair_range(positions, radius)
+    linked = linked & _offdiag_mask(n)
+    if alive is not None:
+        alive = jnp.asarray(alive, dtype=bool)
+        linked = linked & alive[..., :, None] & alive[..., None, :]
+    return linked.astype(positions.dtype)
+
+
+def hysteresis_adjacency(previous, positions, radius, epsilon) -> jax.Array:
+    """Adjacency with hysteresis on new links (Lou et al. 2013 (seed 004) §1.1, edge rules 1–3).
+
+    With ``R = min(r_i, r_j)``: a link that existed (``previous_ij = 1``) survives while
+    ``l_ij < R`` and breaks when ``l_ij ≥ R`` (rule 3); a link that did not exist forms only
+    when ``l_ij < R − ε`` (rule 2). Zero diagonal; symmetric when ``previous`` is. Note the
+    strict inequality: an existing link at exactly ``l_ij = R`` breaks here, whereas
+    :func:`adjacency` (seed 000 eq. 13) keeps it. The initial graph (rule 1, ``l_ij < R``)
+    is obtained by passing ``previous = 1`` everywhere. ``epsilon`` is a scalar or
+    broadcastable to (..., n, n). Returns a float 0/1 matrix in the dtype of ``positions``.
+    """
+    positions = _float_positions(positions)
+    n = positions.shape[-2]
+    dist = pairwise_distances(positions)
+    big_r = _pair_range(positions, radius)
+    existed = jnp.asarray(previous) > 0.5
+    keep = existed & (dist < big_r)
+    form = dist < big_r - jnp.asarray(epsilon, dtype=positions.dtype)
+    linked = (keep | form) & _offdiag_mask(n)
+    return linked.astype(positions.dtype)
+
+
+def degree(adj) -> jax.Array:
+    """Degrees ``d_i = Σ_j a_ij`` (Sun et al. 2011 (seed 000) eq. 11; shared/algorithms.md §1).
+
+    (..., n, n) -> (..., n); the diagonal (self-loops) is ignored.
+    """
+    return jnp.sum(_clean_adjacency(adj), axis=-1)
+
+
+def laplacian(adj) -> jax.Array:
+    """Graph Laplacian ``L = D − A`` (shared/algorithms.md §1; seed 000 Figs. 6 and 10).
+
+    (..., n, n) -> (..., n, n); the diagonal of ``adj`` is ignored.
+    """
+    a = _clean_adjacency(adj)
+    n = a.shape[-1]
+    eye = jnp.eye(n, dtype=a.dtype)
+    return jnp.sum(a, axis=-1)[..., :, None] * eye - a
+
+
+def algebraic_connectivity(adj) -> jax.Array:
+    """Algebraic connectivity λ2, the second-smallest eigenvalue of ``L = D − A``.
+
+    shared/algorithms.md §1 (seed 000 Figs. 6/10, seed 004 "λ2 > 0"): λ2 = 0 iff the graph is
+    disconnected. (..., n, n) -> (...,), via ``jnp.linalg.eigvalsh``. Round-off can make the
+    eigenvalue of a disconnected graph a tiny negative number (~−1e−16); it is clipped to 0,
+    so the result is always ≥ 0. Needs ``n ≥ 2`` (λ2 does not exist for one agent): a
+    ``ValueError`` otherwise.
+    """
+    lap = laplacian(adj)
+    n = lap.shape[-1]
+    if n < 2:
+        raise ValueError(f"algebraic_connectivity needs at least 2 agents, got adj with n={n}")
+    lam = jnp.linalg.eigvalsh(lap)
+    return jnp.maximum(lam[..., 1], 0.0)
+
+
+def component_sizes(adj) -> jax.Array:
+    """Size of each agent's connected component, itself included (shared/algorithms.md §1).
+
+    Boolean transitive closure of ``A ∨ I`` by repeated squaring — a static
+    ``ceil(log2 n) + 1`` squarings, enough for paths of any length ≤ n − 1. (..., n, n) ->
+    (..., n), in the float dtype of ``adj``. An isolated (e.g. dead) agent has size 1.
+    """
+    a = _clean_adjacency(adj)
+    n = a.shape[-1]
+    reach = (a > 0.5) | jnp.eye(n, dtype=bool)
+    for _ in range(math.ceil(math.log2(max(n, 1))) + 1):
+        r = reach.astype(a.dtype)
+        reach = jnp.matmul(r, r) > 0.5  # integer counts ≤ n: exact in any float dtype
+    return jnp.sum(reach, axis=-1).astype(a.dtype)
+
+
+# --------------------------------------------------------------------------- consensus weights
+
+
+def laplacian_step_weights(adj) -> jax.Array:
+    """Seed 000 eq. 11 as a matrix: ``x_i ← x_i − (1/(1+d_i)) Σ_j a_ij (x_i − x_j) = Σ_j W_ij x_j``.
+
+    Sun et al. 2011 (seed 000) eq. 11: ``W_ij = a_ij/(1+d_i)`` for j ≠ i and
+    ``W_ii = 1/(1+d_i)``. Row-stochastic but in general NOT doubly stochastic (the fixed
+    point is the average weighted by ``1 + d_i``); kept as the paper has it
+    (shared/algorithms.md §1). (..., n, n) -> (..., n, n).
+    """
+    a = _clean_adjacency(adj)
+    n = a.shape[-1]
+    d = jnp.sum(a, axis=-1)
+    return (a + jnp.eye(n, dtype=a.dtype)) / (1.0 + d)[..., :, None]
+
+
+def metropolis_weights(adj) -> jax.Array:
+    """Metropolis weights ``W_ij = a_ij/(1+max(d_i,d_j))``, ``W_ii = 1 − Σ_{j≠i} W_ij``.
+
+    shared/algorithms.md §1 (the weights of Ren & Lv 2017, seed 001). Symmetric, non-negative
+    and doubly stochastic for any undirected graph. (..., n, n) -> (..., n, n).
+    """
+    a = _clean_adjacency(adj)
+    n = a.shape[-1]
+    d = jnp.sum(a, axis=-1)
+    off = a / (1.0 + jnp.maximum(d[..., :, None], d[..., None, :]))
+    return off + jnp.eye(n, dtype=a.dtype) * (1.0 - jnp.sum(off, axis=-1))[..., :, None]
+
+
+def max_degree_weights(adj) -> jax.Array:
+    """Max-degree weights ``W_ij = a_ij/n``, ``W_ii = 1 − d_i/n`` (Chen & Lu 2013 (seed 002) eq. 7).
+
+    Symmetric, non-negative, doubly stochastic. (..., n, n) -> (..., n, n).
+    """
+    a = _clean_adjacency(adj)
+    n = a.shape[-1]
+    d = jnp.sum(a, axis=-1)
+    return a / n + jnp.eye(n, dtype=a.dtype) * (1.0 - d / n)[..., :, None]
+
+
+_WEIGHT_FUNCTIONS = {
+    "eq11": laplacian_step_weights,
+    "metropolis": metropolis_weights,
+    "max_degree": max_degree_weights,
+}
+
+
+def consensus_weights(adj, kind: str) -> jax.Array:
+    """Consensus matrix of the given ``kind`` (shared/algorithms.md §1).
+
+    ``"eq11"``: :func:`laplacian_step_weights` (seed 000 eq. 11); ``"metropolis"``:
+    :func:`metropolis_weights`; ``"max_degree"``: :func:`max_degree_weights` (seed 002
+    eq. 7). ``kind`` is a Python string (static under ``jit``); anything else raises
+    ``ValueError``.
+    """
+    try:
+        fn = _WEIGHT_FUNCTIONS[kind]
+    except (KeyError, TypeError):
+        raise ValueError(
+            f"consensus_weights: argument 'kind' must be one of {WEIGHT_KINDS}, got {kind!r}"
+        ) from None
+    return fn(adj)
+
+
+# --------------------------------------------------------------------------- connectivity robustness
+
+
+def pair_robustness(positions, radius) -> jax.Array:
+    """Pair robustness ρ(i,j): the widest (max over paths of the min link margin) path.
+
+    Spanos & Murray 2004; Sun et al. 2011 (seed 000) eq. 14 extended to multi-hop paths as
+    in shared/algorithms.md §1. Paths run over the complete graph with signed margins
+    ``m_ij = min(r_i, r_j) − l_ij`` (:func:`link_margins`), so ρ(i,j) ≥ 0 iff a path of
+    links joins i and j, and otherwise −ρ(i,j) is the least extra range (added to every
+    agent) that would join them. Exact, by Floyd–Warshall in the (max, min) semiring:
+    ``ρ ← max(ρ, min(ρ[:, k], ρ[k, :]))`` for k = 1..n (a static loop). Diagonal ``+inf``.
+    (..., n, d) -> (..., n, n).
+    """
+    rho = link_margins(positions, radius)
+    n = rho.shape[-1]
+    for k in range(n):
+        rho = jnp.maximum(rho, jnp.minimum(rho[..., :, k, None], rho[..., None, k, :]))
+    return rho
+
+
+def _info_mask(n: int, info_neighbours) -> jax.Array:
+    mask = _offdiag_mask(n)
+    if info_neighbours is not None:
+        mask = mask & jnp.asarray(info_neighbours, dtype=bool)
+    return mask
+
+
+def connectivity_robustness(positions, radius, info_neighbours=None) -> jax.Array:
+    """Connectivity robustness ``R_I(i) = ½ min_{j ∈ N_I(i), j≠i} ρ(i,j)``.
+
+    Sun et al. 2011 (seed 000) eq. 15 (Spanos & Murray 2004), with ρ the exact multi-hop pair
+    robustness of :func:`pair_robustness` (shared/algorithms.md §1). ``info_neighbours``:
+    optional bool (..., n, n) mask of the information neighbours N_I(i) (row i), default
+    every other agent. An agent with no information neighbour gets ``+inf``. ``radius``
+    scalar or per agent. (..., n, d) -> (..., n).
+    """
+    rho = pair_robustness(positions, radius)
+    mask = _info_mask(rho.shape[-1], info_neighbours)
+    return 0.5 * jnp.min(jnp.where(mask, rho, jnp.inf), axis=-1)
+
+
+def smooth_pair_robustness(positions, radius, temperature) -> jax.Array:
+    """Smooth ρ(i,j): :func:`pair_robustness` with max/min replaced by soft forms.
+
+    Spanos & Murray 2004; Sun et al. 2011 (seed 000) eq. 14, multi-hop as in
+    shared/algorithms.md §1. The Floyd–Warshall update becomes
+    ``ρ_ij ← softmax_T(ρ_ij, softmin_T(ρ_ik, ρ_kj))`` for k ∉ {i, j} (the k = i, j updates
+    are no-ops of the exact recursion and are skipped, so no ``T log 2`` bias is added
+    there). Every soft operation is within ``T log 2`` of the hard one and both are
+    1-Lipschitz, so ``|ρ_T − ρ| ≤ 2 n T log 2``. Infinities never enter a soft operation
+    (double-``where``), so ``jax.grad`` is finite, also with coincident agents. Diagonal
+    ``+inf``. (..., n, d) -> (..., n, n).
+    """
+    m = link_margins(positions, radius)
+    n = m.shape[-1]
+    offdiag = _offdiag_mask(n)
+    zero = jnp.zeros((), m.dtype)
+    rho = jnp.where(offdiag, m, zero)  # finite placeholder on the (unused) diagonal
+    idx = jnp.arange(n)
+    t = jnp.asarray(temperature, dtype=m.dtype)
+
+    def relax(k, rho):
+        valid = offdiag & (idx[:, None] != k) & (idx[None, :] != k)
+        a = jnp.take(rho, k, axis=-1)[..., :, None]
+        b = jnp.take(rho, k, axis=-2)[..., None, :]
+        # softmin / softmax_value over two values, written with logaddexp (the same functions
+        # as mcjax.numerics.softmin/softmax_value on a stack of two, with fewer operations).
+        via_k = -t * jnp.logaddexp(-a / t, -b / t)
+        via_k = jnp.where(valid, via_k, rho)
+        widened = t * jnp.logaddexp(rho / t, via_k / t)
+        return jnp.where(valid, widened, rho)
+
+    # A fori_loop with static bounds (a scan, so reverse-differentiable): compile time does not
+    # grow with n, unlike the unrolled loop of the exact version.
+    rho = jax.lax.fori_loop(0, n, relax, rho)
+    return jnp.where(offdiag, rho, jnp.inf)
+
+
+def smooth_connectivity_robustness(positions, radius, temperature, info_neighbours=None) -> jax.Array:
+    """Smooth ``R_I(i) ≈ ½ min_{j ∈ N_I(i)} ρ(i,j)`` for gradient-based planning.
+
+    Sun et al. 2011 (seed 000) eq. 15 (Spanos & Murray 2004) with every max/min — in the
+    Floyd–Warshall recursion (:func:`smooth_pair_robustness`) and in the outer minimum —
+    replaced by ``softmax_value`` / ``softmin`` at ``temperature`` T (same units as the
+    positions). Tends to :func:`connectivity_robustness` as T → 0, within
+    ``½ (2 n log 2 + log(n − 1)) T``; it is neither an upper nor a lower bound. ``jax.grad``
+    with respect to positions is finite, also when agents coincide; an agent with no
+    information neighbour gets ``+inf`` (with zero gradient). (..., n, d) -> (..., n).
+    """
+    rho = smooth_pair_robustness(positions, radius, temperature)
+    n = rho.shape[-1]
+    mask = jnp.broadcast_to(_info_mask(n, info_neighbours), rho.shape)
+    any_valid = jnp.any(mask, axis=-1)
+    # Masked entries -> +inf (weight exactly 0 in the softmin); rows with no valid entry are
+    # replaced by zeros before the softmin so that no all-(-inf) logsumexp yields NaN gradients.
+    x = jnp.where(mask, rho, jnp.inf)
+    x = jnp.where(any_valid[..., None], x, jnp.zeros((), rho.dtype))
+    r = 0.5 * softmin(x, temperature, axis=-1)
+    return jnp.where(any_valid, r, jnp.inf)

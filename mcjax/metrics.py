@@ -1,0 +1,59 @@
+"""Run metrics: position errors, RMSE, NEES, the divergence rule (algorithms.md §8)."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from mcjax.numerics import matvec, safe_norm
+
+
+def position_error(estimate, truth):
+    """Euclidean position error of ``[x, ẋ, y, ẏ]`` estimates (…, 4) against the truth."""
+    d = jnp.stack([estimate[..., 0] - truth[..., 0], estimate[..., 2] - truth[..., 2]], -1)
+    return safe_norm(d)
+
+
+def nees(estimate, information, truth):
+    """Normalised estimation error squared ``eᵀ P⁻¹ e`` of the full state (Bar-Shalom),
+    computed with the information matrix ``Y = P⁻¹`` (no inverse)."""
+    e = estimate - truth
+    return jnp.sum(e * matvec(information, e), axis=-1)
+
+
+def _after_warmup(n_steps, warmup):
+    return (jnp.arange(n_steps) >= warmup)
+
+
+def rmse(errors, warmup: int = 0, weights=None):
+    """Root-mean-square of ``errors`` (T, …) over steps ≥ ``warmup`` and the other axes
+    (algorithms.md §8; seed 003 eq. 23 averages it over runs)."""
+    mask = _after_warmup(errors.shape[0], warmup).reshape((-1,) + (1,) * (errors.ndim - 1))
+    w = jnp.broadcast_to(mask, errors.shape).astype(errors.dtype)
+    if weights is not None:
+        w = w * weights
+    return jnp.sqrt(jnp.sum(w * errors**2) / jnp.maximum(jnp.sum(w), 1.0))
+
+
+def mean_over(errors, warmup: int = 0, weights=None):
+    """Mean of ``errors`` over steps ≥ ``warmup`` (the paper tables' "estimated position
+    error")."""
+    mask = _after_warmup(errors.shape[0], warmup).reshape((-1,) + (1,) * (errors.ndim - 1))
+    w = jnp.broadcast_to(mask, errors.shape).astype(errors.dtype)
+    if weights is not None:
+        w = w * weights
+    return jnp.sum(w * errors) / jnp.maximum(jnp.sum(w), 1.0)
+
+
+def nonfinite(errors):
+    """True if any error is NaN or infinite."""
+    return jnp.any(~jnp.isfinite(errors))
+
+
+def diverged(errors, threshold, warmup: int = 0, weights=None):
+    """Divergence rule of algorithms.md §8: the error exceeded ``threshold`` (metres) at
+    any step ≥ ``warmup`` (for any agent with non-zero weight), or went non-finite."""
+    mask = _after_warmup(errors.shape[0], warmup).reshape((-1,) + (1,) * (errors.ndim - 1))
+    if weights is not None:
+        mask = jnp.logical_and(mask, weights > 0)
+    big = jnp.where(mask, errors > threshold, False)
+    return jnp.logical_or(jnp.any(big), nonfinite(errors))

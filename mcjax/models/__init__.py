@@ -1,0 +1,1 @@
+"""Pure physics and sensing: target motion, platforms, sensors. No filters, no graphs."""

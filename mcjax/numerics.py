@@ -1,0 +1,145 @@
+"""Small numerical kernels shared by every layer.
+
+Everything here is pure, works on arrays with any leading batch shape, and is safe to
+differentiate: norms and square roots use the double-``where`` trick so their gradients are
+finite at zero.
+
+The small-matrix kernels (``spd_inverse``, ``spd_solve``) are written as unrolled scalar
+code over the last two axes. On the CPU, XLA runs ``jnp.linalg`` on tiny matrices through
+per-matrix library calls, which is overhead-bound; unrolled elementwise code fuses into a
+few vectorised loops over the batch (design.md, "Lessons measured"). They fall back to
+``jnp.linalg`` above ``UNROLL_MAX``.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+UNROLL_MAX = 6
+
+
+def symmetrize(a: jax.Array) -> jax.Array:
+    """Return ``(a + aᵀ)/2`` over the last two axes."""
+    return 0.5 * (a + jnp.swapaxes(a, -1, -2))
+
+
+def wrap_angle(a: jax.Array) -> jax.Array:
+    """Wrap angles to (−π, π]."""
+    wrapped = jnp.mod(a + jnp.pi, 2.0 * jnp.pi) - jnp.pi
+    # mod maps +π to −π; keep +π so the interval is (−π, π].
+    return jnp.where(wrapped == -jnp.pi, jnp.pi, wrapped)
+
+
+def safe_norm(x: jax.Array, axis: int = -1, eps: float = 1e-30) -> jax.Array:
+    """Euclidean norm whose gradient is finite (zero) at the origin (double-``where``)."""
+    sq = jnp.sum(x * x, axis=axis)
+    positive = sq > eps
+    safe_sq = jnp.where(positive, sq, 1.0)
+    return jnp.where(positive, jnp.sqrt(safe_sq), 0.0)
+
+
+def softmin(x: jax.Array, temperature: jax.Array | float, axis: int = -1) -> jax.Array:
+    """Smooth minimum ``−T·logsumexp(−x/T)``; tends to ``min`` as ``T → 0`` (≤ min)."""
+    t = jnp.asarray(temperature)
+    return -t * jax.nn.logsumexp(-x / t, axis=axis)
+
+
+def softmax_value(x: jax.Array, temperature: jax.Array | float, axis: int = -1) -> jax.Array:
+    """Smooth maximum ``T·logsumexp(x/T)``; tends to ``max`` as ``T → 0`` (≥ max)."""
+    t = jnp.asarray(temperature)
+    return t * jax.nn.logsumexp(x / t, axis=axis)
+
+
+def matmul(a: jax.Array, b: jax.Array) -> jax.Array:
+    """Batched ``a @ b`` written as broadcast-multiply-and-sum.
+
+    For the 2–6 sized matrices of this package this fuses into elementwise loops, and —
+    unlike a batched ``dot_general`` — gives per-element results that do not depend on the
+    batch size (needed for chunk-size-independent results).
+    """
+    return jnp.sum(a[..., :, :, None] * b[..., None, :, :], axis=-2)
+
+
+def matvec(a: jax.Array, v: jax.Array) -> jax.Array:
+    """Batched ``a @ v`` (see :func:`matmul`)."""
+    return jnp.sum(a * v[..., None, :], axis=-1)
+
+
+def quad(a: jax.Array, p: jax.Array) -> jax.Array:
+    """``a p aᵀ`` for batched matrices."""
+    return matmul(matmul(a, p), jnp.swapaxes(a, -1, -2))
+
+
+def _cholesky_unrolled(a: jax.Array) -> list[list[jax.Array]]:
+    """Lower Cholesky factor as a nested list of scalar arrays (batch shape ``a.shape[:-2]``)."""
+    n = a.shape[-1]
+    l = [[None] * n for _ in range(n)]
+    for j in range(n):
+        s = a[..., j, j]
+        for k in range(j):
+            s = s - l[j][k] * l[j][k]
+        d = jnp.sqrt(s)  # NaN if a is not positive definite: surfaced, never hidden
+        l[j][j] = d
+        for i in range(j + 1, n):
+            s = a[..., i, j]
+            for k in range(j):
+                s = s - l[i][k] * l[j][k]
+            l[i][j] = s / d
+    return l
+
+
+def spd_inverse(a: jax.Array) -> jax.Array:
+    """Inverse of symmetric positive-definite matrices over the last two axes.
+
+    Cholesky ``a = L Lᵀ``, then ``a⁻¹ = L⁻ᵀ L⁻¹``, unrolled for ``n ≤ UNROLL_MAX``. A matrix
+    that is not positive definite yields NaN (it is never silently repaired).
+    """
+    n = a.shape[-1]
+    if n > UNROLL_MAX:
+        c = jnp.linalg.cholesky(a)
+        eye = jnp.broadcast_to(jnp.eye(n, dtype=a.dtype), a.shape)
+        linv = jax.scipy.linalg.solve_triangular(c, eye, lower=True)
+        return jnp.swapaxes(linv, -1, -2) @ linv
+    l = _cholesky_unrolled(a)
+    # m = L⁻¹ (lower triangular), by forward substitution column by column.
+    m = [[None] * n for _ in range(n)]
+    for j in range(n):
+        m[j][j] = 1.0 / l[j][j]
+        for i in range(j + 1, n):
+            s = 0.0
+            for k in range(j, i):
+                s = s + l[i][k] * m[k][j]
+            m[i][j] = -s / l[i][i]
+    rows = []
+    for i in range(n):
+        row = []
+        for j in range(n):
+            s = 0.0
+            for k in range(max(i, j), n):
+                s = s + m[k][i] * m[k][j]
+            row.append(s)
+        rows.append(jnp.stack(row, axis=-1))
+    return jnp.stack(rows, axis=-2)
+
+
+def spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
+    """Solve ``a x = b`` for SPD ``a`` (…, n, n) and a vector ``b`` (…, n)."""
+    return matvec(spd_inverse(a), b)
+
+
+def spd_logdet(a: jax.Array) -> jax.Array:
+    """``log det a`` of SPD matrices from the Cholesky diagonal."""
+    n = a.shape[-1]
+    if n > UNROLL_MAX:
+        return 2.0 * jnp.sum(jnp.log(jnp.diagonal(jnp.linalg.cholesky(a), axis1=-2, axis2=-1)), -1)
+    l = _cholesky_unrolled(a)
+    return 2.0 * sum(jnp.log(l[j][j]) for j in range(n))
+
+
+def is_finite_tree(*arrays: jax.Array) -> jax.Array:
+    """True where every element of every array (reduced over all non-batch axes) is finite."""
+    out = True
+    for x in arrays:
+        out = jnp.logical_and(out, jnp.all(jnp.isfinite(x)))
+    return out

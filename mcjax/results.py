@@ -1,0 +1,380 @@
+"""Parquet layer of a sweep's output folder.
+
+Layout of an output folder ``OUT``::
+
+    OUT/
+      runs/                 dataset: one row per (run, filter), tidy
+        part-000000.parquet
+        part-000001.parquet
+      timeseries/           optional second dataset, same rules
+      _staging/             temporary files only (never read as data)
+
+Rules:
+
+* Every dataset folder (``runs/``, ``timeseries/``, ...) contains **only** finished
+  ``<part_name>.parquet`` files.  Temporary files live in ``OUT/_staging/``, which is a
+  *sibling* of the dataset folders: DuckDB and Polars globs (``runs/**/*.parquet``) also
+  read hidden folders, so a temporary file inside ``runs/`` could be picked up half written.
+* A part is written to ``OUT/_staging/`` first, flushed to disk, then moved into place with
+  :func:`os.replace` (atomic on the same file system).  A reader therefore sees either the
+  old part, the new part, or no part, never a torn file.  An interrupted writer leaves at
+  most a file in ``OUT/_staging/`` (removed by :func:`clean_staging`).
+* Key columns (``point_id``, ``seed_index``, ``filter``, swept parameters) are ordinary
+  columns inside every file; nothing relies on hive-style ``key=value`` folder names.  Any
+  Parquet reader (pandas, pyarrow, DuckDB, Polars) can read ``OUT/runs`` directly.
+* Run-level metadata (config, environment, ...) is stored in the Parquet schema metadata
+  as JSON strings under keys ``mcjax.<key>``; pandas' own ``pandas`` key is kept so dtypes
+  round-trip.
+* Files are compressed with zstd.
+
+This module does not import JAX.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import re
+import subprocess
+import uuid
+from datetime import datetime, timezone
+from importlib import metadata as importlib_metadata
+from pathlib import Path
+from typing import Any, Mapping
+
+import pandas as pd
+import pyarrow as pa
+import pyarrow.dataset as pads
+import pyarrow.parquet as pq
+
+__all__ = [
+    "STAGING_DIR",
+    "METADATA_PREFIX",
+    "SORT_COLUMNS",
+    "COMPRESSION",
+    "write_part",
+    "existing_parts",
+    "read_table",
+    "read_metadata",
+    "environment_metadata",
+    "clean_staging",
+]
+
+#: Name of the staging folder (a sibling of the dataset folders, never inside them).
+STAGING_DIR = "_staging"
+#: Prefix of mcjax keys in the Parquet schema metadata.
+METADATA_PREFIX = "mcjax."
+#: Columns used (when present, in this order) to sort rows returned by :func:`read_table`.
+SORT_COLUMNS = ("point_id", "seed_index", "filter")
+#: Parquet compression codec of every part file.
+COMPRESSION = "zstd"
+
+_PARQUET_SUFFIX = ".parquet"
+# Names of parts and tables: one path component, no separators, not hidden ('.' / '_'
+# prefixes are skipped by pyarrow/pandas dataset discovery), portable characters only.
+_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+
+_VERSIONED_PACKAGES = ("jax", "jaxlib", "numpy", "pandas", "pyarrow", "optax", "mcjax")
+
+
+# --------------------------------------------------------------------------------------
+# validation helpers
+# --------------------------------------------------------------------------------------
+
+
+def _check_name(value: Any, arg: str) -> str:
+    """Validate a single path component used as a file or folder name."""
+    if not isinstance(value, str):
+        raise TypeError(f"{arg} must be a str, got {type(value).__name__}")
+    if not _NAME_RE.fullmatch(value) or value in (".", ".."):
+        raise ValueError(
+            f"{arg}={value!r} is invalid: it must be a single file name (no path separators "
+            "such as '/' or '\\'), start with a letter or digit and contain only letters, "
+            "digits, '.', '_' and '-'"
+        )
+    if value.endswith(_PARQUET_SUFFIX):
+        raise ValueError(
+            f"{arg}={value!r} must not end with {_PARQUET_SUFFIX!r} (the suffix is added "
+            f"automatically; pass {value[: -len(_PARQUET_SUFFIX)]!r})"
+        )
+    return value
+
+
+def _check_out_dir(out_dir: Any) -> Path:
+    if not isinstance(out_dir, (str, os.PathLike)):
+        raise TypeError(f"out_dir must be a str or os.PathLike, got {type(out_dir).__name__}")
+    path = Path(out_dir)
+    if str(out_dir) == "":
+        raise ValueError("out_dir must not be empty")
+    return path
+
+
+def _encode_metadata(metadata: Mapping[str, Any] | None) -> dict[bytes, bytes]:
+    """Encode ``metadata`` as ``{b'mcjax.<key>': b'<json>'}``."""
+    if metadata is None:
+        return {}
+    if not isinstance(metadata, Mapping):
+        raise TypeError(f"metadata must be a dict (str -> JSON value), got {type(metadata).__name__}")
+    encoded: dict[bytes, bytes] = {}
+    for key, value in metadata.items():
+        if not isinstance(key, str) or not key:
+            raise ValueError(f"metadata keys must be non-empty str, got {key!r}")
+        try:
+            text = json.dumps(value, sort_keys=True)
+        except (TypeError, ValueError) as exc:
+            raise TypeError(
+                f"metadata[{key!r}] is not JSON-serialisable ({type(value).__name__}): {exc}"
+            ) from exc
+        encoded[(METADATA_PREFIX + key).encode()] = text.encode()
+    return encoded
+
+
+def _decode_metadata(raw: Mapping[bytes, bytes] | None) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    prefix = METADATA_PREFIX.encode()
+    for key, value in (raw or {}).items():
+        if key.startswith(prefix):
+            out[key[len(prefix):].decode()] = json.loads(value.decode())
+    return out
+
+
+def _fsync_dir(path: Path) -> None:
+    """Best-effort fsync of a directory (makes a rename durable on POSIX)."""
+    if os.name != "posix":
+        return
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _part_files(out_dir: Path, table_name: str) -> list[Path]:
+    return [out_dir / table_name / f"{name}{_PARQUET_SUFFIX}" for name in existing_parts(out_dir, table_name)]
+
+
+# --------------------------------------------------------------------------------------
+# public API
+# --------------------------------------------------------------------------------------
+
+
+def write_part(
+    out_dir: str | os.PathLike,
+    table_name: str,
+    df: pd.DataFrame,
+    part_name: str,
+    metadata: Mapping[str, Any] | None = None,
+) -> Path:
+    """Atomically write ``df`` as ``OUT/<table_name>/<part_name>.parquet``; return its path.
+
+    Steps: convert ``df`` to a :class:`pyarrow.Table` (the pandas index is dropped, except
+    that *named* index levels are first turned into ordinary columns); add ``metadata`` to
+    the schema metadata (each value JSON-encoded under ``mcjax.<key>``, pandas' own
+    ``pandas`` key kept); write it zstd-compressed to a uniquely named file in
+    ``OUT/_staging/``; fsync; then :func:`os.replace` it onto the final path.
+
+    * Readers never see a partial file; if the process dies mid-write only a staging file
+      remains (see :func:`clean_staging`).  If the write fails with an exception the
+      staging file is removed and the exception re-raised; the dataset is unchanged.
+    * If the part already exists it is replaced atomically, so re-writing a part (e.g. on
+      resume) is idempotent.
+    * Choosing unique part names (e.g. ``part-000012``) is the caller's job.
+
+    Args:
+        out_dir: output folder ``OUT`` (created if missing).
+        table_name: dataset folder name, e.g. ``"runs"`` or ``"timeseries"``.
+        df: tidy table to write; keep key columns (``point_id``, ``seed_index``,
+            ``filter``, swept parameters) as ordinary columns.
+        part_name: file stem, a single path component without ``.parquet``.
+        metadata: ``str -> JSON-serialisable`` mapping, or ``None``.
+
+    Raises:
+        TypeError / ValueError naming the offending argument for bad input.
+    """
+    out = _check_out_dir(out_dir)
+    _check_name(table_name, "table_name")
+    _check_name(part_name, "part_name")
+    if not isinstance(df, pd.DataFrame):
+        raise TypeError(f"df must be a pandas DataFrame, got {type(df).__name__}")
+    extra = _encode_metadata(metadata)
+
+    frame = df
+    if any(name is not None for name in frame.index.names):
+        frame = frame.reset_index()
+    try:
+        table = pa.Table.from_pandas(frame, preserve_index=False)
+    except (pa.ArrowException, TypeError, ValueError) as exc:
+        raise TypeError(f"df cannot be converted to a pyarrow Table: {exc}") from exc
+    table = table.replace_schema_metadata({**(table.schema.metadata or {}), **extra})
+
+    staging = out / STAGING_DIR
+    final_dir = out / table_name
+    staging.mkdir(parents=True, exist_ok=True)
+    final_dir.mkdir(parents=True, exist_ok=True)
+    final_path = final_dir / f"{part_name}{_PARQUET_SUFFIX}"
+    tmp_path = staging / f"{table_name}.{part_name}.{os.getpid()}.{uuid.uuid4().hex}.tmp"
+
+    try:
+        with open(tmp_path, "wb") as fh:
+            pq.write_table(table, fh, compression=COMPRESSION)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp_path, final_path)
+    except BaseException:
+        try:
+            tmp_path.unlink()
+        except OSError:
+            pass
+        raise
+    _fsync_dir(final_dir)
+    return final_path
+
+
+def existing_parts(out_dir: str | os.PathLike, table_name: str) -> list[str]:
+    """Sorted names (without ``.parquet``) of the part files in ``OUT/<table_name>/``.
+
+    Hidden files (``.``/``_`` prefix) and non-Parquet files are ignored; a missing folder
+    gives ``[]``.
+    """
+    out = _check_out_dir(out_dir)
+    _check_name(table_name, "table_name")
+    folder = out / table_name
+    if not folder.is_dir():
+        return []
+    names = []
+    for entry in os.scandir(folder):
+        if (
+            entry.is_file()
+            and entry.name.endswith(_PARQUET_SUFFIX)
+            and not entry.name.startswith((".", "_"))
+        ):
+            names.append(entry.name[: -len(_PARQUET_SUFFIX)])
+    return sorted(names)
+
+
+def read_table(out_dir: str | os.PathLike, table_name: str = "runs") -> pd.DataFrame:
+    """Read every part of ``OUT/<table_name>/`` into one pandas DataFrame.
+
+    Uses :mod:`pyarrow.dataset` over the files listed by :func:`existing_parts` (so the
+    staging folder and stray files are never read).  Part schemas are unified permissively
+    (a column missing from some parts is read as null there).  Rows are sorted (stable) by
+    whichever of ``point_id``, ``seed_index``, ``filter`` are present, with a fresh
+    ``RangeIndex``.  Returns an empty DataFrame if nothing has been written.
+    """
+    out = _check_out_dir(out_dir)
+    files = _part_files(out, table_name)
+    if not files:
+        return pd.DataFrame()
+    schemas = [pq.read_schema(f) for f in files]
+    try:
+        schema = pa.unify_schemas(schemas, promote_options="permissive")
+    except TypeError:  # pyarrow < 14 has no promote_options
+        schema = pa.unify_schemas(schemas)
+    dataset = pads.dataset([str(f) for f in files], schema=schema, format="parquet")
+    frame = dataset.to_table().to_pandas()
+    keys = [c for c in SORT_COLUMNS if c in frame.columns]
+    if keys:
+        frame = frame.sort_values(keys, kind="stable")
+    return frame.reset_index(drop=True)
+
+
+def read_metadata(out_dir: str | os.PathLike, table_name: str = "runs") -> dict[str, Any]:
+    """Decoded ``mcjax.*`` schema metadata (prefix removed) of the first part file.
+
+    "First" is the first name in :func:`existing_parts` order.  Returns ``{}`` if nothing
+    has been written.
+    """
+    out = _check_out_dir(out_dir)
+    files = _part_files(out, table_name)
+    if not files:
+        return {}
+    return _decode_metadata(pq.read_schema(files[0]).metadata)
+
+
+def _package_version(name: str) -> str:
+    try:
+        return importlib_metadata.version(name)
+    except importlib_metadata.PackageNotFoundError:
+        if name == "mcjax":  # source checkout on PYTHONPATH, not pip-installed
+            try:
+                from mcjax import __version__
+
+                return str(__version__)
+            except ImportError:
+                pass
+        return "not installed"
+
+
+def _git(args: list[str], cwd: Path) -> str | None:
+    try:
+        proc = subprocess.run(
+            ["git", *args],
+            cwd=cwd,
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=False,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    if proc.returncode != 0:
+        return None
+    return proc.stdout
+
+
+def environment_metadata() -> dict[str, Any]:
+    """Provenance of the current process, suitable as ``metadata`` for :func:`write_part`.
+
+    Keys: ``python`` (version string), ``jax``, ``jaxlib``, ``numpy``, ``pandas``,
+    ``pyarrow``, ``optax``, ``mcjax`` (distribution versions from
+    :func:`importlib.metadata.version`, ``"not installed"`` if missing; ``mcjax`` falls back
+    to ``mcjax.__version__`` when run from a source checkout), ``git_revision``
+    (``git rev-parse HEAD`` in the mcjax package directory, or ``"unknown"``),
+    ``git_dirty`` (only when git status is known: ``True`` if there are uncommitted or
+    untracked, non-ignored files) and ``created_utc`` (ISO 8601, UTC).  Nothing here
+    imports JAX.
+    """
+    env: dict[str, Any] = {"python": platform.python_version()}
+    for name in _VERSIONED_PACKAGES:
+        env[name] = _package_version(name)
+
+    pkg_dir = Path(__file__).resolve().parent
+    head = _git(["rev-parse", "HEAD"], pkg_dir)
+    env["git_revision"] = head.strip() if head and head.strip() else "unknown"
+    status = _git(["status", "--porcelain"], pkg_dir)
+    if status is not None:
+        env["git_dirty"] = bool(status.strip())
+    env["created_utc"] = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    return env
+
+
+def clean_staging(out_dir: str | os.PathLike) -> int:
+    """Remove leftover files in ``OUT/_staging/``; return how many were removed.
+
+    Leftovers come from writers that were killed mid-write.  Call this only when no writer
+    is active on ``out_dir`` (e.g. when starting or resuming a sweep), otherwise an
+    in-progress write would fail.  The staging folder itself is removed if it ends up empty.
+    """
+    out = _check_out_dir(out_dir)
+    staging = out / STAGING_DIR
+    if not staging.is_dir():
+        return 0
+    removed = 0
+    for entry in os.scandir(staging):
+        if entry.is_file() or entry.is_symlink():
+            try:
+                os.unlink(entry.path)
+                removed += 1
+            except FileNotFoundError:
+                pass
+    try:
+        staging.rmdir()
+    except OSError:
+        pass
+    return removed

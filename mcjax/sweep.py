@@ -1,0 +1,237 @@
+"""Sweep specs → batched Params; point ids; running a sweep into a Parquet dataset.
+
+A config file (``configs/*.toml``) holds a scenario's ``[config]`` and ``[params]``. A sweep
+spec (``sweeps/*.toml``) names a base config file and adds overrides and a ``[grid]`` whose
+axes (lists of values of Params fields) are combined as a cartesian product::
+
+    base = "../configs/sun2011.toml"   # relative to the spec file
+    seeds = 100
+    base_seed = 0
+    chunk_size = 1000
+    [config]      # Config overrides (recompile)
+    [params]      # Params overrides
+    [grid]        # axes: Params field -> list of values
+    comm_radius = [60e3, 80e3, 100e3]
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import itertools
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import ModuleType
+from typing import Any, Callable
+
+import numpy as np
+import pandas as pd
+
+from mcjax import scenarios
+
+SPEC_KEYS = ("scenario", "base", "seeds", "base_seed", "chunk_size", "config", "params", "grid", "description")
+
+
+class SpecError(ValueError):
+    """A sweep spec or config file is invalid; the message names the key path."""
+
+
+def _suggest(key, allowed):
+    close = difflib.get_close_matches(key, allowed, n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _check_keys(where, table, allowed):
+    for key in table:
+        if key not in allowed:
+            raise SpecError(f"{where}{key}: unknown key{_suggest(key, allowed)}; allowed: {', '.join(allowed)}")
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """A validated sweep: scenario, config, base params, grid axes and seeds."""
+
+    scenario: ModuleType
+    config: Any
+    base_params: Any
+    grid: dict = field(default_factory=dict)
+    seeds: int = 20
+    base_seed: int = 0
+    chunk_size: int = 1000
+    source: dict = field(default_factory=dict)
+
+    @property
+    def n_points(self) -> int:
+        return int(np.prod([len(v) for v in self.grid.values()])) if self.grid else 1
+
+    @property
+    def n_runs(self) -> int:
+        return self.n_points * self.seeds
+
+
+def _build_config(scenario, table, where):
+    fields = [f.name for f in dataclasses.fields(scenario.Config)]
+    _check_keys(where, table, fields)
+    values = {k: (tuple(v) if isinstance(v, list) else v) for k, v in table.items()}
+    try:
+        return scenario.Config(**values)
+    except (TypeError, ValueError) as exc:
+        raise SpecError(f"{where.rstrip('.')}: {exc}") from None
+
+
+def _check_params(scenario, table, where):
+    _check_keys(where, table, scenario.Params._fields)
+    for k, v in table.items():
+        try:
+            arr = np.asarray(v, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise SpecError(f"{where}{k}: must be a number or a list of numbers; got {v!r}") from None
+        if not np.all(np.isfinite(arr)):
+            raise SpecError(f"{where}{k}: must be finite; got {v!r}")
+
+
+def load_config_file(path: str | Path):
+    """``(scenario, Config, params dict)`` from a ``configs/*.toml`` file."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise SpecError(f"config file not found: {path}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{path}: not valid TOML: {exc}") from None
+    _check_keys(f"{path.name}: ", data, ("scenario", "config", "params", "description"))
+    if "scenario" not in data:
+        raise SpecError(f"{path.name}: scenario: missing; allowed: {', '.join(scenarios.SCENARIOS)}")
+    try:
+        scenario = scenarios.get(data["scenario"])
+    except ValueError as exc:
+        raise SpecError(f"{path.name}: scenario: {exc}") from None
+    cfg = _build_config(scenario, data.get("config", {}), f"{path.name}: config.")
+    params = dict(data.get("params", {}))
+    _check_params(scenario, params, f"{path.name}: params.")
+    return scenario, cfg, params
+
+
+def load_spec(path: str | Path, *, seeds: int | None = None, chunk_size: int | None = None,
+              overrides: dict[str, Any] | None = None) -> SweepSpec:
+    """Read and validate a sweep spec; raises :class:`SpecError` naming the key path."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise SpecError(f"sweep spec not found: {path}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{path}: not valid TOML: {exc}") from None
+    for key, value in (overrides or {}).items():
+        table, _, name = key.rpartition(".")
+        target = data.setdefault(table, {}) if table else data
+        target[name] = value
+    _check_keys("", data, SPEC_KEYS)
+    if "base" not in data:
+        raise SpecError("base: missing; give the config file the sweep starts from")
+    scenario, cfg, params = load_config_file((path.parent / data["base"]).resolve())
+    if "scenario" in data and data["scenario"] != scenario.NAME:
+        raise SpecError(f"scenario: {data['scenario']!r} does not match the base config's {scenario.NAME!r}")
+    cfg_over = data.get("config", {})
+    if cfg_over:
+        base_cfg = dataclasses.asdict(cfg)
+        _check_keys("config.", cfg_over, list(base_cfg))
+        base_cfg.update(cfg_over)
+        cfg = _build_config(scenario, base_cfg, "config.")
+    _check_params(scenario, data.get("params", {}), "params.")
+    params.update(data.get("params", {}))
+    grid = data.get("grid", {})
+    _check_keys("grid.", grid, scenario.Params._fields)
+    for k, v in grid.items():
+        if not isinstance(v, list) or not v:
+            raise SpecError(f"grid.{k}: must be a non-empty list of values; got {v!r}")
+        _check_params(scenario, {k: v}, "grid.")
+    try:
+        base_params = scenario.default_params(cfg, **params)
+    except ValueError as exc:
+        raise SpecError(f"params: {exc}") from None
+    seeds = data.get("seeds", 20) if seeds is None else seeds
+    chunk = data.get("chunk_size", 1000) if chunk_size is None else chunk_size
+    base_seed = data.get("base_seed", 0)
+    for name, value in (("seeds", seeds), ("chunk_size", chunk), ("base_seed", base_seed)):
+        if not isinstance(value, int) or isinstance(value, bool) or value < (0 if name == "base_seed" else 1):
+            raise SpecError(f"{name}: must be an integer >= {0 if name == 'base_seed' else 1}; got {value!r}")
+    return SweepSpec(scenario, cfg, base_params, grid, seeds, base_seed, chunk, data)
+
+
+def points(spec: SweepSpec) -> pd.DataFrame:
+    """One row per sweep point (cartesian product of the grid axes), with its ``point_id``."""
+    names = list(spec.grid)
+    rows = list(itertools.product(*(spec.grid[n] for n in names))) if names else [()]
+    df = pd.DataFrame(rows, columns=names)
+    df.insert(0, "point_id", np.arange(len(df), dtype=np.int64))
+    return df
+
+
+def point_params(spec: SweepSpec):
+    """Params with a leading point axis, one entry per row of :func:`points`."""
+    table = points(spec)
+    per_point = []
+    for _, row in table.iterrows():
+        over = {k: row[k] for k in spec.grid}
+        per_point.append(spec.base_params._replace(**{k: np.asarray(v, np.float64) for k, v in over.items()}))
+    from mcjax.engine import stack_points
+
+    return stack_points(per_point)
+
+
+def summary_rows(spec: SweepSpec, table: pd.DataFrame, start: int, out: dict) -> pd.DataFrame:
+    """Tidy rows (one per run and filter) from a chunk's summaries."""
+    cfg = spec.config
+    n = len(next(iter(out.values())))
+    runs = np.arange(start, start + n)
+    point_idx, seed_idx = runs // spec.seeds, runs % spec.seeds
+    frames = []
+    for f, name in enumerate(cfg.filters):
+        cols = {
+            "scenario": spec.scenario.NAME,
+            "point_id": point_idx.astype(np.int64),
+            "seed_index": seed_idx.astype(np.int64),
+            "filter": name,
+        }
+        for axis in spec.grid:
+            cols[axis] = table[axis].to_numpy()[point_idx]
+        for key, value in out.items():
+            value = np.asarray(value)
+            cols[key] = value[:, f] if value.ndim == 2 else value
+        frames.append(pd.DataFrame(cols))
+    df = pd.concat(frames, ignore_index=True)
+    return df.sort_values(["point_id", "seed_index", "filter"], kind="stable").reset_index(drop=True)
+
+
+def run_sweep(spec: SweepSpec, out_dir: str | Path | None = None, *, chunks: list[int] | None = None,
+              progress: Callable[[int], None] | None = None, metadata: dict | None = None) -> pd.DataFrame:
+    """Run every chunk (or only ``chunks``) of a sweep; write each as a part file when
+    ``out_dir`` is given; return the rows of the chunks run."""
+    from mcjax import engine, results
+
+    table = points(spec)
+    params = point_params(spec)
+    frames = []
+    for idx, start, stop, out in engine.run_chunks(spec.scenario, spec.config, params, spec.seeds,
+                                                   base_seed=spec.base_seed, chunk_size=spec.chunk_size,
+                                                   chunks=chunks):
+        df = summary_rows(spec, table, start, out)
+        if out_dir is not None:
+            results.write_part(out_dir, "runs", df, f"part-{idx:06d}", metadata or {})
+        frames.append(df)
+        if progress is not None:
+            progress(stop - start)
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
+def summary_table(df: pd.DataFrame, axes: list[str]) -> pd.DataFrame:
+    """Per point and filter: runs, divergences, mean RMSE (all / non-divergent), min λ2."""
+    keys = ["point_id", *axes, "filter"]
+    g = df.groupby(keys, sort=True)
+    out = g.agg(runs=("seed_index", "size"), diverged=("diverged", "sum"),
+                rmse_mean=("rmse", "mean"), mean_error=("mean_error", "mean"),
+                lambda2_min=("lambda2_min", "min"))
+    ok = df[~df["diverged"]].groupby(keys)["rmse"].mean().rename("rmse_ok")
+    return out.join(ok).reset_index()
