@@ -63,11 +63,27 @@ def stack_points(points: list) -> object:
     return jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *points)
 
 
+#: Runs per compiled call. XLA's CPU code for a batch of B runs can differ in the last bit
+#: between batch sizes and between lanes of one batch (vectorised vs remainder loops,
+#: reduction tiling), so every sweep runs the same B-run program on B-aligned slices of the
+#: run index: results are then bit-identical whatever the chunk size. Per-run cost on the
+#: CPU is flat from about 100 runs per call up (measured; benchmarks/README).
+BATCH_SIZE = 100
+
+
+def batch_size_for(n_runs: int) -> int:
+    """The compiled batch of a sweep of ``n_runs`` runs (fixed by the sweep, not the chunk)."""
+    return max(1, min(BATCH_SIZE, n_runs))
+
+
 def chunk_plan(n_runs: int, chunk_size: int) -> list[tuple[int, int]]:
-    """``[(start, stop), …]`` of the chunks covering ``n_runs`` runs."""
+    """``[(start, stop), …]`` of the chunks covering ``n_runs`` runs. The chunk size is rounded
+    up to a multiple of the compiled batch, so chunk boundaries stay batch-aligned."""
     if chunk_size < 1:
         raise ValueError(f"chunk_size must be >= 1; got {chunk_size}")
-    return [(s, min(s + chunk_size, n_runs)) for s in range(0, n_runs, chunk_size)]
+    b = batch_size_for(n_runs)
+    size = -(-chunk_size // b) * b
+    return [(s, min(s + size, n_runs)) for s in range(0, n_runs, size)]
 
 
 def chunk_inputs(point_params, n_seeds: int, base_seed: int, start: int, stop: int, size: int):
@@ -87,17 +103,22 @@ def run_chunks(scenario: ModuleType, cfg, point_params, n_seeds: int, *, base_se
     outputs trimmed to the chunk's real runs and converted to numpy.
 
     ``point_params``: Params with a leading point axis. ``chunks`` restricts the run to those
-    chunk indices (for resuming). The chunk size is capped at the run count, so a small
-    sweep does not compute padding.
+    chunk indices (for resuming). Each chunk is computed as consecutive calls of one
+    compiled :data:`BATCH_SIZE`-run program (the last call padded), dispatched
+    asynchronously, so memory is bounded by the chunk and numbers do not depend on it.
     """
     n_points = int(jax.tree.leaves(point_params)[0].shape[0])
     n_runs = n_points * n_seeds
-    size = min(chunk_size, n_runs)
+    b = batch_size_for(n_runs)
     fn = compiled(scenario, cfg, summarize)
-    for idx, (start, stop) in enumerate(chunk_plan(n_runs, size)):
+    for idx, (start, stop) in enumerate(chunk_plan(n_runs, chunk_size)):
         if chunks is not None and idx not in chunks:
             continue
-        params, keys = chunk_inputs(point_params, n_seeds, base_seed, start, stop, size)
-        out = fn(params, keys)
-        out = jax.tree.map(lambda a: np.asarray(a)[: stop - start], out)
+        parts = []
+        for s in range(start, stop, b):
+            e = min(s + b, stop)
+            params, keys = chunk_inputs(point_params, n_seeds, base_seed, s, e, b)
+            parts.append((e - s, fn(params, keys)))
+        out = jax.tree.map(lambda *xs: np.concatenate([np.asarray(x)[:m] for (m, _), x in zip(parts, xs)]),
+                           *[o for _, o in parts])
         yield idx, start, stop, out

@@ -26,7 +26,7 @@ import math
 import jax
 import jax.numpy as jnp
 
-from mcjax.numerics import safe_norm, softmax_value, softmin
+from mcjax.numerics import safe_norm, softmin
 
 WEIGHT_KINDS = ("eq11", "metropolis", "max_degree")
 
@@ -154,11 +154,10 @@ def algebraic_connectivity(adj) -> jax.Array:
     so the result is always ≥ 0. Needs ``n ≥ 2`` (λ2 does not exist for one agent): a
     ``ValueError`` otherwise.
     """
-    lap = laplacian(adj)
-    n = lap.shape[-1]
+    n = jnp.shape(adj)[-1]
     if n < 2:
         raise ValueError(f"algebraic_connectivity needs at least 2 agents, got adj with n={n}")
-    lam = jnp.linalg.eigvalsh(lap)
+    lam = jnp.linalg.eigvalsh(laplacian(adj))
     return jnp.maximum(lam[..., 1], 0.0)
 
 
@@ -293,9 +292,10 @@ def smooth_pair_robustness(positions, radius, temperature) -> jax.Array:
     ``ρ_ij ← softmax_T(ρ_ij, softmin_T(ρ_ik, ρ_kj))`` for k ∉ {i, j} (the k = i, j updates
     are no-ops of the exact recursion and are skipped, so no ``T log 2`` bias is added
     there). Every soft operation is within ``T log 2`` of the hard one and both are
-    1-Lipschitz, so ``|ρ_T − ρ| ≤ 2 n T log 2``. Infinities never enter a soft operation
-    (double-``where``), so ``jax.grad`` is finite, also with coincident agents. Diagonal
-    ``+inf``. (..., n, d) -> (..., n, n).
+    1-Lipschitz, so ``|ρ_T − ρ| ≤ 2 n T log 2``. ``temperature`` T > 0 is a scalar (``vmap``
+    for one per graph). The diagonal is held at a finite placeholder inside the recursion
+    (double-``where``), so no infinity enters a soft operation and ``jax.grad`` is finite,
+    also with coincident agents. Diagonal ``+inf`` on output. (..., n, d) -> (..., n, n).
     """
     m = link_margins(positions, radius)
     n = m.shape[-1]
@@ -309,8 +309,8 @@ def smooth_pair_robustness(positions, radius, temperature) -> jax.Array:
         valid = offdiag & (idx[:, None] != k) & (idx[None, :] != k)
         a = jnp.take(rho, k, axis=-1)[..., :, None]
         b = jnp.take(rho, k, axis=-2)[..., None, :]
-        # softmin / softmax_value over two values, written with logaddexp (the same functions
-        # as mcjax.numerics.softmin/softmax_value on a stack of two, with fewer operations).
+        # mcjax.numerics.softmin / softmax_value of two values, written with logaddexp: the same
+        # functions, but fewer operations (about half the compile time).
         via_k = -t * jnp.logaddexp(-a / t, -b / t)
         via_k = jnp.where(valid, via_k, rho)
         widened = t * jnp.logaddexp(rho / t, via_k / t)
@@ -334,6 +334,7 @@ def smooth_connectivity_robustness(positions, radius, temperature, info_neighbou
     information neighbour gets ``+inf`` (with zero gradient). (..., n, d) -> (..., n).
     """
     rho = smooth_pair_robustness(positions, radius, temperature)
+    temperature = jnp.asarray(temperature, dtype=rho.dtype)
     n = rho.shape[-1]
     mask = jnp.broadcast_to(_info_mask(n, info_neighbours), rho.shape)
     any_valid = jnp.any(mask, axis=-1)

@@ -32,9 +32,11 @@ def wrap_angle(a: jax.Array) -> jax.Array:
 
 
 def safe_norm(x: jax.Array, axis: int = -1, eps: float = 1e-30) -> jax.Array:
-    """Euclidean norm whose gradient is finite (zero) at the origin (double-``where``)."""
+    """Euclidean norm whose gradient is finite (zero) at the origin (double-``where``).
+
+    NaN input gives NaN (never a silent 0)."""
     sq = jnp.sum(x * x, axis=axis)
-    positive = sq > eps
+    positive = ~(sq <= eps)  # NaN counts as positive, so it propagates instead of hiding
     safe_sq = jnp.where(positive, sq, 1.0)
     return jnp.where(positive, jnp.sqrt(safe_sq), 0.0)
 

@@ -21,6 +21,31 @@ from mcjax import graph
 
 jax.config.update("jax_enable_x64", True)
 
+# Compiling dominates the run time of this file, so the test-only jits ask XLA for a quick,
+# unoptimised compile (a per-jit option, nothing global; results agree to rounding).
+FAST = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True}
+
+
+def fast_jit(fn, **kwargs):
+    return jax.jit(fn, compiler_options=FAST, **kwargs)
+
+
+class F:
+    """Fast-compiled versions of the public functions, for the hand-made examples."""
+
+    adjacency = staticmethod(fast_jit(graph.adjacency))
+    algebraic_connectivity = staticmethod(fast_jit(graph.algebraic_connectivity))
+    component_sizes = staticmethod(fast_jit(graph.component_sizes))
+    hysteresis_adjacency = staticmethod(fast_jit(graph.hysteresis_adjacency))
+    laplacian_step_weights = staticmethod(fast_jit(graph.laplacian_step_weights))
+    metropolis_weights = staticmethod(fast_jit(graph.metropolis_weights))
+    max_degree_weights = staticmethod(fast_jit(graph.max_degree_weights))
+    consensus_weights = staticmethod(fast_jit(graph.consensus_weights, static_argnames="kind"))
+    pair_robustness = staticmethod(fast_jit(graph.pair_robustness))
+    connectivity_robustness = staticmethod(fast_jit(graph.connectivity_robustness))
+    smooth_connectivity_robustness = staticmethod(fast_jit(graph.smooth_connectivity_robustness))
+
+
 N_RANGE = range(2, 9)  # agent counts of the random groups
 GROUP = 24  # graphs per group
 HYST_EPS = 1.0
@@ -120,9 +145,9 @@ def _metrics(pos, radius, alive, info, prev, eps):
     }
 
 
-_metrics_j = jax.jit(_metrics)
-adjacency_j = jax.jit(graph.adjacency)
-smooth_j = jax.jit(graph.smooth_connectivity_robustness)
+_metrics_j = fast_jit(_metrics)
+adjacency_j = fast_jit(graph.adjacency)
+smooth_j = fast_jit(graph.smooth_connectivity_robustness)
 
 
 @functools.lru_cache(maxsize=None)
@@ -181,10 +206,10 @@ def test_adjacency_and_margins_vs_numpy_loop():
 def test_adjacency_scalar_and_per_agent_radius():
     pos = np.array([[0.0, 0.0], [5.0, 0.0], [0.0, 3.0]])
     # 0-1 at 5: r0=10, r1=4 -> min 4 < 5, no link; 0-2 at 3: min(10, 3) = 3 -> link (<=).
-    a = np.asarray(graph.adjacency(pos, np.array([10.0, 4.0, 3.0])))
+    a = np.asarray(F.adjacency(pos, np.array([10.0, 4.0, 3.0])))
     np.testing.assert_array_equal(a, [[0, 0, 1], [0, 0, 0], [1, 0, 0]])
     # scalar radius 5: every pair within 5 except 1-2 (√34)
-    a = np.asarray(graph.adjacency(pos, 5.0))
+    a = np.asarray(F.adjacency(pos, 5.0))
     np.testing.assert_array_equal(a, [[0, 1, 1], [1, 0, 0], [1, 0, 0]])
 
 
@@ -223,9 +248,9 @@ def test_lambda2_known_values():
     # Path on 4 nodes: λ2 = 2(1 − cos(π/4)); complete graph K5: λ2 = 5.
     path = np.diag(np.ones(3), 1)
     path = path + path.T
-    assert float(graph.algebraic_connectivity(path)) == pytest.approx(2 * (1 - math.cos(math.pi / 4)))
+    assert float(F.algebraic_connectivity(path)) == pytest.approx(2 * (1 - math.cos(math.pi / 4)))
     k5 = np.ones((5, 5)) - np.eye(5)
-    assert float(graph.algebraic_connectivity(k5)) == pytest.approx(5.0)
+    assert float(F.algebraic_connectivity(k5)) == pytest.approx(5.0)
     with pytest.raises(ValueError):
         graph.algebraic_connectivity(np.zeros((1, 1)))
 
@@ -247,9 +272,23 @@ def test_component_sizes_long_path_needs_all_squarings():
     a = np.zeros((8, 8))
     for u, v in zip(order[:-1], order[1:]):
         a[u, v] = a[v, u] = 1.0
-    np.testing.assert_array_equal(np.asarray(graph.component_sizes(a)), np.full(8, 8.0))
+    np.testing.assert_array_equal(np.asarray(F.component_sizes(a)), np.full(8, 8.0))
     a[7, 2] = a[2, 7] = 0.0  # cut it: {3, 0, 6, 1, 7} and {2, 5, 4}
-    np.testing.assert_array_equal(np.asarray(graph.component_sizes(a)), [5, 5, 3, 5, 3, 3, 5, 5])
+    np.testing.assert_array_equal(np.asarray(F.component_sizes(a)), [5, 5, 3, 5, 3, 3, 5, 5])
+
+
+@fast_jit
+def _adjacency_metrics(a):
+    return [graph.degree(a), graph.laplacian(a), graph.component_sizes(a), graph.algebraic_connectivity(a),
+            graph.laplacian_step_weights(a), graph.metropolis_weights(a), graph.max_degree_weights(a)]
+
+
+def test_self_loops_are_ignored():
+    a = group(6)[1]["adj"]  # a batch of graphs
+    plain = _adjacency_metrics(a)
+    looped = _adjacency_metrics(a + np.eye(6))
+    for x, y in zip(plain, looped):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
 
 # --------------------------------------------------------------------------- hysteresis
@@ -268,9 +307,9 @@ def test_hysteresis_band_explicit():
         pos = np.array([[0.0, 0.0], [dist, 0.0]])
         on = np.array([[0.0, 1.0], [1.0, 0.0]])
         off = np.zeros((2, 2))
-        assert np.asarray(graph.hysteresis_adjacency(on, pos, radius, eps))[0, 1] == kept, dist
-        assert np.asarray(graph.hysteresis_adjacency(off, pos, radius, eps))[0, 1] == created, dist
-        assert np.all(np.diag(np.asarray(graph.hysteresis_adjacency(np.ones((2, 2)), pos, radius, eps))) == 0)
+        assert np.asarray(F.hysteresis_adjacency(on, pos, radius, eps))[0, 1] == kept, dist
+        assert np.asarray(F.hysteresis_adjacency(off, pos, radius, eps))[0, 1] == created, dist
+        assert np.all(np.diag(np.asarray(F.hysteresis_adjacency(np.ones((2, 2)), pos, radius, eps))) == 0)
 
 
 def test_hysteresis_vs_numpy_rule():
@@ -334,7 +373,7 @@ def test_eq11_weights_are_the_paper_step():
 
 def test_eq11_not_doubly_stochastic_on_a_path():
     a = np.array([[0, 1, 0], [1, 0, 1], [0, 1, 0]], dtype=float)  # degrees 1, 2, 1
-    w = np.asarray(graph.laplacian_step_weights(a))
+    w = np.asarray(F.laplacian_step_weights(a))
     np.testing.assert_allclose(w, [[1 / 2, 1 / 2, 0], [1 / 3, 1 / 3, 1 / 3], [0, 1 / 2, 1 / 2]])
     np.testing.assert_allclose(w.sum(1), 1.0)
     assert abs(w.sum(0)[0] - 1.0) > 0.1  # column 0 sums to 5/6
@@ -358,12 +397,12 @@ def test_max_degree_weights():
 
 def test_consensus_weights_dispatch_and_bad_kind():
     a = np.array([[0, 1, 1, 0], [1, 0, 1, 0], [1, 1, 0, 1], [0, 0, 1, 0]], dtype=float)
-    np.testing.assert_array_equal(graph.consensus_weights(a, "eq11"), graph.laplacian_step_weights(a))
-    np.testing.assert_array_equal(graph.consensus_weights(a, "metropolis"), graph.metropolis_weights(a))
-    np.testing.assert_array_equal(graph.consensus_weights(a, "max_degree"), graph.max_degree_weights(a))
+    np.testing.assert_array_equal(F.consensus_weights(a, "eq11"), F.laplacian_step_weights(a))
+    np.testing.assert_array_equal(F.consensus_weights(a, "metropolis"), F.metropolis_weights(a))
+    np.testing.assert_array_equal(F.consensus_weights(a, "max_degree"), F.max_degree_weights(a))
     # The three kinds are genuinely different on this graph.
-    assert not np.allclose(graph.consensus_weights(a, "eq11"), graph.consensus_weights(a, "metropolis"))
-    assert not np.allclose(graph.consensus_weights(a, "max_degree"), graph.consensus_weights(a, "metropolis"))
+    assert not np.allclose(F.consensus_weights(a, "eq11"), F.consensus_weights(a, "metropolis"))
+    assert not np.allclose(F.consensus_weights(a, "max_degree"), F.consensus_weights(a, "metropolis"))
     with pytest.raises(ValueError, match="kind") as info:
         graph.consensus_weights(a, "laplacian")
     for allowed in ("eq11", "metropolis", "max_degree"):
@@ -391,13 +430,13 @@ def test_pair_robustness_and_R_I_vs_brute_force():
 def test_eq15_two_hop_example():
     # Line 0 —(6)— 1 —(6)— 2 with range 10: margins 4, 4, and 0–2 at 12 has margin −2.
     pos = np.array([[0.0, 0.0], [6.0, 0.0], [12.0, 0.0]])
-    rho = np.asarray(graph.pair_robustness(pos, 10.0))
+    rho = np.asarray(F.pair_robustness(pos, 10.0))
     assert rho[0, 2] == pytest.approx(4.0) and rho[0, 1] == pytest.approx(4.0)
-    np.testing.assert_allclose(np.asarray(graph.connectivity_robustness(pos, 10.0)), [2.0, 2.0, 2.0])
+    np.testing.assert_allclose(np.asarray(F.connectivity_robustness(pos, 10.0)), [2.0, 2.0, 2.0])
     # Only agent 2 as info neighbour of 0: still the two-hop value; others have none (+inf).
     info = np.zeros((3, 3), dtype=bool)
     info[0, 2] = True
-    r = np.asarray(graph.connectivity_robustness(pos, 10.0, info))
+    r = np.asarray(F.connectivity_robustness(pos, 10.0, info))
     assert r[0] == pytest.approx(2.0) and np.isposinf(r[1]) and np.isposinf(r[2])
 
 
@@ -421,7 +460,7 @@ def test_rho_sign_is_path_existence_and_least_extra_range():
 
 
 TEMPERATURES = np.array([1.0, 0.1, 0.01, 0.001])
-_smooth_over_t = jax.jit(jax.vmap(graph.smooth_connectivity_robustness, in_axes=(None, None, 0, None)))
+_smooth_over_t = fast_jit(jax.vmap(graph.smooth_connectivity_robustness, in_axes=(None, None, 0, None)))
 
 
 def test_smooth_robustness_converges_to_exact():
@@ -443,14 +482,45 @@ def test_smooth_robustness_converges_to_exact():
             assert errors[-1] <= errors[0] + 1e-12
 
 
+def np_smooth_robustness(pos, radius, t, info):
+    """Soft Floyd–Warshall with numpy loops: max -> T·logaddexp(·/T), min -> −T·logaddexp(−·/T).
+
+    Intermediates k ∈ {i, j} are skipped (no-ops of the exact recursion), as documented.
+    """
+    rho = np_margins(pos, radius)
+    n = len(rho)
+    for k in range(n):
+        for i in range(n):
+            for j in range(n):
+                if len({i, j, k}) == 3:
+                    via = -t * np.logaddexp(-rho[i, k] / t, -rho[k, j] / t)
+                    rho[i, j] = t * np.logaddexp(rho[i, j] / t, via / t)
+    out = np.full(n, np.inf)
+    for i in range(n):
+        vals = np.array([rho[i, j] for j in range(n) if j != i and info[i, j]])
+        if vals.size:
+            out[i] = 0.5 * -t * np.logaddexp.reduce(-vals / t)
+    return out
+
+
+def test_smooth_robustness_vs_numpy_soft_recursion():
+    for n in (4, 7):
+        inputs, _ = group(n)
+        for b in range(0, GROUP, 4):
+            pos, radius, info = inputs["pos"][b], inputs["radius"][b], inputs["info"][b]
+            smooth = np.asarray(_smooth_over_t(pos, radius, TEMPERATURES, info))
+            for t, s in zip(TEMPERATURES, smooth):
+                np.testing.assert_allclose(s, np_smooth_robustness(pos, radius, t, info), rtol=1e-12, atol=1e-12)
+
+
 def test_smooth_robustness_is_genuinely_smooth_at_finite_temperature():
     # At T = 1 the soft value differs from the exact one (the smoothing is not a no-op),
     # and the default info_neighbours (None) agrees with the all-ones mask.
     pos = np.array([[0.0, 0.0], [3.0, 0.0], [0.0, 4.0], [6.0, 5.0]])
-    exact = np.asarray(graph.connectivity_robustness(pos, 5.0))
-    smooth = np.asarray(graph.smooth_connectivity_robustness(pos, 5.0, 1.0))
+    exact = np.asarray(F.connectivity_robustness(pos, 5.0))
+    smooth = np.asarray(F.smooth_connectivity_robustness(pos, 5.0, 1.0))
     assert np.max(np.abs(exact - smooth)) > 0.05
-    ones = np.asarray(graph.smooth_connectivity_robustness(pos, 5.0, 1.0, np.ones((4, 4), bool)))
+    ones = np.asarray(F.smooth_connectivity_robustness(pos, 5.0, 1.0, np.ones((4, 4), bool)))
     np.testing.assert_allclose(smooth, ones, rtol=1e-14)
 
 
@@ -459,8 +529,8 @@ def _weighted_soft(p, radius, temperature, info, w):
     return jnp.dot(w, jnp.where(jnp.isfinite(soft), soft, 0.0))  # drop +inf (no info neighbour)
 
 
-_soft_value_j = jax.jit(jax.vmap(_weighted_soft, in_axes=(0, None, None, None, None)))
-_soft_grad_j = jax.jit(jax.grad(_weighted_soft))
+_soft_value_j = fast_jit(jax.vmap(_weighted_soft, in_axes=(0, None, None, None, None)))
+_soft_grad_j = fast_jit(jax.grad(_weighted_soft))
 
 
 def test_gradients_finite_with_coincident_agents():
@@ -484,7 +554,7 @@ def test_gradients_finite_with_coincident_agents():
             + jnp.sum(jnp.where(jnp.isfinite(margins), margins, 0.0))
         )
 
-    assert np.all(np.isfinite(np.asarray(jax.jit(jax.grad(exact_losses))(pos))))
+    assert np.all(np.isfinite(np.asarray(fast_jit(jax.grad(exact_losses))(pos))))
 
 
 def test_smooth_gradient_matches_finite_differences():
@@ -511,9 +581,9 @@ def _per_graph(pos, radius, alive, info):
     adj = graph.adjacency(pos, radius, alive)
     return {
         "adj_alive": adj,
-        "lambda2": graph.algebraic_connectivity(adj),
+        "lambda2_alive": graph.algebraic_connectivity(adj),
         "sizes_alive": graph.component_sizes(adj),
-        "metropolis": graph.consensus_weights(adj, "metropolis"),
+        "metropolis_alive": graph.consensus_weights(adj, "metropolis"),
         "rho": graph.pair_robustness(pos, radius),
         "r_i_info": graph.connectivity_robustness(pos, radius, info),
         "soft": graph.smooth_connectivity_robustness(pos, radius, 0.2, info),
@@ -524,8 +594,8 @@ def test_vmap_matches_per_graph_calls():
     n = 6
     inputs, direct = group(n)  # the leading-batch-axis call, no vmap
     args = [inputs[k] for k in ("pos", "radius", "alive", "info")]
-    batched = jax.jit(jax.vmap(_per_graph))(*args)
-    single = jax.jit(_per_graph)
+    batched = fast_jit(jax.vmap(_per_graph))(*args)
+    single = fast_jit(_per_graph)
     for b in range(0, GROUP, 4):
         one = single(*(a[b] for a in args))
         for name in batched:
@@ -542,7 +612,7 @@ def test_vmap_matches_per_graph_calls():
 def test_float32_inputs_stay_float32():
     pos = np.array([[0.0, 0.0], [3.0, 4.0], [6.0, 8.0]], dtype=np.float32)
 
-    @jax.jit
+    @fast_jit
     def run(p):
         a = graph.adjacency(p, np.float32(5.0))
         return {

@@ -132,7 +132,7 @@ def default_params(cfg: Config = Config(), **overrides) -> Params:
         uav_speed=800.0,
         alpha_phi=1.0,
         turn_rate_max=np.deg2rad(10.0),
-        heading_cmd=0.0,
+        heading_cmd=float(np.arctan2(-1000.0, 200.0)),
         initial_positions=positions,
         initial_headings=0.0,
         target_x0=np.array([200e3, 200.0, 180e3, -1000.0]),
@@ -165,6 +165,10 @@ class Record(NamedTuple):
     target: jax.Array          # (4,)
 
 
+def _cast(params: Params, dtype) -> Params:
+    return jax.tree.map(lambda a: jnp.asarray(a, dtype), params)
+
+
 def _agents(p, n, dtype):
     return jnp.broadcast_to(jnp.asarray(p, dtype), (n,))
 
@@ -174,6 +178,7 @@ def init(cfg: Config, params: Params, key) -> State:
     (the true initial state with covariance ``diag(p0_diag)``, seed 000 §5)."""
     del key
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
+    params = _cast(params, dtype)
     uavs = jnp.concatenate([
         jnp.asarray(params.initial_positions, dtype),
         _agents(params.uav_speed, n, dtype)[:, None],
@@ -192,6 +197,7 @@ def step(cfg: Config, params: Params, state: State, key) -> tuple[State, Record]
     without predicting (algorithms.md §2).
     """
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
+    params = _cast(params, dtype)
     first = state.t == 0
     k_target, k_meas = jax.random.split(key)
     dt = jnp.asarray(params.dt, dtype)
