@@ -25,10 +25,11 @@ def symmetrize(a: jax.Array) -> jax.Array:
 
 
 def wrap_angle(a: jax.Array) -> jax.Array:
-    """Wrap angles to (−π, π]."""
+    """Wrap angles to (−π, π]; angles already inside are returned bit-for-bit unchanged."""
     wrapped = jnp.mod(a + jnp.pi, 2.0 * jnp.pi) - jnp.pi
     # mod maps +π to −π; keep +π so the interval is (−π, π].
-    return jnp.where(wrapped == -jnp.pi, jnp.pi, wrapped)
+    wrapped = jnp.where(wrapped == -jnp.pi, jnp.pi, wrapped)
+    return jnp.where((a > -jnp.pi) & (a <= jnp.pi), a, wrapped)
 
 
 def safe_norm(x: jax.Array, axis: int = -1, eps: float = 1e-30) -> jax.Array:

@@ -170,8 +170,6 @@ ON_SENSOR_X = jnp.array([10.0, 1.0, -20.0, 2.0])
 ON_SENSOR_S = jnp.array([10.0, -20.0])
 
 
-@pytest.mark.xfail(strict=True, reason="BUG mcjax/models/sensors.py: arctan2(0, 0) has a NaN "
-                   "derivative, so the bearing row of jacfwd is NaN when the target is on the sensor")
 def test_range_bearing_jacobian_finite_on_sensor():
     jx, js = (np.asarray(j) for j in _jac(ON_SENSOR_X, ON_SENSOR_S))
     assert np.all(np.isfinite(jx)) and np.all(np.isfinite(js)), (jx, js)
@@ -350,9 +348,6 @@ def test_heading_command_reached_steady_state():
     np.testing.assert_allclose(step, 800.0 * np.stack([np.cos(cmd), np.sin(cmd)], -1), rtol=1e-9, atol=1e-6)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG mcjax/models/platforms.py: one RK4 step over the "
-                   "saturated heading loop has spurious fixed points when alpha_phi*dt > ~2.79 "
-                   "(RK4 stability limit); the heading then stalls short of the command")
 @pytest.mark.parametrize("alpha", [3.0, 5.0, 50.0])
 def test_heading_command_reached_large_gain_unit_step(alpha):
     state = np.array([[0.0, 0.0, 200.0, 0.05]])

@@ -13,10 +13,15 @@ def range_bearing(x: jax.Array, sensor: jax.Array) -> jax.Array:
 
     Sun et al. 2011 (seed 000) §1.3: ``h = [√((x−sx)² + (y−sy)²), atan2(y−sy, x−sx)]``
     (the paper prints ``arctan``; the four-quadrant form is meant). The norm is the safe
-    form, so ``jax.jacfwd`` is finite even when the target sits on the sensor.
+    form and the bearing is guarded, so ``jax.jacfwd`` is finite even when the target sits
+    on the sensor.
     """
     d = jnp.stack([x[..., 0] - sensor[..., 0], x[..., 2] - sensor[..., 1]], axis=-1)
-    return jnp.stack([safe_norm(d), jnp.arctan2(d[..., 1], d[..., 0])], axis=-1)
+    # double-where: at the sensor itself the bearing is 0 with a zero (finite) derivative
+    on_sensor = (d[..., 0] == 0.0) & (d[..., 1] == 0.0)
+    dx = jnp.where(on_sensor, 1.0, d[..., 0])
+    bearing = jnp.where(on_sensor, 0.0, jnp.arctan2(d[..., 1], dx))
+    return jnp.stack([safe_norm(d), bearing], axis=-1)
 
 
 def in_range(x: jax.Array, sensor: jax.Array, max_range) -> jax.Array:
