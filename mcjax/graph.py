@@ -26,7 +26,7 @@ import math
 import jax
 import jax.numpy as jnp
 
-from mcjax.numerics import safe_norm, softmin
+from mcjax.numerics import matmul, safe_norm, softmin
 
 WEIGHT_KINDS = ("eq11", "metropolis", "max_degree")
 
@@ -173,7 +173,7 @@ def component_sizes(adj) -> jax.Array:
     reach = (a > 0.5) | jnp.eye(n, dtype=bool)
     for _ in range(math.ceil(math.log2(max(n, 1))) + 1):
         r = reach.astype(a.dtype)
-        reach = jnp.matmul(r, r) > 0.5  # integer counts ≤ n: exact in any float dtype
+        reach = matmul(r, r) > 0.5  # integer counts ≤ n: exact in any float dtype
     return jnp.sum(reach, axis=-1).astype(a.dtype)
 
 

@@ -55,18 +55,34 @@ def softmax_value(x: jax.Array, temperature: jax.Array | float, axis: int = -1) 
 
 
 def matmul(a: jax.Array, b: jax.Array) -> jax.Array:
-    """Batched ``a @ b`` written as broadcast-multiply-and-sum.
+    """Batched ``a @ b`` with the contraction unrolled into broadcast multiply-adds.
 
-    For the 2–6 sized matrices of this package this fuses into elementwise loops, and —
-    unlike a batched ``dot_general`` — gives per-element results that do not depend on the
-    batch size (needed for chunk-size-independent results).
+    For the 2–6 sized matrices of this package this fuses into elementwise loops (XLA's CPU
+    reductions over tiny axes are several times slower), and — unlike a batched
+    ``dot_general`` — its per-element result does not depend on the batch size.
     """
-    return jnp.sum(a[..., :, :, None] * b[..., None, :, :], axis=-2)
+    out = a[..., :, 0, None] * b[..., None, 0, :]
+    for k in range(1, a.shape[-1]):
+        out = out + a[..., :, k, None] * b[..., None, k, :]
+    return out
 
 
 def matvec(a: jax.Array, v: jax.Array) -> jax.Array:
     """Batched ``a @ v`` (see :func:`matmul`)."""
-    return jnp.sum(a * v[..., None, :], axis=-1)
+    out = a[..., :, 0] * v[..., 0, None]
+    for k in range(1, a.shape[-1]):
+        out = out + a[..., :, k] * v[..., k, None]
+    return out
+
+
+def mix(w: jax.Array, values: jax.Array) -> jax.Array:
+    """``out_i = Σ_j w_ij values_j`` over the leading (agent) axis of ``values`` (n, ...),
+    unrolled over j like :func:`matmul`."""
+    extra = (1,) * (values.ndim - 1)
+    out = w[:, 0].reshape((-1,) + extra) * values[0][None]
+    for j in range(1, w.shape[1]):
+        out = out + w[:, j].reshape((-1,) + extra) * values[j][None]
+    return out
 
 
 def quad(a: jax.Array, p: jax.Array) -> jax.Array:
@@ -75,21 +91,28 @@ def quad(a: jax.Array, p: jax.Array) -> jax.Array:
 
 
 def _cholesky_unrolled(a: jax.Array) -> list[list[jax.Array]]:
-    """Lower Cholesky factor as a nested list of scalar arrays (batch shape ``a.shape[:-2]``)."""
-    n = a.shape[-1]
+    """Lower Cholesky factor of ``a`` given with the matrix axes FIRST, (n, n, ...), as a
+    nested list of batch-shaped arrays."""
+    n = a.shape[0]
     l = [[None] * n for _ in range(n)]
     for j in range(n):
-        s = a[..., j, j]
+        s = a[j, j]
         for k in range(j):
             s = s - l[j][k] * l[j][k]
         d = jnp.sqrt(s)  # NaN if a is not positive definite: surfaced, never hidden
         l[j][j] = d
         for i in range(j + 1, n):
-            s = a[..., i, j]
+            s = a[i, j]
             for k in range(j):
                 s = s - l[i][k] * l[j][k]
             l[i][j] = s / d
     return l
+
+
+def _matrix_axes_first(a: jax.Array) -> jax.Array:
+    # One transpose so every scalar slice below is contiguous over the batch (SIMD-friendly);
+    # slicing the last two axes of a batch-first array is strided and ~3x slower on the CPU.
+    return jnp.moveaxis(a, (-2, -1), (0, 1))
 
 
 def spd_inverse(a: jax.Array) -> jax.Array:
@@ -104,26 +127,25 @@ def spd_inverse(a: jax.Array) -> jax.Array:
         eye = jnp.broadcast_to(jnp.eye(n, dtype=a.dtype), a.shape)
         linv = jax.scipy.linalg.solve_triangular(c, eye, lower=True)
         return jnp.swapaxes(linv, -1, -2) @ linv
-    l = _cholesky_unrolled(a)
+    l = _cholesky_unrolled(_matrix_axes_first(a))
     # m = L⁻¹ (lower triangular), by forward substitution column by column.
     m = [[None] * n for _ in range(n)]
     for j in range(n):
         m[j][j] = 1.0 / l[j][j]
         for i in range(j + 1, n):
-            s = 0.0
-            for k in range(j, i):
+            s = l[i][j] * m[j][j]
+            for k in range(j + 1, i):
                 s = s + l[i][k] * m[k][j]
             m[i][j] = -s / l[i][i]
-    rows = []
+    out = [[None] * n for _ in range(n)]
     for i in range(n):
-        row = []
-        for j in range(n):
-            s = 0.0
-            for k in range(max(i, j), n):
+        for j in range(i, n):
+            s = m[j][i] * m[j][j]
+            for k in range(j + 1, n):
                 s = s + m[k][i] * m[k][j]
-            row.append(s)
-        rows.append(jnp.stack(row, axis=-1))
-    return jnp.stack(rows, axis=-2)
+            out[i][j] = out[j][i] = s
+    stacked = jnp.stack([jnp.stack(row) for row in out])  # (n, n, ...)
+    return jnp.moveaxis(stacked, (0, 1), (-2, -1))
 
 
 def spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
@@ -136,7 +158,7 @@ def spd_logdet(a: jax.Array) -> jax.Array:
     n = a.shape[-1]
     if n > UNROLL_MAX:
         return 2.0 * jnp.sum(jnp.log(jnp.diagonal(jnp.linalg.cholesky(a), axis1=-2, axis2=-1)), -1)
-    l = _cholesky_unrolled(a)
+    l = _cholesky_unrolled(_matrix_axes_first(a))
     return 2.0 * sum(jnp.log(l[j][j]) for j in range(n))
 
 

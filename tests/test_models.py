@@ -290,7 +290,7 @@ def test_straight_flight_exact():
     np.testing.assert_allclose(out[:, 1], -2e3 + v * dt * np.sin(phis), rtol=1e-14, atol=1e-10)
     np.testing.assert_allclose(out[:, 2], v, rtol=1e-15)
     np.testing.assert_allclose(out[:, 3], phis, rtol=0, atol=1e-15)
-    # constant acceleration in a straight line: RK4 is exact for the quadratic path
+    # constant acceleration in a straight line: the path is quadratic in t, integrated exactly
     a = 2.0
     out = _run(state, phis, a, 1.0, _limits(), dt)[0]
     s = v * dt + 0.5 * a * dt * dt
@@ -317,7 +317,7 @@ def test_turn_rate_never_exceeds_limit(alpha, dt):
 
 
 def test_shortest_turn_and_convergence():
-    alpha, dt = 20.0, 0.1  # a "large" gain, with α·dt inside the RK4 stability interval
+    alpha, dt = 20.0, 0.1  # a "large" gain (α·dt = 2; see also the α·dt > 2.8 test below)
     cases = [(170.0, -170.0, +1), (-170.0, 170.0, -1), (10.0, -10.0, -1), (-135.0, 135.0, -1),
              (90.0, -91.0, +1), (0.0, 179.0, +1)]
     start = np.array([c[0] for c in cases]) * DEG
@@ -381,8 +381,8 @@ def test_speed_stays_within_limits():
 
 
 @pytest.mark.parametrize("dt", [0.1, 0.05])
-def test_rk4_step_matches_solve_ivp(dt):
-    """No limit active: one RK4 step equals the ODE solution (seed 000 eq. 3) to ~1e-6."""
+def test_step_matches_solve_ivp(dt):
+    """No limit active: one step equals the ODE solution (seed 000 eq. 3) to ~1e-6."""
     alpha, accel, cmd = 0.5, 1.0, 0.15
     s0 = np.array([1e3, -500.0, 200.0, 0.1])
     lim = _limits(v_min=50.0, v_max=400.0, a_min=-5.0, a_max=5.0, turn=1.0)
@@ -398,3 +398,98 @@ def test_rk4_step_matches_solve_ivp(dt):
     np.testing.assert_allclose(out - s0, ref - s0, rtol=1e-6, atol=0)
     # the heading increment also matches the first-order closed form (φc − φ0)(1 − e^{−α dt})
     np.testing.assert_allclose(out[3] - s0[3], (cmd - s0[3]) * (1 - math.exp(-alpha * dt)), rtol=1e-6)
+
+
+def _clipped_rhs(alpha, cmd, accel, turn):
+    """Seed 000 eq. 3 with the eq. 4 turn-rate limit and the shortest-turn heading error."""
+
+    def rhs(_, s):
+        rate = min(max(alpha * math.remainder(cmd - s[3], 2 * math.pi), -turn), turn)
+        return [s[2] * math.cos(s[3]), s[2] * math.sin(s[3]), accel, rate]
+
+    return rhs
+
+
+@pytest.mark.parametrize("alpha, dt, phi0, cmd, accel", [
+    (1.0, 1.0, 0.0, 1.0, 0.0),      # turn-rate limit active over the whole step
+    (1.0, 1.0, 0.0, 0.2, 2.0),      # limit active, then the exponential approach, in one step
+    (5.0, 1.0, 3.0, -3.0, 0.0),     # large gain, shortest turn across the ±π seam
+    (50.0, 2.0, -0.3, 0.1, -1.0),   # very large gain: saturated, then practically on the command
+])
+def test_step_matches_solve_ivp_with_turn_limit(alpha, dt, phi0, cmd, accel):
+    turn = 10 * DEG
+    s0 = np.array([1e3, -500.0, 200.0, phi0])
+    sol = solve_ivp(_clipped_rhs(alpha, cmd, accel, turn), (0.0, dt), s0, method="DOP853",
+                    rtol=1e-12, atol=1e-12, max_step=dt / 400)
+    assert sol.success
+    ref = sol.y[:, -1]
+    out = _run(s0, cmd, accel, alpha, _limits(v_min=50.0, v_max=400.0, turn=turn), dt)[0, 0]
+    np.testing.assert_allclose(np.angle(np.exp(1j * (out[3] - ref[3]))), 0.0, atol=1e-8)
+    np.testing.assert_allclose(out[2], ref[2], rtol=1e-12)
+    # position: within 1e-4 of the distance flown (the heading rate has a kink inside the step)
+    np.testing.assert_allclose(out[:2], ref[:2], rtol=0, atol=1e-4 * 200.0 * dt)
+
+
+def test_speed_limit_reached_inside_the_step():
+    """Straight flight accelerating into v_max mid-step: distance = ∫ min(v0 + a t, v_max) dt."""
+    v0, a, v_max = np.array([395.0, 398.0, 300.0]), 5.0, 400.0
+    dt = 2.0
+    state = np.stack([np.zeros(3), np.zeros(3), v0, np.zeros(3)], -1)
+    out = _run(state, 0.0, a, 1.0, _limits(v_min=50.0, v_max=v_max), dt)[0]
+    t1 = np.minimum((v_max - v0) / a, dt)
+    dist = v0 * t1 + 0.5 * a * t1**2 + v_max * (dt - t1)
+    np.testing.assert_allclose(out[:, 2], np.minimum(v0 + a * dt, v_max), rtol=1e-14)
+    np.testing.assert_allclose(out[:, 0], dist, rtol=1e-4)
+    np.testing.assert_allclose(out[:, 1], 0.0, atol=1e-9)
+
+
+def _step_jacobian(state, cmd, alpha, limits, dt):
+    """jacfwd-equivalent of one step w.r.t. [state, heading_cmd] (4 × 5), as a jit(vmap(jvp))
+    around a fixed point (the cheapest form to compile)."""
+
+    def tangent(ds, dc):
+        return jax.jvp(lambda s, c: unicycle_step(s, c, 0.0, alpha, limits, dt),
+                       (jnp.asarray(state), jnp.asarray(cmd)), (ds, dc))[1]
+
+    eye = jnp.eye(5)
+    return np.asarray(jax.jit(jax.vmap(tangent))(eye[:, :4], eye[:, 4])).T
+
+
+def _step_fd(state, cmd, alpha, limits, dt):
+    """Central differences of one step w.r.t. the state (4 columns) and the heading command,
+    evaluated as one batch of 10 perturbed UAVs."""
+    h = np.array([1e-3, 1e-3, 1e-3, 1e-6, 1e-6])
+    states, cmds = np.tile(state, (10, 1)), np.full(10, cmd)
+    for j in range(5):
+        for sgn, row in ((1.0, 2 * j), (-1.0, 2 * j + 1)):
+            if j < 4:
+                states[row, j] += sgn * h[j]
+            else:
+                cmds[row] += sgn * h[j]
+    out = _run(states, cmds, 0.0, alpha, limits, dt)[0]
+    return ((out[0::2] - out[1::2]) / (2 * h[:, None])).T
+
+
+@pytest.mark.parametrize("err", [0.05, 0.0])
+def test_step_gradient_matches_finite_differences(err):
+    """Gradient-based planning differentiates the step w.r.t. the heading command: jacfwd must
+    match central differences and, for the heading, the closed form of the linear regime."""
+    alpha, dt, cmd = 1.0, 1.0, 0.4
+    lim = _limits(v_min=100.0, v_max=1000.0)
+    state = np.array([1e3, 2e3, 800.0, cmd - err])
+    jac = _step_jacobian(state, cmd, alpha, lim, dt)
+    assert jac.shape == (4, 5)
+    fd = _step_fd(state, cmd, alpha, lim, dt)
+    decay = math.exp(-alpha * dt)
+    np.testing.assert_allclose(jac[3, 3], decay, rtol=1e-9)       # ∂φ'/∂φ
+    np.testing.assert_allclose(jac[3, 4], 1.0 - decay, rtol=1e-9)  # ∂φ'/∂φᶜ
+    np.testing.assert_allclose(jac, fd, rtol=1e-6, atol=1e-5)
+
+
+def test_zero_turn_rate_limit_is_finite():
+    """A platform that cannot turn (turn_rate_max = 0) flies straight, whatever the command."""
+    state = np.array([[0.0, 0.0, 200.0, 0.3], [0.0, 0.0, 200.0, 0.3]])
+    out = _run(state, [0.3, 1.0], 0.0, 1.0, _limits(turn=0.0), 1.0)[0]
+    np.testing.assert_allclose(out[:, 3], 0.3, rtol=1e-15)
+    np.testing.assert_allclose(out[:, :2], np.tile([200.0 * math.cos(0.3), 200.0 * math.sin(0.3)], (2, 1)),
+                               rtol=1e-12)

@@ -36,7 +36,7 @@ from mcjax.filters.gaussian import (
     predict_information,
     predict_moments,
 )
-from mcjax.numerics import matvec, spd_inverse, symmetrize
+from mcjax.numerics import matvec, mix, spd_inverse, symmetrize
 
 FILTER_KINDS = ("cif", "icf", "modified_icf", "kcf", "local")
 CONTRIBUTION_KINDS = ("component", "one")
@@ -90,10 +90,8 @@ def consensus(W: jax.Array, values: jax.Array, steps: int) -> jax.Array:
     With ``W`` from :func:`mcjax.graph.laplacian_step_weights` one iteration is seed 000
     eq. 11, ``v_i ← v_i − (1/(1+d_i)) Σ_j a_ij (v_i − v_j)``. ``values`` is (n, ...).
     """
-    Wb = W.reshape(W.shape + (1,) * (values.ndim - 1))
-
     def body(_, v):
-        return jnp.sum(Wb * v[None], axis=1)
+        return mix(W, v)
 
     if steps == 0:
         return values
@@ -118,7 +116,8 @@ def cif_step(h, angle_mask, post: Gaussian, meas: Measurements, F, Q) -> Gaussia
     """
     xb, _, yb, Yb = predict_information(post.x, post.P, F, Q)
     i, I, _ = contributions(h, meas.z, meas.sensors, xb, meas.R_inv, angle_mask)
-    return from_information(yb + jnp.sum(i, 0), Yb + jnp.sum(I, 0))
+    ones = jnp.ones((1, i.shape[0]), i.dtype)
+    return from_information(yb + mix(ones, i)[0], Yb + mix(ones, I)[0])
 
 
 def local_step(h, angle_mask, post: Gaussian, meas: Measurements, F, Q) -> Gaussian:
@@ -176,11 +175,11 @@ def kcf_step(h, angle_mask, opts, epsilon, post: Gaussian, meas: Measurements, F
     u, U, _ = contributions(h, meas.z, meas.sensors, xb, meas.R_inv, angle_mask)
     A = meas.adjacency
     inclusive = A + jnp.eye(A.shape[0], dtype=A.dtype)
-    S = jnp.sum(inclusive[:, :, None, None] * U[None], axis=1)
-    yv = jnp.sum(inclusive[:, :, None] * u[None], axis=1)
+    S = mix(inclusive, U)
+    yv = mix(inclusive, u)
     Y = symmetrize(spd_inverse(Pb) + S)
     M = symmetrize(spd_inverse(Y))
-    disagreement = jnp.sum(A[:, :, None] * (xb[None, :, :] - xb[:, None, :]), axis=1)
+    disagreement = mix(A, xb) - jnp.sum(A, axis=1)[:, None] * xb
     if opts.kcf_gain == "gamma_M":
         gain = (epsilon / (1.0 + jnp.sqrt(jnp.sum(M * M, axis=(-1, -2)))))[:, None, None] * M
     else:

@@ -45,11 +45,17 @@ def heading_at(phi0, heading_cmd, alpha_phi, turn_rate_max, t):
     """
     e0 = wrap_angle(heading_cmd - phi0)
     sign, mag = jnp.sign(e0), jnp.abs(e0)
-    e_sat = turn_rate_max / alpha_phi
-    t_sat = jnp.maximum(mag - e_sat, 0.0) / turn_rate_max
-    err = jnp.where(t <= t_sat, mag - turn_rate_max * t,
-                    jnp.minimum(mag, e_sat) * jnp.exp(-alpha_phi * jnp.maximum(t - t_sat, 0.0)))
-    return wrap_angle(phi0 + (e0 - sign * err))
+    alpha = jnp.where(alpha_phi > 0, alpha_phi, 1.0)
+    rate = jnp.where(turn_rate_max > 0, turn_rate_max, 1.0)
+    e_sat = jnp.where(alpha_phi > 0, turn_rate_max / alpha, jnp.inf)
+    # unsaturated: e(t) = e0 exp(−α t) — written in e0 (not |e0|) so gradients are right at e0 = 0
+    linear = e0 * jnp.exp(-alpha_phi * t)
+    # saturated: turn at the limit until |e| = e_sat, then decay
+    t_sat = jnp.where(turn_rate_max > 0, (mag - jnp.minimum(e_sat, mag)) / rate, jnp.inf)
+    late = sign * jnp.minimum(e_sat, mag) * jnp.exp(-alpha * jnp.maximum(t - t_sat, 0.0))
+    saturated = jnp.where(t <= t_sat, e0 - sign * turn_rate_max * t, late)
+    err = jnp.where(mag <= e_sat, linear, saturated)
+    return wrap_angle(phi0 + (e0 - err))
 
 
 def speed_at(v0, accel_cmd, limits: UnicycleLimits, t):
