@@ -163,6 +163,8 @@ class Record(NamedTuple):
     n_seeing: jax.Array        # () agents with a measurement
     positions: jax.Array       # (n, 2)
     target: jax.Array          # (4,)
+    measurements: jax.Array    # (n, 2) range–bearing, NaN where none
+    adjacency: jax.Array       # (n, n) comm graph
 
 
 def _cast(params: Params, dtype) -> Params:
@@ -242,6 +244,8 @@ def step(cfg: Config, params: Params, state: State, key) -> tuple[State, Record]
         n_seeing=jnp.sum(jnp.all(jnp.isfinite(z), axis=-1)),
         positions=sensors,
         target=target,
+        measurements=z,
+        adjacency=adj,
     )
     return State(state.t + 1, target, uavs, filters), rec
 
