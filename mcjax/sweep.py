@@ -91,15 +91,19 @@ def _check_params(scenario, table, where):
             raise SpecError(f"{where}{k}: must be finite; got {v!r}")
 
 
+def _read_toml(path: Path, what: str) -> dict:
+    try:
+        return tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise SpecError(f"{what} not found: {path}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{path}: not valid TOML: {exc}") from None
+
+
 def load_config_file(path: str | Path):
     """``(scenario, Config, params dict)`` from a ``configs/*.toml`` file."""
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise SpecError(f"config file not found: {path}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise SpecError(f"{path}: not valid TOML: {exc}") from None
+    data = _read_toml(path, "config file")
     _check_keys(f"{path.name}: ", data, ("scenario", "config", "params", "description"))
     if "scenario" not in data:
         raise SpecError(f"{path.name}: scenario: missing; allowed: {', '.join(scenarios.SCENARIOS)}")
@@ -117,12 +121,7 @@ def load_spec(path: str | Path, *, seeds: int | None = None, chunk_size: int | N
               overrides: dict[str, Any] | None = None) -> SweepSpec:
     """Read and validate a sweep spec; raises :class:`SpecError` naming the key path."""
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise SpecError(f"sweep spec not found: {path}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise SpecError(f"{path}: not valid TOML: {exc}") from None
+    data = _read_toml(path, "sweep spec")
     for key, value in (overrides or {}).items():
         table, _, name = key.rpartition(".")
         target = data.setdefault(table, {}) if table else data
