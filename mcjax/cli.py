@@ -71,24 +71,30 @@ def main() -> None:
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
               help="Override a spec key, e.g. --set params.comm_radius=80e3 or --set config.n_steps=100. Repeatable.")
 @click.option("--dry-run", is_flag=True, help="Print the points, run count and chunk plan; compile and write nothing.")
+@click.option("--resume", is_flag=True,
+              help="Finish an interrupted sweep in OUT: run only the chunks with no part file yet.")
 @click.option("--force", is_flag=True, help="Delete an existing output folder first.")
-def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, force):
+def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force):
     """Run the sweep SPEC: every grid point x every seed, results to OUT/runs/*.parquet.
 
-    Prints a summary per point and filter (runs, divergences, mean RMSE over all and over
-    non-divergent runs, smallest lambda2) when done.
+    Each chunk of runs is written as one Parquet part file (atomically: temporary name,
+    then rename), so Ctrl-C or a killed process loses at most the chunk in flight, and
+    --resume completes exactly the missing chunks. Prints a summary per point and filter
+    (runs, divergences, mean RMSE over all and over non-divergent runs, smallest lambda2).
     """
     from mcjax import results
     from mcjax.engine import chunk_plan
     from mcjax.sweep import SpecError, load_spec, points, run_sweep
 
+    if resume and force:
+        _fail("--resume and --force exclude each other")
     try:
         s = load_spec(spec, seeds=seeds, chunk_size=chunk_size, overrides=_parse_set(sets))
     except SpecError as exc:
         _fail(str(exc))
     out_dir = out_dir or Path("results") / spec.stem
-    size = min(s.chunk_size, s.n_runs)
-    plan = chunk_plan(s.n_runs, size)
+    plan = chunk_plan(s.n_runs, s.chunk_size)
+    size = plan[0][1] - plan[0][0]
     click.echo(f"scenario {s.scenario.NAME}: {s.n_points} point(s) x {s.seeds} seed(s) = {s.n_runs} runs, "
                f"{len(plan)} chunk(s) of {size}, filters {', '.join(s.config.filters)}")
     if dry_run:
@@ -96,22 +102,50 @@ def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, force):
         for i, (a, b) in enumerate(plan):
             click.echo(f"chunk {i}: runs {a}..{b - 1}")
         return
-    if out_dir.exists() and any(out_dir.iterdir()):
+    identity = json.loads(json.dumps({"spec": s.source, "seeds": s.seeds, "base_seed": s.base_seed,
+                                      "chunk_size": size, "n_runs": s.n_runs}, default=str))
+    state = out_dir / "sweep.json"
+    todo = None
+    if resume:
+        if not state.exists():
+            _fail(f"nothing to resume in {out_dir}: no sweep.json (start the sweep without --resume)")
+        saved = json.loads(state.read_text())
+        if saved != identity:
+            diff = sorted(k for k in identity if saved.get(k) != identity.get(k))
+            _fail(f"{out_dir} holds a different sweep ({', '.join(diff)} differ); --resume needs the same "
+                  f"spec, seeds and chunk size")
+        results.clean_staging(out_dir)
+        done = set(results.existing_parts(out_dir, "runs"))
+        todo = [i for i in range(len(plan)) if f"part-{i:06d}" not in done]
+        click.echo(f"resuming: {len(plan) - len(todo)} of {len(plan)} chunk(s) already written")
+    elif out_dir.exists() and any(out_dir.iterdir()):
         if not force:
-            _fail(f"output folder {out_dir} is not empty; pass --force to replace it or choose another --out")
+            _fail(f"output folder {out_dir} is not empty; pass --resume to finish it, --force to replace it, "
+                  f"or choose another --out")
         shutil.rmtree(out_dir)
+    if not resume:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        state.write_text(json.dumps(identity, indent=1))
     enable_float64()
     from tqdm import tqdm
 
     meta = {"spec": s.source, "config": dataclasses.asdict(s.config), "scenario": s.scenario.NAME,
             "seeds": s.seeds, "base_seed": s.base_seed, "chunk_size": size, **results.environment_metadata()}
+    remaining = s.n_runs if todo is None else sum(plan[i][1] - plan[i][0] for i in todo)
     t0 = time.perf_counter()
-    with tqdm(total=s.n_runs, unit="run", desc="sweep", disable=None) as bar:
-        df = run_sweep(s, out_dir, progress=bar.update, metadata=meta)
+    try:
+        with tqdm(total=remaining, unit="run", desc="sweep", disable=None) as bar:
+            run_sweep(s, out_dir, chunks=todo, progress=bar.update, metadata=meta)
+    except KeyboardInterrupt:
+        n_done = len(results.existing_parts(out_dir, "runs"))
+        click.echo(f"\ninterrupted: {n_done} of {len(plan)} chunk(s) written to {out_dir}; "
+                   f"finish with: mcjax sweep {spec} --out {out_dir} --resume", err=True)
+        sys.exit(130)
     elapsed = time.perf_counter() - t0
-    click.echo(f"wrote {len(df)} rows to {out_dir / 'runs'} in {elapsed:.1f} s "
-               f"({s.n_runs / elapsed:.1f} runs/s incl. compilation)")
-    _print_summary(df, list(s.grid))
+    df = results.read_table(out_dir, "runs")
+    click.echo(f"{len(df)} rows in {out_dir / 'runs'}; {remaining} runs in {elapsed:.1f} s "
+               f"({remaining / max(elapsed, 1e-9):.1f} runs/s incl. compilation)")
+    _print_summary(df, s.axes)
 
 
 @main.command()

@@ -1,8 +1,7 @@
 """Sweep specs → batched Params; point ids; running a sweep into a Parquet dataset.
 
 A config file (``configs/*.toml``) holds a scenario's ``[config]`` and ``[params]``. A sweep
-spec (``sweeps/*.toml``) names a base config file and adds overrides and a ``[grid]`` whose
-axes (lists of values of Params fields) are combined as a cartesian product::
+spec (``sweeps/*.toml``) names a base config file and adds overrides and axes::
 
     base = "../configs/sun2011.toml"   # relative to the spec file
     seeds = 100
@@ -10,8 +9,16 @@ axes (lists of values of Params fields) are combined as a cartesian product::
     chunk_size = 1000
     [config]      # Config overrides (recompile)
     [params]      # Params overrides
-    [grid]        # axes: Params field -> list of values
-    comm_radius = [60e3, 80e3, 100e3]
+    [grid]        # axes combined as a cartesian product
+    comm_radius = [60e3, 80e3, 100e3]                  # an explicit list
+    sigma_bearing = {linspace = [0.005, 0.03, 6]}       # start, stop, count
+    sensing_radius = {logspace = [5e4, 2e5, 4]}         # geometric from start to stop
+    [zip]         # axes of equal length walked together (one more product axis)
+    uav_speed = [600.0, 800.0]
+    turn_rate_max = [0.1, 0.2]
+
+Points are the product of the grid axes (in the order written) and the zipped block;
+``point_id`` numbers them in that order.
 """
 
 from __future__ import annotations
@@ -30,7 +37,8 @@ import pandas as pd
 
 from mcjax import scenarios
 
-SPEC_KEYS = ("scenario", "base", "seeds", "base_seed", "chunk_size", "config", "params", "grid", "description")
+SPEC_KEYS = ("scenario", "base", "seeds", "base_seed", "chunk_size", "config", "params", "grid", "zip",
+             "description")
 
 
 class SpecError(ValueError):
@@ -56,14 +64,21 @@ class SweepSpec:
     config: Any
     base_params: Any
     grid: dict = field(default_factory=dict)
+    zipped: dict = field(default_factory=dict)
     seeds: int = 20
     base_seed: int = 0
     chunk_size: int = 1000
     source: dict = field(default_factory=dict)
 
     @property
+    def axes(self) -> list[str]:
+        """Every swept Params field: the grid axes, then the zipped ones."""
+        return [*self.grid, *self.zipped]
+
+    @property
     def n_points(self) -> int:
-        return int(np.prod([len(v) for v in self.grid.values()])) if self.grid else 1
+        n = int(np.prod([len(v) for v in self.grid.values()])) if self.grid else 1
+        return n * (len(next(iter(self.zipped.values()))) if self.zipped else 1)
 
     @property
     def n_runs(self) -> int:
@@ -82,6 +97,7 @@ def _build_config(scenario, table, where):
 
 def _check_params(scenario, table, where):
     _check_keys(where, table, scenario.Params._fields)
+    ranges = getattr(scenario, "PARAM_RANGES", {})
     for k, v in table.items():
         try:
             arr = np.asarray(v, dtype=np.float64)
@@ -89,6 +105,31 @@ def _check_params(scenario, table, where):
             raise SpecError(f"{where}{k}: must be a number or a list of numbers; got {v!r}") from None
         if not np.all(np.isfinite(arr)):
             raise SpecError(f"{where}{k}: must be finite; got {v!r}")
+        if k in ranges:
+            lo, hi, text = ranges[k]
+            if not np.all((arr >= lo) & (arr <= hi)):
+                raise SpecError(f"{where}{k}: must be {text}; got {v!r}")
+
+
+def _axis_values(where: str, v) -> list:
+    """An axis given as a list, or as ``{linspace = [a, b, n]}`` / ``{logspace = [a, b, n]}``."""
+    if isinstance(v, dict):
+        if len(v) != 1 or next(iter(v)) not in ("linspace", "logspace"):
+            raise SpecError(f"{where}: a range must be {{linspace = [start, stop, count]}} or "
+                            f"{{logspace = [start, stop, count]}}; got {v!r}")
+        kind, args = next(iter(v.items()))
+        if (not isinstance(args, list) or len(args) != 3 or not isinstance(args[2], int)
+                or isinstance(args[2], bool) or args[2] < 1):
+            raise SpecError(f"{where}.{kind}: must be [start, stop, count] with an integer count >= 1; got {args!r}")
+        a, b, n = args
+        if kind == "logspace":
+            if not (a > 0 and b > 0):
+                raise SpecError(f"{where}.logspace: start and stop must be > 0; got {args!r}")
+            return np.geomspace(a, b, n).tolist()
+        return np.linspace(a, b, n).tolist()
+    if not isinstance(v, list) or not v:
+        raise SpecError(f"{where}: must be a non-empty list of values or a linspace/logspace range; got {v!r}")
+    return v
 
 
 def _read_toml(path: Path, what: str) -> dict:
@@ -140,12 +181,23 @@ def load_spec(path: str | Path, *, seeds: int | None = None, chunk_size: int | N
         cfg = _build_config(scenario, base_cfg, "config.")
     _check_params(scenario, data.get("params", {}), "params.")
     params.update(data.get("params", {}))
-    grid = data.get("grid", {})
-    _check_keys("grid.", grid, scenario.Params._fields)
-    for k, v in grid.items():
-        if not isinstance(v, list) or not v:
-            raise SpecError(f"grid.{k}: must be a non-empty list of values; got {v!r}")
-        _check_params(scenario, {k: v}, "grid.")
+    axes = {}
+    for table in ("grid", "zip"):
+        raw = data.get(table, {})
+        if not isinstance(raw, dict):
+            raise SpecError(f"{table}: must be a table of Params axes; got {raw!r}")
+        _check_keys(f"{table}.", raw, scenario.Params._fields)
+        axes[table] = {k: _axis_values(f"{table}.{k}", v) for k, v in raw.items()}
+        for k, v in axes[table].items():
+            for value in v:
+                _check_params(scenario, {k: value}, f"{table}.")
+    grid, zipped = axes["grid"], axes["zip"]
+    both = set(grid) & set(zipped)
+    if both:
+        raise SpecError(f"zip.{sorted(both)[0]}: already a grid axis; an axis goes in [grid] or [zip], not both")
+    lengths = {k: len(v) for k, v in zipped.items()}
+    if len(set(lengths.values())) > 1:
+        raise SpecError(f"zip: axes must have equal lengths; got {lengths}")
     try:
         base_params = scenario.default_params(cfg, **params)
     except ValueError as exc:
@@ -156,14 +208,18 @@ def load_spec(path: str | Path, *, seeds: int | None = None, chunk_size: int | N
     for name, value in (("seeds", seeds), ("chunk_size", chunk), ("base_seed", base_seed)):
         if not isinstance(value, int) or isinstance(value, bool) or value < (0 if name == "base_seed" else 1):
             raise SpecError(f"{name}: must be an integer >= {0 if name == 'base_seed' else 1}; got {value!r}")
-    return SweepSpec(scenario, cfg, base_params, grid, seeds, base_seed, chunk, data)
+    return SweepSpec(scenario, cfg, base_params, grid, zipped, seeds, base_seed, chunk, data)
 
 
 def points(spec: SweepSpec) -> pd.DataFrame:
-    """One row per sweep point (cartesian product of the grid axes), with its ``point_id``."""
+    """One row per sweep point (product of the grid axes and the zipped block), with its
+    ``point_id``."""
     names = list(spec.grid)
-    rows = list(itertools.product(*(spec.grid[n] for n in names))) if names else [()]
-    df = pd.DataFrame(rows, columns=names)
+    factors = [[(v,) for v in spec.grid[n]] for n in names]
+    if spec.zipped:
+        factors.append(list(zip(*spec.zipped.values())))
+    rows = [sum(combo, ()) for combo in itertools.product(*factors)] if factors else [()]
+    df = pd.DataFrame(rows, columns=spec.axes)
     df.insert(0, "point_id", np.arange(len(df), dtype=np.int64))
     return df
 
@@ -173,7 +229,7 @@ def point_params(spec: SweepSpec):
     table = points(spec)
     per_point = []
     for _, row in table.iterrows():
-        over = {k: row[k] for k in spec.grid}
+        over = {k: row[k] for k in spec.axes}
         per_point.append(spec.base_params._replace(**{k: np.asarray(v, np.float64) for k, v in over.items()}))
     from mcjax.engine import stack_points
 
@@ -194,7 +250,7 @@ def summary_rows(spec: SweepSpec, table: pd.DataFrame, start: int, out: dict) ->
             "seed_index": seed_idx.astype(np.int64),
             "filter": name,
         }
-        for axis in spec.grid:
+        for axis in spec.axes:
             cols[axis] = table[axis].to_numpy()[point_idx]
         for key, value in out.items():
             value = np.asarray(value)

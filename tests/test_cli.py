@@ -66,3 +66,76 @@ def test_help_explains_options():
     assert r.exit_code == 0
     for opt in ("--out", "--seeds", "--chunk-size", "--set", "--dry-run", "--force"):
         assert opt in r.output
+
+
+def _sweep_cmd(spec, out, *extra):
+    import sys
+    return [sys.executable, "-m", "mcjax.cli", "sweep", str(spec), "--out", str(out), *extra]
+
+
+def test_killed_sweep_resumes_to_identical_rows(tmp_path):
+    import signal
+    import subprocess
+    import time
+
+    spec = tmp_path / "spec.toml"
+    spec.write_text(f'base = "{BASE}"\nseeds = 500\nchunk_size = 100\n[config]\nn_steps = 40\n'
+                    f'warmup_steps = 2\nfilters = ["cif", "modified_icf"]\n'
+                    f'[grid]\ncomm_radius = [60e3, 80e3, 100e3]\n')
+    out = tmp_path / "killed"
+    proc = subprocess.Popen(_sweep_cmd(spec, out), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 300
+    while time.time() < deadline and not (out / "runs" / "part-000001.parquet").exists():
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    written = sorted(p.name for p in (out / "runs").glob("*.parquet"))
+    assert 2 <= len(written) < 15, written  # killed mid-way
+
+    r = subprocess.run(_sweep_cmd(spec, out), capture_output=True, text=True)
+    assert r.returncode == 2 and "--resume" in r.stderr  # refuses without --resume
+    r = subprocess.run(_sweep_cmd(spec, out, "--resume"), capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert f"{len(written)} of 15 chunk(s) already written" in r.stdout
+    r = subprocess.run(_sweep_cmd(spec, tmp_path / "whole"), capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    resumed = pd.read_parquet(out / "runs").sort_values(["point_id", "seed_index", "filter"]).reset_index(drop=True)
+    whole = pd.read_parquet(tmp_path / "whole" / "runs").sort_values(["point_id", "seed_index", "filter"]).reset_index(drop=True)
+    assert len(resumed) == 3 * 500 * 2
+    pd.testing.assert_frame_equal(resumed, whole, check_exact=True)
+    assert not list((out / "_staging").glob("*")) if (out / "_staging").exists() else True
+
+
+def test_resume_refuses_a_different_sweep(tmp_path):
+    spec = _spec(tmp_path, "[grid]\ncomm_radius = [60e3]\n")
+    out = tmp_path / "out"
+    assert CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out)]).exit_code == 0
+    r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out), "--seeds", "4", "--resume"])
+    assert r.exit_code == 2 and "different sweep" in r.output
+    r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / "none"), "--resume"])
+    assert r.exit_code == 2 and "nothing to resume" in r.output
+
+
+def test_zip_and_range_axes(tmp_path):
+    spec = _spec(tmp_path, "[grid]\nsigma_bearing = {linspace = [0.01, 0.03, 3]}\n"
+                           "[zip]\nuav_speed = [600.0, 800.0]\nturn_rate_max = [0.1, 0.2]\n")
+    r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / "o"), "--seeds", "1"])
+    assert r.exit_code == 0, r.output
+    df = pd.read_parquet(tmp_path / "o" / "runs")
+    pts = df.drop_duplicates("point_id")[["sigma_bearing", "uav_speed", "turn_rate_max"]].to_numpy()
+    assert len(pts) == 6
+    assert {(round(a, 6), b, c) for a, b, c in pts} == {
+        (s, v, t) for s in (0.01, 0.02, 0.03) for v, t in ((600.0, 0.1), (800.0, 0.2))}
+
+
+@pytest.mark.parametrize("body, message", [
+    ("[grid]\ncomm_radius = [-5.0]\n", "grid.comm_radius: must be >= 0"),
+    ("[zip]\nuav_speed = [1.0, 2.0]\nturn_rate_max = [0.1]\n", "zip: axes must have equal lengths"),
+    ("[grid]\nsigma_range = {logspace = [0, 10, 3]}\n", "grid.sigma_range.logspace: start and stop must be > 0"),
+    ("[grid]\nsigma_range = {linspace = [1, 10]}\n", "grid.sigma_range.linspace: must be [start, stop, count]"),
+])
+def test_bad_axes_exit_2(tmp_path, body, message):
+    spec = _spec(tmp_path, body)
+    r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2, r.output
+    assert message in r.output and not (tmp_path / "o").exists()

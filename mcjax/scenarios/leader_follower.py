@@ -112,6 +112,18 @@ PARAM_UNITS = {
 }
 
 
+_POS = (1e-300, np.inf, "> 0")
+_NONNEG = (0.0, np.inf, ">= 0")
+#: Allowed values of each Params field: (low, high, text), checked by sweep specs.
+PARAM_RANGES = {
+    "dt": _POS, "comm_radius": _NONNEG, "sensing_radius": _NONNEG, "sigma_range": _POS,
+    "sigma_bearing": _POS, "sigma_accel": _NONNEG, "uav_speed": _NONNEG, "alpha_phi": _POS,
+    "turn_rate_max": _NONNEG, "heading_cmd": (-10.0, 10.0, "in [-10, 10] rad"),
+    "initial_headings": (-10.0, 10.0, "in [-10, 10] rad"), "p0_diag": _POS,
+    "kcf_epsilon": _NONNEG, "alive": (0.0, 1.0, "0 or 1"),
+}
+
+
 def default_params(cfg: Config = Config(), **overrides) -> Params:
     """The paper's set-up (seed 000 §5) as numpy arrays; ``overrides`` replace fields."""
     n = cfg.n_agents
