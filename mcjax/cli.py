@@ -171,18 +171,63 @@ def run(config, seeds, sets):
     _print_summary(df, [])
 
 
+@main.command()
+@click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--format", "fmt", type=click.Choice(["text", "csv", "markdown"]), default="text", show_default=True,
+              help="Format of the printed summary table.")
+@click.option("--no-plots", is_flag=True, help="Print the table only; write no PNG files.")
+def report(out_dir, fmt, no_plots):
+    """Summarise the sweep dataset in OUT_DIR and write plots to OUT_DIR/report/.
+
+    The table groups runs by the swept params and filter: mean RMSE with its 95 % t-interval
+    (all runs and non-divergent runs), divergence rate with its 95 % Wilson interval, lambda2
+    statistics and disconnected steps. Plots: each metric against each swept axis (one line
+    per filter), divergence rate with intervals, lambda2, and heatmaps for two-axis grids.
+    """
+    from mcjax.report import report as make_report
+
+    try:
+        table, plots = make_report(out_dir, fmt, plots=not no_plots)
+    except ValueError as exc:
+        _fail(str(exc))
+    click.echo(table)
+    for p in plots:
+        click.echo(f"plot: {p}")
+
+
 @main.command(name="list")
-def list_scenarios():
-    """List the scenarios and their Params fields with units and defaults."""
+@click.argument("scenario", required=False)
+def list_scenarios(scenario):
+    """List the scenarios; with SCENARIO, every Params field (unit, default, allowed values)
+    and every Config field (default, allowed values)."""
     from mcjax import scenarios
 
-    for name, mod in scenarios.SCENARIOS.items():
-        click.echo(f"{name}: {mod.PAPER}")
-        defaults = mod.default_params(mod.Config())
-        for field in mod.Params._fields:
-            value = getattr(defaults, field)
-            shown = value.tolist() if value.size <= 6 else f"array{value.shape}"
-            click.echo(f"  {field:20s} {mod.PARAM_UNITS.get(field, ''):12s} {shown}")
+    if scenario is None:
+        for name, mod in scenarios.SCENARIOS.items():
+            click.echo(f"{name:18s} {mod.PAPER}")
+        click.echo("details: mcjax list SCENARIO")
+        return
+    try:
+        mod = scenarios.get(scenario)
+    except ValueError as exc:
+        _fail(str(exc))
+    from mcjax.filters.consensus import CONTRIBUTION_KINDS, FILTER_KINDS, ICF_VARIANTS, KCF_GAINS, WEIGHT_KINDS
+
+    click.echo(f"{mod.NAME}: {mod.PAPER}\n\nParams (sweepable, no recompilation):")
+    defaults = mod.default_params(mod.Config())
+    ranges = getattr(mod, "PARAM_RANGES", {})
+    for field in mod.Params._fields:
+        value = getattr(defaults, field)
+        shown = value.tolist() if value.size <= 6 else f"array{value.shape}"
+        allowed = ranges.get(field, (None, None, "any"))[2]
+        click.echo(f"  {field:18s} [{mod.PARAM_UNITS.get(field, '')}] default {shown}; allowed {allowed}")
+    choices = {"filters": f"subset of {FILTER_KINDS}", "consensus_weights": WEIGHT_KINDS,
+               "contribution": CONTRIBUTION_KINDS, "icf_variant": ICF_VARIANTS, "kcf_gain": KCF_GAINS,
+               "dtype": ("float64", "float32")}
+    click.echo("\nConfig (fixes shapes / the program; changing it recompiles):")
+    for f in dataclasses.fields(mod.Config):
+        allowed = choices.get(f.name, "integer >= 0" if f.type == "int" else "> 0")
+        click.echo(f"  {f.name:20s} default {f.default!r}; allowed {allowed}")
 
 
 if __name__ == "__main__":

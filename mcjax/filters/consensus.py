@@ -180,10 +180,9 @@ def kcf_step(h, angle_mask, opts, epsilon, post: Gaussian, meas: Measurements, F
     Y = symmetrize(spd_inverse(Pb) + S)
     M = symmetrize(spd_inverse(Y))
     disagreement = mix(A, xb) - jnp.sum(A, axis=1)[:, None] * xb
-    if opts.kcf_gain == "gamma_M":
-        gain = (epsilon / (1.0 + jnp.sqrt(jnp.sum(M * M, axis=(-1, -2)))))[:, None, None] * M
-    else:
-        gain = (epsilon / (1.0 + jnp.sqrt(jnp.sum(Pb * Pb, axis=(-1, -2)))))[:, None, None] * Pb
+    base = M if opts.kcf_gain == "gamma_M" else Pb
+    fro = jnp.sqrt(sum(base[:, i, j] ** 2 for i in range(base.shape[-2]) for j in range(base.shape[-1])))
+    gain = (epsilon / (1.0 + fro))[:, None, None] * base
     x = xb + matvec(M, yv - matvec(S, xb)) + matvec(gain, disagreement)
     return Gaussian(x, M, Y)
 
