@@ -139,3 +139,27 @@ def test_bad_axes_exit_2(tmp_path, body, message):
     r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / "o")])
     assert r.exit_code == 2, r.output
     assert message in r.output and not (tmp_path / "o").exists()
+
+
+def test_report_command_prints_table_and_writes_plots(tmp_path):
+    import matplotlib.image as mpimg
+
+    spec = _spec(tmp_path, "[grid]\ncomm_radius = [60e3, 100e3]\nsigma_bearing = [0.01, 0.02]\n")
+    out = tmp_path / "out"
+    assert CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out)]).exit_code == 0
+    r = CliRunner().invoke(main, ["report", str(out), "--format", "markdown"])
+    assert r.exit_code == 0, r.output
+    assert "| comm_radius | sigma_bearing | filter |" in r.output
+    plots = [line.split("plot: ", 1)[1] for line in r.output.splitlines() if line.startswith("plot: ")]
+    assert any("heatmap" in p for p in plots) and any("divergence_vs_comm_radius" in p for p in plots)
+    for p in plots:
+        img = mpimg.imread(p)
+        assert img.size > 0 and img.std() > 0
+    r = CliRunner().invoke(main, ["report", str(tmp_path / "empty")])
+    assert r.exit_code == 2
+
+
+@pytest.mark.parametrize("cmd", [["--help"], ["run", "--help"], ["report", "--help"], ["list", "--help"]])
+def test_every_command_has_help(cmd):
+    r = CliRunner().invoke(main, cmd)
+    assert r.exit_code == 0 and "Usage:" in r.output and len(r.output) > 200
