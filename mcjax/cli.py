@@ -44,11 +44,7 @@ def _print_summary(df, axes) -> None:
     from mcjax.sweep import summary_table
 
     table = summary_table(df, axes)
-    with_pd_options = {"display.width": 160, "display.max_columns": 20, "display.max_rows": 200}
-    import pandas as pd
-
-    with pd.option_context(*[x for kv in with_pd_options.items() for x in kv]):
-        click.echo(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+    click.echo(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})

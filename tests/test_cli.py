@@ -43,24 +43,6 @@ def test_dry_run_compiles_and_writes_nothing(tmp_path):
     assert "3 point(s) x 3 seed(s) = 9 runs" in r.output and not out.exists()
 
 
-@pytest.mark.parametrize("body, message", [
-    ("[grid]\ncomm_radious = [1.0]\n", "did you mean 'comm_radius'"),
-    ("[grid]\ncomm_radius = []\n", "grid.comm_radius: must be a non-empty list"),
-    ("[params]\nsigma_range = \"ten\"\n", "params.sigma_range: must be a number"),
-    ("[config]\nfilters = [\"cif\", \"ukf\"]\n", "unknown filter 'ukf'"),
-])
-def test_bad_spec_exit_2_nothing_written(tmp_path, body, message):
-    spec = _spec(tmp_path, body) if not body.startswith("[config]") else None
-    if spec is None:
-        spec = tmp_path / "spec.toml"
-        spec.write_text(f'base = "{BASE}"\n' + body)
-    out = tmp_path / "out"
-    r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out)])
-    assert r.exit_code == 2, r.output
-    assert message in r.output
-    assert not out.exists()
-
-
 def test_help_explains_options():
     r = CliRunner().invoke(main, ["sweep", "--help"])
     assert r.exit_code == 0
@@ -129,16 +111,27 @@ def test_zip_and_range_axes(tmp_path):
 
 
 @pytest.mark.parametrize("body, message", [
+    ("[grid]\ncomm_radious = [1.0]\n", "did you mean 'comm_radius'"),
+    ("[grid]\ncomm_radius = []\n", "grid.comm_radius: must be a non-empty list"),
+    ("[params]\nsigma_range = \"ten\"\n", "params.sigma_range: must be a number"),
+    ("[grid]\nfilters = [1.0]\n", "grid.filters: unknown key"),
     ("[grid]\ncomm_radius = [-5.0]\n", "grid.comm_radius: must be >= 0"),
     ("[zip]\nuav_speed = [1.0, 2.0]\nturn_rate_max = [0.1]\n", "zip: axes must have equal lengths"),
     ("[grid]\nsigma_range = {logspace = [0, 10, 3]}\n", "grid.sigma_range.logspace: start and stop must be > 0"),
     ("[grid]\nsigma_range = {linspace = [1, 10]}\n", "grid.sigma_range.linspace: must be [start, stop, count]"),
 ])
-def test_bad_axes_exit_2(tmp_path, body, message):
+def test_bad_spec_exit_2_nothing_written(tmp_path, body, message):
     spec = _spec(tmp_path, body)
     r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / "o")])
     assert r.exit_code == 2, r.output
     assert message in r.output and not (tmp_path / "o").exists()
+
+
+def test_bad_config_value_exit_2(tmp_path):
+    spec = tmp_path / "spec.toml"
+    spec.write_text(f'base = "{BASE}"\n[config]\nfilters = ["cif", "ukf"]\n')
+    r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and "unknown filter 'ukf'" in r.output and not (tmp_path / "o").exists()
 
 
 def test_report_command_prints_table_and_writes_plots(tmp_path):

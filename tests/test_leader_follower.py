@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from mcjax import engine
-from mcjax.filters import run_filter
 from mcjax.scenarios import leader_follower as lf
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))

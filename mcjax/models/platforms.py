@@ -20,21 +20,6 @@ class UnicycleLimits(NamedTuple):
     turn_rate_max: jax.Array  # |φ̇| ≤ turn_rate_max
 
 
-def unicycle_derivative(state, heading_cmd, accel_cmd, alpha_phi, limits: UnicycleLimits):
-    """Time derivative of ``[x, y, v, φ]`` — Sun et al. 2011 (seed 000) eq. 3 with eq. 4 limits.
-
-    ``ẋ = v cos φ, ẏ = v sin φ, v̇ = a, φ̇ = α_φ (φᶜ − φ)``; the heading error is wrapped
-    (the shortest turn), ``a`` and ``φ̇`` are clipped to their limits, and ``v̇`` is zeroed
-    when it would push the speed past its limits.
-    """
-    x, y, v, phi = state[..., 0], state[..., 1], state[..., 2], state[..., 3]
-    rate = jnp.clip(alpha_phi * wrap_angle(heading_cmd - phi), -limits.turn_rate_max, limits.turn_rate_max)
-    a = jnp.clip(accel_cmd, limits.a_min, limits.a_max)
-    a = jnp.where((v >= limits.v_max) & (a > 0), 0.0, a)
-    a = jnp.where((v <= limits.v_min) & (a < 0), 0.0, a)
-    return jnp.stack([v * jnp.cos(phi), v * jnp.sin(phi), a, rate], axis=-1)
-
-
 def heading_at(phi0, heading_cmd, alpha_phi, turn_rate_max, t):
     """Exact heading at time ``t`` of the autopilot of seed 000 eq. 3 with the eq. 4 rate limit.
 

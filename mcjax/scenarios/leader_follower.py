@@ -12,7 +12,7 @@ open are our choices, marked in ``configs/sun2011.toml``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import jax
@@ -23,7 +23,6 @@ from mcjax import graph, metrics
 from mcjax.filters.consensus import (
     FILTER_KINDS,
     FilterOptions,
-    Gaussian,
     Measurements,
     filter_step,
     init_states,
@@ -230,15 +229,16 @@ def step(cfg: Config, params: Params, state: State, key) -> tuple[State, Record]
     keys = jax.random.split(k_meas, n)
     z = jax.vmap(measure_range_bearing, in_axes=(0, None, 0, None, None, 0, 0))(
         keys, target, sensors, params.sigma_range, params.sigma_bearing, sensing, alive)
-    adj = graph.adjacency(sensors, _agents(params.comm_radius, n, dtype), alive)
+    comm = _agents(params.comm_radius, n, dtype)
+    adj = graph.adjacency(sensors, comm, alive)
 
     F, _ = cv_matrices(dt, dtype)
     Q = cv_process_noise(dt, params.sigma_accel, dtype)
     F = jnp.where(first, jnp.eye(4, dtype=dtype), F)
     Q = jnp.where(first, 0.0, Q)
-    R = jnp.diag(jnp.stack([jnp.asarray(params.sigma_range, dtype) ** 2,
-                            jnp.asarray(params.sigma_bearing, dtype) ** 2]))
-    R_inv = jnp.broadcast_to(jnp.linalg.inv(R), (n, 2, 2))
+    # R = diag(σ_r², σ_θ²) is diagonal: its inverse needs no LAPACK call on the hot path
+    R_inv = jnp.diag(jnp.stack([1.0 / params.sigma_range**2, 1.0 / params.sigma_bearing**2]))
+    R_inv = jnp.broadcast_to(R_inv, (n, 2, 2))
     meas = Measurements(z, sensors, adj, R_inv)
     angle_mask = jnp.array([False, True])
     filters = filter_step(cfg.filters, cfg.filter_options(), range_bearing, angle_mask,
@@ -252,7 +252,7 @@ def step(cfg: Config, params: Params, state: State, key) -> tuple[State, Record]
         nees=ne,
         lambda2=graph.algebraic_connectivity(adj),
         degrees=graph.degree(adj),
-        robustness=graph.connectivity_robustness(sensors, _agents(params.comm_radius, n, dtype)),
+        robustness=graph.connectivity_robustness(sensors, comm),
         n_seeing=jnp.sum(jnp.all(jnp.isfinite(z), axis=-1)),
         positions=sensors,
         target=target,
