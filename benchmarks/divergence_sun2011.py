@@ -1,0 +1,225 @@
+"""Divergence statistics of Sun et al. 2011 (seed 000) Table 1, closed loop, over N runs.
+
+Case 1 ignores the connectivity robustness (α_I = 0); case 2 weights it (α_I from
+``configs/sun2011.toml``). Each case runs N seeds (default 1,000; the paper ran 20) with
+each planner (gradient = optax Adam on the smoothed cost, cem = sampled search). Prints,
+beside the paper's numbers: divergence count, mean position error of ICF / modified ICF /
+CIF over all runs and over non-divergent runs, min λ2, disconnected steps and wall time
+(per run, and for the whole N-run batch including compilation). Writes every run to
+``OUT/runs.parquet`` and, for seed 0 of each case, PNG figures like the paper's Fig. 4–11
+(paths, λ2 and degrees over time, error curves of the three filters).
+
+    python benchmarks/divergence_sun2011.py                       # 1,000 runs, both planners
+    python benchmarks/divergence_sun2011.py --runs 20 --planners gradient
+
+A run *diverges* (our rule; the paper gives none) when the filter's position error of some
+UAV exceeds ``divergence_threshold`` (1 km) after the 10-step warm-up. The headline count is
+the modified ICF's (the paper's filter); the other filters' counts are printed too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+import pandas as pd
+
+from mcjax import engine
+from mcjax.results import environment_metadata
+from mcjax.sweep import load_config_file
+
+ROOT = Path(__file__).resolve().parent.parent
+FILTERS = ("icf", "modified_icf", "cif")
+LABELS = {"icf": "ICF [4]-[5]", "modified_icf": "modified ICF", "cif": "CIF"}
+#: Seed 000 Table 1 (20 MATLAB runs per case).
+PAPER = {
+    "case1": dict(run_time=20.8, divergences=16, icf=82.8, modified_icf=34.5, cif=11.1),
+    "case2": dict(run_time=22.6, divergences=0, icf=39.7, modified_icf=9.8, cif=8.5),
+}
+
+
+def setup(config: Path, planner: str):
+    scenario, cfg, params = load_config_file(config)
+    cfg = dataclasses.replace(cfg, filters=FILTERS, planner=planner)
+    return scenario, cfg, params
+
+
+def case_params(scenario, cfg, params: dict, case: str):
+    values = dict(params)
+    if case == "case1":
+        values["alpha_I"] = 0.0
+    return scenario.default_params(cfg, **values)
+
+
+def run_case(scenario, cfg, p, runs: int, base_seed: int):
+    """All runs of one case; returns (summary dict of arrays, wall seconds incl. compile)."""
+    point = engine.stack_points([p])
+    t0 = time.perf_counter()
+    with jax.enable_x64(cfg.dtype == "float64"):
+        outs = [o for _, _, _, o in engine.run_chunks(scenario, cfg, point, runs, base_seed=base_seed,
+                                                      chunk_size=max(runs, 1))]
+    wall = time.perf_counter() - t0
+    out = {k: np.concatenate([o[k] for o in outs]) for k in outs[0]}
+    return out, wall
+
+
+def rows(out: dict, case: str, planner: str) -> pd.DataFrame:
+    frames = []
+    n = len(out["lambda2_min"])
+    for f, name in enumerate(FILTERS):
+        cols = {"case": case, "planner": planner, "seed_index": np.arange(n), "filter": name}
+        for k, v in out.items():
+            v = np.asarray(v)
+            cols[k] = v[:, f] if v.ndim == 2 else v
+        frames.append(pd.DataFrame(cols))
+    return pd.concat(frames, ignore_index=True)
+
+
+def table(df: pd.DataFrame, walls: dict) -> str:
+    head = ("| case | planner | runs | divergences (mod. ICF) | div. ICF / CIF | mean error ICF / mod. ICF / CIF, m "
+            "(all runs) | same, non-divergent runs | min λ2 (mean over runs) | disconnected steps | "
+            "wall s/run | wall N runs incl. compile, s |")
+    lines = [head, "|" + "---|" * 11]
+    for (case, planner), g in df.groupby(["case", "planner"], sort=True):
+        by = {f: g[g["filter"] == f].sort_values("seed_index") for f in FILTERS}
+        div = by["modified_icf"]["diverged"].to_numpy().astype(bool)
+        ok = ~div
+        err_all = " / ".join(f"{by[f]['mean_error'].mean():.1f}" for f in FILTERS)
+        err_ok = " / ".join(f"{by[f]['mean_error'][ok].mean():.1f}" if ok.any() else "–" for f in FILTERS)
+        lam = by["cif"]
+        wall = walls[(case, planner)]
+        lines.append(f"| {case} | {planner} | {len(div)} | {div.sum()} | {int(by['icf']['diverged'].sum())} / "
+                     f"{int(by['cif']['diverged'].sum())} | {err_all} | {err_ok} | {lam['lambda2_min'].mean():.3f} | "
+                     f"{lam['disconnected_steps'].mean():.1f} | {wall / len(div):.3f} | {wall:.0f} |")
+    for case, p in PAPER.items():
+        lines.append(f"| {case} | paper (MATLAB) | 20 | {p['divergences']} | – | {p['icf']} / {p['modified_icf']} / "
+                     f"{p['cif']} | – | – | – | {p['run_time']} | – |")
+    return "\n".join(lines)
+
+
+def checks(df: pd.DataFrame) -> list[tuple[str, bool]]:
+    """The qualitative claims of seed 000 Table 1, per planner."""
+    res = []
+    for planner, g in df.groupby("planner"):
+        m = g.groupby(["case", "filter"])
+        div = m["diverged"].sum().unstack()["modified_icf"]
+        err = m["mean_error"].mean().unstack()
+        lam = g[g["filter"] == "cif"].groupby("case")["lambda2_min"].mean()
+        res += [
+            (f"{planner}: case 2 diverges less often than case 1 ({div['case2']} < {div['case1']})",
+             div["case2"] < div["case1"]),
+            (f"{planner}: modified ICF more accurate than ICF in both cases",
+             bool((err["modified_icf"] < err["icf"]).all())),
+            (f"{planner}: CIF the most accurate in both cases",
+             bool(((err["cif"] < err["icf"]) & (err["cif"] < err["modified_icf"])).all())),
+            (f"{planner}: case 2 keeps min λ2 higher ({lam['case2']:.3f} > {lam['case1']:.3f})",
+             lam["case2"] > lam["case1"]),
+        ]
+    return res
+
+
+def figures(scenario, cfg, p_by_case: dict, out_dir: Path) -> list[Path]:
+    """Fig. 4–11 of the paper for seed 0 of each case: paths, λ2 & degrees, filter errors."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    fn = engine.compiled(scenario, cfg, False)
+    for case, p in p_by_case.items():
+        params, keys = engine.chunk_inputs(engine.stack_points([p]), 1, 0, 0, 1, 1)
+        with jax.enable_x64(cfg.dtype == "float64"):
+            rec = jax.tree.map(lambda a: np.asarray(a)[0], fn(params, keys))
+        t = np.arange(rec.lambda2.shape[0]) * float(p.dt)
+        title = {"case1": "case 1: robustness ignored (α_I = 0)", "case2": "case 2: robustness weighted"}[case]
+
+        fig, ax = plt.subplots(figsize=(6.5, 6))
+        for i in range(rec.positions.shape[1]):
+            ax.plot(rec.positions[:, i, 0] / 1e3, rec.positions[:, i, 1] / 1e3,
+                    label="leader" if i == 0 else f"UAV{i}")
+            ax.plot(rec.positions[::40, i, 0] / 1e3, rec.positions[::40, i, 1] / 1e3, "k.", ms=4)
+        ax.plot(rec.target[:, 0] / 1e3, rec.target[:, 2] / 1e3, "k--", label="target")
+        ax.plot(rec.target[::40, 0] / 1e3, rec.target[::40, 2] / 1e3, "k^", ms=5)
+        ax.set(xlabel="x, km", ylabel="y, km", title=f"Paths (markers every 40 s) — {title}")
+        ax.set_aspect("equal", "datalim")
+        ax.legend(fontsize=8)
+        paths.append(out_dir / f"{case}_paths.png")
+        fig.savefig(paths[-1], dpi=110, bbox_inches="tight")
+        plt.close(fig)
+
+        fig, (a1, a2) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+        a1.plot(t, rec.lambda2)
+        a1.set(ylabel="λ2 of the comm Laplacian", title=f"Algebraic connectivity and degrees — {title}")
+        for i in range(rec.degrees.shape[1]):
+            a2.plot(t, rec.degrees[:, i], label="leader" if i == 0 else f"UAV{i}")
+        a2.set(xlabel="t, s", ylabel="degree")
+        a2.legend(fontsize=8, ncol=5)
+        paths.append(out_dir / f"{case}_connectivity.png")
+        fig.savefig(paths[-1], dpi=110, bbox_inches="tight")
+        plt.close(fig)
+
+        fig, axes = plt.subplots(len(FILTERS), 1, figsize=(7, 8), sharex=True)
+        for ax, name in zip(axes, FILTERS):
+            f = cfg.filters.index(name)
+            for i in range(rec.error.shape[2]):
+                ax.semilogy(t, np.maximum(rec.error[:, f, i], 1e-1), label="leader" if i == 0 else f"UAV{i}")
+            ax.set(ylabel="error, m", title=LABELS[name])
+        axes[0].legend(fontsize=8, ncol=5)
+        axes[-1].set(xlabel="t, s")
+        fig.suptitle(f"Position error of each UAV's estimate — {title}")
+        paths.append(out_dir / f"{case}_errors.png")
+        fig.savefig(paths[-1], dpi=110, bbox_inches="tight")
+        plt.close(fig)
+    return paths
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--runs", type=int, default=1000, help="runs per case and planner (paper: 20)")
+    ap.add_argument("--planners", nargs="+", default=["gradient", "cem"], choices=["gradient", "cem", "random"])
+    ap.add_argument("--config", type=Path, default=ROOT / "configs" / "sun2011.toml")
+    ap.add_argument("--out", type=Path, default=ROOT / "results" / "divergence_sun2011")
+    ap.add_argument("--base-seed", type=int, default=0)
+    ap.add_argument("--no-figures", action="store_true")
+    args = ap.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+
+    frames, walls = [], {}
+    for planner in args.planners:
+        scenario, cfg, params = setup(args.config, planner)
+        p_by_case = {c: case_params(scenario, cfg, params, c) for c in ("case1", "case2")}
+        for case, p in p_by_case.items():
+            out, wall = run_case(scenario, cfg, p, args.runs, args.base_seed)
+            walls[(case, planner)] = wall
+            print(f"{case} / {planner}: {args.runs} runs x {cfg.n_steps} steps in {wall:.1f} s "
+                  f"including compilation ({wall / args.runs * 1e3:.0f} ms/run)", flush=True)
+            frames.append(rows(out, case, planner))
+        if planner == args.planners[0] and not args.no_figures:
+            for path in figures(scenario, cfg, p_by_case, args.out):
+                print(f"figure: {path}")
+    df = pd.concat(frames, ignore_index=True)
+    meta = {"benchmark": "divergence_sun2011", "config": str(args.config), "runs": args.runs,
+            "walls_s": {f"{c}/{p}": w for (c, p), w in walls.items()}, **environment_metadata()}
+    df.attrs = {}
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    tbl = pa.Table.from_pandas(df, preserve_index=False)
+    tbl = tbl.replace_schema_metadata({**(tbl.schema.metadata or {}), b"mcjax": json.dumps(meta).encode()})
+    pq.write_table(tbl, args.out / "runs.parquet")
+    print(f"runs: {args.out / 'runs.parquet'} ({len(df)} rows)\n")
+    print(table(df, walls))
+    print()
+    failed = 0
+    for text, ok in checks(df):
+        print(("holds   " if ok else "FAILS   ") + text)
+        failed += not ok
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
