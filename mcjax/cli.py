@@ -111,8 +111,7 @@ def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force):
             _fail(f"{out_dir} holds a different sweep ({', '.join(diff)} differ); --resume needs the same "
                   f"spec, seeds and chunk size")
         results.clean_staging(out_dir)
-        done = set(results.existing_parts(out_dir, "runs"))
-        todo = [i for i in range(len(plan)) if f"part-{i:06d}" not in done]
+        todo = _missing_chunks(s, plan, out_dir)
         click.echo(f"resuming: {len(plan) - len(todo)} of {len(plan)} chunk(s) already written")
     elif out_dir.exists() and any(out_dir.iterdir()):
         if not force:
@@ -133,7 +132,7 @@ def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force):
         with tqdm(total=remaining, unit="run", desc="sweep", disable=None) as bar:
             run_sweep(s, out_dir, chunks=todo, progress=bar.update, metadata=meta)
     except KeyboardInterrupt:
-        n_done = len(results.existing_parts(out_dir, "runs"))
+        n_done = len(plan) - len(_missing_chunks(s, plan, out_dir))
         click.echo(f"\ninterrupted: {n_done} of {len(plan)} chunk(s) written to {out_dir}; "
                    f"finish with: mcjax sweep {spec} --out {out_dir} --resume", err=True)
         sys.exit(130)
@@ -142,6 +141,17 @@ def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force):
     click.echo(f"{len(df)} rows in {out_dir / 'runs'}; {remaining} runs in {elapsed:.1f} s "
                f"({remaining / max(elapsed, 1e-9):.1f} runs/s incl. compilation)")
     _print_summary(df, s.axes)
+
+
+def _missing_chunks(spec, plan, out_dir) -> list[int]:
+    """Chunks not completely on disk: some part (of ``runs/``, or ``timeseries/`` when the spec
+    asks for it) is missing. Re-running one rewrites its parts under the same names."""
+    from mcjax.sweep import chunk_parts
+
+    tables = ["runs"] + (["timeseries"] if spec.timeseries else [])
+    have = {t: set(results.existing_parts(out_dir, t)) for t in tables}
+    return [i for i, (a, b) in enumerate(plan)
+            if not all(set(chunk_parts(spec, i, a, b)) <= have[t] for t in tables)]
 
 
 @main.command()

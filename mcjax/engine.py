@@ -37,25 +37,29 @@ def _run(scenario, cfg, params, key):
     return records
 
 
-def simulate(scenario: ModuleType, cfg, params, keys, *, summarize: bool = True):
+def simulate(scenario: ModuleType, cfg, params, keys, *, summarize: bool = True, timeseries: bool = False):
     """Run a batch: ``params`` and ``keys`` carry a leading run axis.
 
     Returns the per-run summaries (``summarize=True``) or the records stacked over time
     (run, time, …) — the caller chooses what is kept, so a large sweep need not keep every
-    trajectory. Not jitted: see :func:`compiled`.
+    trajectory. ``timeseries=True`` returns ``(summaries, scenario.timeseries(...))``: the
+    summaries plus a few per-step series, from one simulation. Not jitted: see :func:`compiled`.
     """
 
     def one(p, k):
         records = _run(scenario, cfg, p, k)
+        if timeseries:
+            return scenario.summarize(cfg, records, p), scenario.timeseries(cfg, records, p)
         return scenario.summarize(cfg, records, p) if summarize else records
 
     return jax.vmap(one)(params, keys)
 
 
 @lru_cache(maxsize=32)
-def compiled(scenario: ModuleType, cfg, summarize: bool = True) -> Callable:
+def compiled(scenario: ModuleType, cfg, summarize: bool = True, timeseries: bool = False) -> Callable:
     """The jitted :func:`simulate` for one scenario and config (defined once per process)."""
-    return jax.jit(lambda params, keys: simulate(scenario, cfg, params, keys, summarize=summarize))
+    return jax.jit(lambda params, keys: simulate(scenario, cfg, params, keys, summarize=summarize,
+                                                 timeseries=timeseries))
 
 
 def stack_points(points: list) -> object:
@@ -98,19 +102,20 @@ def chunk_inputs(point_params, n_seeds: int, base_seed: int, start: int, stop: i
 
 def run_chunks(scenario: ModuleType, cfg, point_params, n_seeds: int, *, base_seed: int = 0,
                chunk_size: int = 1000, chunks: list[int] | None = None,
-               summarize: bool = True) -> Iterator[tuple[int, int, int, dict]]:
+               summarize: bool = True, timeseries: bool = False) -> Iterator[tuple[int, int, int, dict]]:
     """Run a sweep chunk by chunk; yields ``(chunk_index, start, stop, outputs)`` with the
     outputs trimmed to the chunk's real runs and converted to numpy.
 
     ``point_params``: Params with a leading point axis. ``chunks`` restricts the run to those
-    chunk indices (for resuming). Each chunk is computed as consecutive calls of one
+    chunk indices (for resuming). ``timeseries=True`` yields ``(summaries, series)`` as the
+    outputs (see :func:`simulate`). Each chunk is computed as consecutive calls of one
     compiled :data:`BATCH_SIZE`-run program (the last call padded), dispatched
     asynchronously, so memory is bounded by the chunk and numbers do not depend on it.
     """
     n_points = int(jax.tree.leaves(point_params)[0].shape[0])
     n_runs = n_points * n_seeds
     b = batch_size_for(n_runs)
-    fn = compiled(scenario, cfg, summarize)
+    fn = compiled(scenario, cfg, summarize, timeseries)
     for idx, (start, stop) in enumerate(chunk_plan(n_runs, chunk_size)):
         if chunks is not None and idx not in chunks:
             continue

@@ -3,10 +3,11 @@
 Layout of an output folder ``OUT``::
 
     OUT/
-      runs/                 dataset: one row per (run, filter), tidy
-        part-000000.parquet
-        part-000001.parquet
-      timeseries/           optional second dataset, same rules
+      runs/                 dataset: one row per (run, filter), tidy, hive-partitioned
+        point_id=0/part-000000.parquet     (chunk 0's runs of point 0)
+        point_id=1/part-000000.parquet
+        point_id=1/part-000001.parquet
+      timeseries/           optional second dataset (one row per run, step and filter), same rules
       _staging/             temporary files only (never read as data)
 
 Rules:
@@ -19,9 +20,13 @@ Rules:
   :func:`os.replace` (atomic on the same file system).  A reader therefore sees either the
   old part, the new part, or no part, never a torn file.  An interrupted writer leaves at
   most a file in ``OUT/_staging/`` (removed by :func:`clean_staging`).
-* Key columns (``point_id``, ``seed_index``, ``filter``, swept parameters) are ordinary
-  columns inside every file; nothing relies on hive-style ``key=value`` folder names.  Any
-  Parquet reader (pandas, pyarrow, DuckDB, Polars) can read ``OUT/runs`` directly.
+* A dataset may be hive-partitioned: a part written with ``partition={"point_id": 3}``
+  lands in ``<table>/point_id=3/`` and its ``point_id`` column lives in the folder name,
+  not the file (``pd.read_parquet("OUT/runs")`` and
+  ``pyarrow.dataset.dataset("OUT/runs", partitioning="hive")`` both restore it; pandas
+  reads it as a categorical). The other key columns (``seed_index``, ``filter``, swept
+  parameters) are ordinary columns. :func:`read_table` returns the partition keys as
+  ordinary integer columns. Unpartitioned parts (``<table>/<part>.parquet``) are read too.
 * Run-level metadata (config, environment, ...) is stored in the Parquet schema metadata
   as JSON strings under keys ``mcjax.<key>``; pandas' own ``pandas`` key is kept so dtypes
   round-trip.
@@ -45,7 +50,6 @@ from typing import Any, Mapping
 
 import pandas as pd
 import pyarrow as pa
-import pyarrow.dataset as pads
 import pyarrow.parquet as pq
 
 __all__ = [
@@ -170,8 +174,13 @@ def write_part(
     df: pd.DataFrame,
     part_name: str,
     metadata: Mapping[str, Any] | None = None,
+    partition: Mapping[str, int] | None = None,
 ) -> Path:
     """Atomically write ``df`` as ``OUT/<table_name>/<part_name>.parquet``; return its path.
+
+    With ``partition={"point_id": 3}`` the file goes to
+    ``OUT/<table_name>/point_id=3/<part_name>.parquet`` (hive layout) and the partition
+    columns are dropped from the file (the folder name carries them).
 
     Steps: convert ``df`` to a :class:`pyarrow.Table` (the pandas index is dropped, except
     that *named* index levels are first turned into ordinary columns); add ``metadata`` to
@@ -207,6 +216,14 @@ def write_part(
     frame = df
     if any(name is not None for name in frame.index.names):
         frame = frame.reset_index()
+    subdir = ""
+    for key, value in (partition or {}).items():
+        _check_name(key, "partition key")
+        if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]*", str(value)):
+            raise ValueError(f"partition value {key}={value!r} must be a single path component of "
+                             "letters, digits, '.', '_' and '-'")
+        subdir = f"{subdir}{key}={value}/"
+        frame = frame.drop(columns=[key], errors="ignore")
     try:
         table = pa.Table.from_pandas(frame, preserve_index=False)
     except (pa.ArrowException, TypeError, ValueError) as exc:
@@ -214,11 +231,11 @@ def write_part(
     table = table.replace_schema_metadata({**(table.schema.metadata or {}), **extra})
 
     staging = out / STAGING_DIR
-    final_dir = out / table_name
+    final_dir = out / table_name / subdir
     staging.mkdir(parents=True, exist_ok=True)
     final_dir.mkdir(parents=True, exist_ok=True)
     final_path = final_dir / f"{part_name}{_PARQUET_SUFFIX}"
-    tmp_path = staging / f"{table_name}.{part_name}.{os.getpid()}.{uuid.uuid4().hex}.tmp"
+    tmp_path = staging / f"{table_name}.{subdir.replace('/', '.')}{part_name}.{os.getpid()}.{uuid.uuid4().hex}.tmp"
 
     try:
         with open(tmp_path, "wb") as fh:
@@ -236,8 +253,21 @@ def write_part(
     return final_path
 
 
+def _scan_parts(folder: Path, prefix: str = "") -> list[str]:
+    names = []
+    for entry in os.scandir(folder):
+        if entry.name.startswith((".", "_")):
+            continue
+        if entry.is_file() and entry.name.endswith(_PARQUET_SUFFIX):
+            names.append(prefix + entry.name[: -len(_PARQUET_SUFFIX)])
+        elif entry.is_dir() and "=" in entry.name:  # a hive partition folder
+            names += _scan_parts(Path(entry.path), f"{prefix}{entry.name}/")
+    return names
+
+
 def existing_parts(out_dir: str | os.PathLike, table_name: str) -> list[str]:
-    """Sorted names (without ``.parquet``) of the part files in ``OUT/<table_name>/``.
+    """Sorted names (without ``.parquet``) of the part files in ``OUT/<table_name>/``,
+    partitioned ones as ``"point_id=3/part-000001"``.
 
     Hidden files (``.``/``_`` prefix) and non-Parquet files are ignored; a missing folder
     gives ``[]``.
@@ -247,15 +277,7 @@ def existing_parts(out_dir: str | os.PathLike, table_name: str) -> list[str]:
     folder = out / table_name
     if not folder.is_dir():
         return []
-    names = []
-    for entry in os.scandir(folder):
-        if (
-            entry.is_file()
-            and entry.name.endswith(_PARQUET_SUFFIX)
-            and not entry.name.startswith((".", "_"))
-        ):
-            names.append(entry.name[: -len(_PARQUET_SUFFIX)])
-    return sorted(names)
+    return sorted(_scan_parts(folder))
 
 
 def read_table(out_dir: str | os.PathLike, table_name: str = "runs") -> pd.DataFrame:
@@ -271,13 +293,19 @@ def read_table(out_dir: str | os.PathLike, table_name: str = "runs") -> pd.DataF
     files = _part_files(out, table_name)
     if not files:
         return pd.DataFrame()
-    schemas = [pq.read_schema(f) for f in files]
+    frames = []
+    for f in files:
+        table = pq.read_table(f)
+        keys = [p.split("=", 1) for p in f.relative_to(out / table_name).parts[:-1]]
+        for i, (key, value) in enumerate(keys):
+            column = pa.array([int(value) if value.lstrip("-").isdigit() else value] * table.num_rows)
+            table = table.add_column(i, key, column)
+        frames.append(table)
     try:
-        schema = pa.unify_schemas(schemas, promote_options="permissive")
+        merged = pa.concat_tables(frames, promote_options="permissive")
     except TypeError:  # pyarrow < 14 has no promote_options
-        schema = pa.unify_schemas(schemas)
-    dataset = pads.dataset([str(f) for f in files], schema=schema, format="parquet")
-    frame = dataset.to_table().to_pandas()
+        merged = pa.concat_tables(frames, promote=True)
+    frame = merged.to_pandas()
     keys = [c for c in SORT_COLUMNS if c in frame.columns]
     if keys:
         frame = frame.sort_values(keys, kind="stable")

@@ -7,6 +7,7 @@ spec (``sweeps/*.toml``) names a base config file and adds overrides and axes::
     seeds = 100
     base_seed = 0
     chunk_size = 1000
+    timeseries = false  # true: also write OUT/timeseries/ (one row per run, step and filter)
     [config]      # Config overrides (recompile)
     [params]      # Params overrides
     [grid]        # axes combined as a cartesian product
@@ -38,7 +39,7 @@ import pandas as pd
 from mcjax import scenarios
 
 SPEC_KEYS = ("scenario", "base", "seeds", "base_seed", "chunk_size", "config", "params", "grid", "zip",
-             "description")
+             "description", "timeseries")
 
 
 class SpecError(ValueError):
@@ -69,6 +70,7 @@ class SweepSpec:
     base_seed: int = 0
     chunk_size: int = 1000
     source: dict = field(default_factory=dict)
+    timeseries: bool = False
 
     @property
     def axes(self) -> list[str]:
@@ -208,7 +210,28 @@ def load_spec(path: str | Path, *, seeds: int | None = None, chunk_size: int | N
     for name, value in (("seeds", seeds), ("chunk_size", chunk), ("base_seed", base_seed)):
         if not isinstance(value, int) or isinstance(value, bool) or value < (0 if name == "base_seed" else 1):
             raise SpecError(f"{name}: must be an integer >= {0 if name == 'base_seed' else 1}; got {value!r}")
-    return SweepSpec(scenario, cfg, base_params, grid, zipped, seeds, base_seed, chunk, data)
+    timeseries = data.get("timeseries", False)
+    if not isinstance(timeseries, bool):
+        raise SpecError(f"timeseries: must be true or false; got {timeseries!r}")
+    if timeseries and not hasattr(scenario, "timeseries"):
+        raise SpecError(f"timeseries: scenario {scenario.NAME!r} has no per-step series")
+    spec = SweepSpec(scenario, cfg, base_params, grid, zipped, seeds, base_seed, chunk, data, timeseries)
+    _check_points(spec, params)
+    return spec
+
+
+def _check_points(spec: SweepSpec, params: dict) -> None:
+    """Checks across fields that depend on the Config (e.g. t_r <= max_horizon), over every point."""
+    check = getattr(spec.scenario, "check_params", None)
+    if check is None:
+        return
+    table = points(spec)
+    merged = {**params, **{axis: table[axis].to_numpy() for axis in spec.axes}}
+    for name, allowed in check(spec.config, merged):
+        where = "grid." if name in spec.grid else "zip." if name in spec.zipped else "params."
+        got = merged.get(name, getattr(spec.base_params, name))
+        got = sorted(set(np.atleast_1d(np.asarray(got)).tolist()))
+        raise SpecError(f"{where}{name}: must be {allowed}; got {got if len(got) > 1 else got[0]!r}")
 
 
 def points(spec: SweepSpec) -> pd.DataFrame:
@@ -260,6 +283,31 @@ def summary_rows(spec: SweepSpec, table: pd.DataFrame, start: int, out: dict) ->
     return df.sort_values(["point_id", "seed_index", "filter"], kind="stable").reset_index(drop=True)
 
 
+def timeseries_rows(spec: SweepSpec, start: int, series: dict) -> pd.DataFrame:
+    """Tidy rows (one per run, step and filter) from a chunk's per-step series: each value is
+    (runs, T) (the same for every filter) or (runs, T, F)."""
+    filters = spec.config.filters
+    first = np.asarray(next(iter(series.values())))
+    n, T = first.shape[:2]
+    runs = np.arange(start, start + n)
+    shape = (n, T, len(filters))
+    cols = {
+        "point_id": np.broadcast_to((runs // spec.seeds)[:, None, None], shape).ravel().astype(np.int64),
+        "seed_index": np.broadcast_to((runs % spec.seeds)[:, None, None], shape).ravel().astype(np.int64),
+        "t": np.broadcast_to(np.arange(T)[None, :, None], shape).ravel().astype(np.int64),
+        "filter": np.broadcast_to(np.asarray(filters)[None, None, :], shape).ravel(),
+    }
+    for key, value in series.items():
+        value = np.asarray(value)
+        cols[key] = (value if value.ndim == 3 else np.broadcast_to(value[..., None], shape)).ravel()
+    return pd.DataFrame(cols)
+
+
+def chunk_parts(spec: SweepSpec, index: int, start: int, stop: int) -> list[str]:
+    """The part names chunk ``index`` (runs ``start … stop−1``) writes, one per point it touches."""
+    return [f"point_id={p}/part-{index:06d}" for p in range(start // spec.seeds, (stop - 1) // spec.seeds + 1)]
+
+
 def run_sweep(spec: SweepSpec, out_dir: str | Path | None = None, *, chunks: list[int] | None = None,
               progress: Callable[[int], None] | None = None, metadata: dict | None = None) -> pd.DataFrame:
     """Run every chunk (or only ``chunks``) of a sweep; write each as a part file when
@@ -271,10 +319,20 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path | None = None, *, chunks: lis
     frames = []
     for idx, start, stop, out in engine.run_chunks(spec.scenario, spec.config, params, spec.seeds,
                                                    base_seed=spec.base_seed, chunk_size=spec.chunk_size,
-                                                   chunks=chunks):
+                                                   chunks=chunks, timeseries=spec.timeseries):
+        if spec.timeseries:
+            out, series = out
         df = summary_rows(spec, table, start, out)
         if out_dir is not None:
-            results.write_part(out_dir, "runs", df, f"part-{idx:06d}", metadata or {})
+            # one file per point of the chunk (hive layout); the chunk is done when all exist
+            for pid, part in df.groupby("point_id", sort=True):
+                results.write_part(out_dir, "runs", part, f"part-{idx:06d}", metadata or {},
+                                   partition={"point_id": int(pid)})
+            if spec.timeseries:
+                ts = timeseries_rows(spec, start, series)
+                for pid, part in ts.groupby("point_id", sort=True):
+                    results.write_part(out_dir, "timeseries", part, f"part-{idx:06d}", metadata or {},
+                                       partition={"point_id": int(pid)})
         frames.append(df)
         if progress is not None:
             progress(stop - start)

@@ -1,19 +1,23 @@
 """The mcjax CLI driven through click's runner: sweeps to Parquet, dry runs, bad specs."""
 
+import numpy as np
 import pandas as pd
 import pyarrow.dataset as ds
 import pytest
 from click.testing import CliRunner
 
 from mcjax.cli import main
-from mcjax.results import read_metadata
+from mcjax.results import read_metadata, read_table
 
 BASE = str((__import__("pathlib").Path(__file__).parents[1] / "configs" / "sun2011.toml").resolve())
 
 
 def _spec(tmp_path, body):
+    """A small open-loop spec; ``body``'s lines before its first [table] stay top-level."""
+    top, sep, tables = body.partition("[")
     p = tmp_path / "spec.toml"
-    p.write_text(f'base = "{BASE}"\nseeds = 3\nchunk_size = 4\n[config]\nn_steps = 15\nwarmup_steps = 2\n' + body)
+    p.write_text(f'base = "{BASE}"\nseeds = 3\nchunk_size = 4\n{top}[config]\nn_steps = 15\nwarmup_steps = 2\n'
+                 'planner = "none"\n' + sep + tables)
     return p
 
 
@@ -24,7 +28,9 @@ def test_sweep_writes_tidy_parquet(tmp_path):
     assert r.exit_code == 0, r.output
     df = pd.read_parquet(out / "runs")
     assert len(df) == 2 * 3 * 5  # points x seeds x filters
-    assert len(ds.dataset(out / "runs").to_table()) == 30
+    table = ds.dataset(out / "runs", partitioning="hive").to_table()  # hive: runs/point_id=P/
+    assert table.num_rows == 30 and sorted(set(table.column("point_id").to_pylist())) == [0, 1]
+    assert sorted(p.parent.name for p in (out / "runs").glob("*/*.parquet")) == ["point_id=0", "point_id=1"]
     assert set(df["comm_radius"]) == {60e3, 100e3}
     assert sorted(df.groupby(["point_id", "seed_index"]).size().unique()) == [5]
     meta = read_metadata(out)
@@ -62,16 +68,16 @@ def test_killed_sweep_resumes_to_identical_rows(tmp_path):
 
     spec = tmp_path / "spec.toml"
     spec.write_text(f'base = "{BASE}"\nseeds = 500\nchunk_size = 100\n[config]\nn_steps = 40\n'
-                    f'warmup_steps = 2\nfilters = ["cif", "modified_icf"]\n'
+                    f'warmup_steps = 2\nplanner = "none"\nfilters = ["cif", "modified_icf"]\n'
                     f'[grid]\ncomm_radius = [60e3, 80e3, 100e3]\n')
     out = tmp_path / "killed"
     proc = subprocess.Popen(_sweep_cmd(spec, out), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 300
-    while time.time() < deadline and not (out / "runs" / "part-000001.parquet").exists():
+    while time.time() < deadline and not (out / "runs" / "point_id=0" / "part-000001.parquet").exists():
         time.sleep(0.02)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    written = sorted(p.name for p in (out / "runs").glob("*.parquet"))
+    written = sorted(str(p) for p in (out / "runs").glob("*/*.parquet"))  # one chunk = one file here
     assert 2 <= len(written) < 15, written  # killed mid-way
 
     r = subprocess.run(_sweep_cmd(spec, out), capture_output=True, text=True)
@@ -86,6 +92,24 @@ def test_killed_sweep_resumes_to_identical_rows(tmp_path):
     assert len(resumed) == 3 * 500 * 2
     pd.testing.assert_frame_equal(resumed, whole, check_exact=True)
     assert not list((out / "_staging").glob("*")) if (out / "_staging").exists() else True
+
+
+def test_timeseries_dataset(tmp_path):
+    spec = _spec(tmp_path, 'timeseries = true\n[grid]\ncomm_radius = [60e3, 100e3]\n')
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    ts = read_table(out, "timeseries")
+    runs = read_table(out, "runs")
+    assert len(ts) == 2 * 3 * 15 * 5  # points x seeds x steps x filters
+    assert set(ts.columns) >= {"point_id", "seed_index", "t", "filter", "error_mean", "lambda2"}
+    # the per-step series agree with the per-run summaries
+    last = ts[ts["t"] == 14].set_index(["point_id", "seed_index", "filter"])["error_mean"]
+    final = runs.set_index(["point_id", "seed_index", "filter"])["final_error"]
+    np.testing.assert_allclose(last.sort_index().to_numpy(), final.sort_index().to_numpy(), rtol=1e-12)
+    lam = ts.groupby(["point_id", "seed_index", "filter"])["lambda2"].min().sort_index()
+    np.testing.assert_allclose(lam.to_numpy(), runs.set_index(["point_id", "seed_index", "filter"])
+                               ["lambda2_min"].sort_index().to_numpy())
 
 
 def test_resume_refuses_a_different_sweep(tmp_path):
@@ -119,6 +143,9 @@ def test_zip_and_range_axes(tmp_path):
     ("[zip]\nuav_speed = [1.0, 2.0]\nturn_rate_max = [0.1]\n", "zip: axes must have equal lengths"),
     ("[grid]\nsigma_range = {logspace = [0, 10, 3]}\n", "grid.sigma_range.logspace: start and stop must be > 0"),
     ("[grid]\nsigma_range = {linspace = [1, 10]}\n", "grid.sigma_range.linspace: must be [start, stop, count]"),
+    ("[grid]\nhorizon = [3, 5, 12]\n", "grid.horizon: must be an integer in [1, max_horizon = 8]; got [3, 5, 12]"),
+    ("[params]\nhorizon = 2\n", "params.replan_every: must be an integer in [1, horizon]"),
+    ("timeseries = 1\n", "timeseries: must be true or false"),
 ])
 def test_bad_spec_exit_2_nothing_written(tmp_path, body, message):
     spec = _spec(tmp_path, body)

@@ -58,6 +58,24 @@ def _write_three(out) -> None:
         write_part(out, "runs", _part_df(p), f"part-{p:06d}", {"config": {"point": p}})
 
 
+def test_hive_partitioned_round_trip(tmp_path):
+    # two chunks, the second straddling points 1 and 2: one file per (point, chunk)
+    for chunk, points in ((0, (0, 1)), (1, (1, 2))):
+        for p in points:
+            write_part(tmp_path, "runs", _part_df(p), f"part-{chunk:06d}", {}, partition={"point_id": p})
+    assert existing_parts(tmp_path, "runs") == ["point_id=0/part-000000", "point_id=1/part-000000",
+                                                "point_id=1/part-000001", "point_id=2/part-000001"]
+    assert "point_id" not in pq.read_schema(tmp_path / "runs" / "point_id=0" / "part-000000.parquet").names
+    expected = _sorted(pd.concat([_part_df(p) for p in (0, 1, 1, 2)], ignore_index=True))
+    got = read_table(tmp_path)
+    assert got["point_id"].dtype == np.int64
+    pd.testing.assert_frame_equal(got[expected.columns], expected)
+    arrow = pads.dataset(tmp_path / "runs", partitioning="hive").to_table().to_pandas()
+    assert sorted(arrow["point_id"].astype(int)) == sorted(expected["point_id"])
+    with pytest.raises(ValueError, match="partition"):
+        write_part(tmp_path, "runs", _part_df(0), "part-000009", {}, partition={"point_id": "../x"})
+
+
 def test_round_trip_three_readers(tmp_path):
     _write_three(tmp_path)
     expected = _expected([0, 1, 2])

@@ -427,3 +427,33 @@ def summarize(cfg: Config, records: Record, params: Params | None = None) -> dic
         plan_cost_mean=jnp.mean(records.plan_cost),
     )
     return summary
+
+
+#: Per-step series written to ``OUT/timeseries/`` when a sweep spec sets ``timeseries = true``:
+#: (name, per_filter, description).
+TIMESERIES_FIELDS = (
+    ("error_mean", True, "mean position error over alive agents, m"),
+    ("error_max", True, "largest position error of any alive agent, m"),
+    ("leader_error", True, "the leader's (agent 0) position error, m"),
+    ("lambda2", False, "algebraic connectivity of the comm graph"),
+    ("robustness_min", False, "smallest connectivity robustness R_I, m"),
+    ("n_seeing", False, "agents that see the target"),
+    ("plan_cost", False, "exact eq. 16 cost of the plan in force (0 in open loop)"),
+)
+
+
+def timeseries(cfg: Config, records: Record, params: Params | None = None) -> dict:
+    """A few per-step series of one run: (T, F) per filter, (T,) otherwise."""
+    e = records.error  # (T, F, n)
+    alive = jnp.ones(e.shape[-1], e.dtype)
+    if params is not None:
+        alive = (jnp.broadcast_to(jnp.asarray(params.alive, e.dtype), (cfg.n_agents,)) > 0.5).astype(e.dtype)
+    return dict(
+        error_mean=jnp.sum(e * alive, -1) / jnp.maximum(jnp.sum(alive), 1.0),
+        error_max=jnp.max(jnp.where(alive > 0, e, -jnp.inf), -1),
+        leader_error=e[..., 0],
+        lambda2=records.lambda2,
+        robustness_min=jnp.min(records.robustness, -1),
+        n_seeing=records.n_seeing,
+        plan_cost=records.plan_cost,
+    )

@@ -1,0 +1,82 @@
+"""The closed loop of seed 000 §4 in the leader–follower scenario: one program for a batch of
+mixed horizons and weights, plan cadence τ_r, limits respected, validation."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mcjax import engine
+from mcjax.scenarios import leader_follower as lf
+
+CFG = lf.Config(planner="gradient", filters=("cif", "modified_icf"), n_steps=24, warmup_steps=4,
+                plan_iterations=3)
+
+
+def batch(cfg, points, seeds):
+    params = engine.stack_points([lf.default_params(cfg, **p) for p in points])
+    keys = jax.vmap(lambda s: engine.run_key(0, s))(jnp.asarray(seeds, jnp.uint32))
+    return params, keys
+
+
+@pytest.fixture(scope="module")
+def mixed():
+    fn = engine.compiled(lf, CFG, summarize=False)
+    mixed_points = [dict(horizon=3, replan_every=3, alpha_I=0.0),
+                    dict(horizon=5, replan_every=3, alpha_I=1000.0),
+                    dict(horizon=8, replan_every=2, alpha_I=300.0)]
+    a = fn(*batch(CFG, mixed_points, [0, 1, 2]))
+    b = fn(*batch(CFG, [mixed_points[1]] * 3, [5, 1, 7]))
+    return fn, jax.tree.map(np.asarray, a), jax.tree.map(np.asarray, b)
+
+
+def test_mixed_horizons_share_one_program(mixed):
+    fn, a, b = mixed
+    assert fn._cache_size() == 1  # t_r = 3, 5, 8 and three α_I in one compiled program
+    # the t_r = 5 run (lane 1, seed 1) is the same inside the mixed batch and among its equals
+    for name in ("positions", "error", "plan_cost", "lambda2"):
+        np.testing.assert_array_equal(getattr(a, name)[1], getattr(b, name)[1])
+    # and the runs really differ with the horizon / weights
+    assert not np.array_equal(a.positions[0], a.positions[1])
+
+
+def test_run_alone_equals_run_in_mixed_batch(mixed):
+    _, a, _ = mixed
+    alone = engine.compiled(lf, CFG, summarize=False)(*batch(CFG, [dict(horizon=5, replan_every=3, alpha_I=1000.0)], [1]))
+    np.testing.assert_allclose(np.asarray(alone.positions)[0], a.positions[1], rtol=1e-9, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(alone.error)[0], a.error[1], rtol=1e-6, atol=1e-6)
+
+
+def test_replans_every_tau_r_and_respects_the_turn_rate(mixed):
+    _, a, _ = mixed
+    # the plan in force changes exactly at steps 0, τ_r, 2τ_r, ... (its exact cost is recorded)
+    for lane, tau in ((0, 3), (2, 2)):
+        changes = np.flatnonzero(np.diff(a.plan_cost[lane]) != 0) + 1
+        assert set(changes) <= set(range(0, CFG.n_steps, tau)) and len(changes) >= CFG.n_steps // tau - 2
+    # headings never turn faster than the eq. 4 limit (10°/s): the chord direction changes by
+    # at most the turn over two consecutive 1-s steps
+    d = np.diff(a.positions, axis=1)
+    ang = np.arctan2(d[..., 1], d[..., 0])
+    turn = np.abs(np.angle(np.exp(1j * np.diff(ang, axis=1))))
+    assert np.all(turn <= np.deg2rad(10.0) + 1e-9)
+    assert np.all(np.isfinite(a.error)) and np.all(np.isfinite(a.plan_cost))
+
+
+@pytest.mark.parametrize("planner", ["random", "cem"])
+def test_sampled_planners_close_the_loop(planner):
+    cfg = lf.Config(planner=planner, filters=("modified_icf",), n_steps=12, warmup_steps=2,
+                    plan_iterations=2, plan_samples=16)
+    out = engine.compiled(lf, cfg)(*batch(cfg, [{}] * 2, [0, 1]))
+    assert np.all(np.isfinite(np.asarray(out["plan_cost_mean"])))
+    assert np.all(np.asarray(out["plan_cost_mean"]) > 0)
+
+
+def test_config_and_param_validation():
+    with pytest.raises(ValueError, match="filters must include 'modified_icf'"):
+        lf.Config(planner="gradient", filters=("cif",))
+    with pytest.raises(ValueError, match="planner must be one of none, gradient, random, cem"):
+        lf.Config(planner="mpc")
+    cfg = lf.Config(max_horizon=6)
+    assert lf.check_params(cfg, {"horizon": 8}) == [("horizon", "an integer in [1, max_horizon = 6]")]
+    assert lf.check_params(cfg, {"horizon": 4, "replan_every": 5}) == [("replan_every", "an integer in [1, horizon]")]
+    assert lf.check_params(cfg, {"horizon": [3, 5], "replan_every": 3}) == []

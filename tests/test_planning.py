@@ -1,0 +1,194 @@
+"""Receding-horizon planning (seed 000 §4): cost terms against independent forms, rollout
+invariants, t_r masking, finite gradients in degenerate geometry, and the solvers."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mcjax import graph
+from mcjax.models.sensors import range_bearing
+from mcjax.planning import (
+    CostParams, Dynamics, PlannerOptions, Problem, horizon_cost, horizon_terms, rollout, shift_plan, solve,
+)
+from mcjax.planning.objectives import a_optimality, position_information, robustness_penalty
+
+N = 5
+LAYOUT = np.array([[20, 150], [80, 150], [130, 200], [130, 100], [180, 150]]) * 1e3
+TARGET = np.array([200e3, 200.0, 180e3, -1000.0])
+DYN = Dynamics(1.0, 1.0, np.deg2rad(10.0), 5, 50.0)
+
+
+def cost_params(n=N, **kw):
+    values = dict(alpha_I=1000.0, alpha_C=1.0, alpha_L=1e-4, alpha_S=1e4, d_safe=1e3, d_lt=20e3,
+                  robustness_scale=5e3, temperature=1e3, sensing_radius=np.full(n, 120e3),
+                  comm_radius=np.full(n, 100e3), sigma_range=10.0, sigma_bearing=0.017, alive=np.ones(n))
+    values.update(kw)
+    return CostParams(**{k: jnp.asarray(v, jnp.float64) for k, v in values.items()})
+
+
+def problem(xy=LAYOUT, headings=0.0, target=TARGET, pos_sd=100.0, vel_sd=10.0):
+    xy = np.asarray(xy, float)
+    uavs = np.concatenate([xy, np.full((len(xy), 1), 800.0), np.broadcast_to(headings, (len(xy),))[:, None]], -1)
+    Y = np.diag(1.0 / np.array([pos_sd, vel_sd, pos_sd, vel_sd]) ** 2)
+    return Problem(jnp.asarray(uavs), jnp.asarray(target, float), jnp.asarray(Y))
+
+
+def test_position_information_is_jacobian_form():
+    """I = Hᵀ R⁻¹ H (seed 000 eq. 10) with H the Jacobian of the range–bearing model."""
+    rng = np.random.default_rng(0)
+    sensors = rng.uniform(-50e3, 50e3, (6, 2))
+    x = np.array([3e3, 100.0, -7e3, 5.0])
+    R_inv = np.diag([1 / 10.0**2, 1 / 0.017**2])
+    got = position_information(jnp.asarray(sensors), jnp.asarray(x[[0, 2]]), 10.0, 0.017)
+    for s, I in zip(sensors, np.asarray(got)):
+        H = np.asarray(jax.jacfwd(range_bearing)(jnp.asarray(x), jnp.asarray(s)))[:, [0, 2]]
+        np.testing.assert_allclose(I, H.T @ R_inv @ H, rtol=1e-6)  # ε = 1 m in r: 1e-10 relative
+
+
+def test_a_optimality_is_trace_of_inverse():
+    rng = np.random.default_rng(1)
+    A = rng.normal(size=(4, 4))
+    Y = A @ A.T + 4 * np.eye(4)
+    blocks = rng.normal(size=(3, 2, 2))
+    blocks = blocks @ np.swapaxes(blocks, -1, -2)
+    gates = np.array([1.0, 0.0, 0.5])
+    total = Y.copy()
+    total[np.ix_([0, 2], [0, 2])] += np.einsum("i,ijk->jk", gates, blocks)
+    tr, P = a_optimality(jnp.asarray(Y), jnp.asarray(blocks), jnp.asarray(gates))
+    np.testing.assert_allclose(float(tr), np.trace(np.linalg.inv(total)), rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(P), np.linalg.inv(total), rtol=1e-10, atol=1e-14)
+
+
+def test_robustness_penalties():
+    R = jnp.array([-50e3, -5e3, 0.0, 5e3, 50e3])
+    barrier = np.asarray(robustness_penalty(R, "barrier", 5e3, 1e3, smooth=False))
+    assert np.all(np.diff(barrier) < 0)  # monotone: grows as R falls toward and below 0
+    np.testing.assert_allclose(barrier[0], 10.0, rtol=1e-4)  # ≈ −R/s for a broken graph
+    inverse = np.asarray(robustness_penalty(R[R != 0], "inverse", 5e3, 1e3, smooth=False))
+    np.testing.assert_allclose(inverse, 1 / np.abs(np.asarray(R[R != 0])))  # the paper's 1/|R|
+    smooth = np.asarray(robustness_penalty(R[R != 0], "inverse", 5e3, 1.0, smooth=True))
+    np.testing.assert_allclose(smooth, inverse, rtol=1e-6)
+    # no information neighbour: R = +inf costs nothing
+    assert float(robustness_penalty(jnp.array(jnp.inf), "barrier", 5e3, 1e3, smooth=False)) == 0.0
+
+
+def test_smooth_cost_tends_to_exact():
+    prob, u = problem(), jnp.asarray(np.random.default_rng(2).uniform(-1, 1, (8, N)))
+    exact = horizon_terms(prob, u, DYN, cost_params(), penalty="barrier", smooth=False)
+    for T, tol in ((100.0, 0.1), (1.0, 1e-3)):
+        smooth = horizon_terms(prob, u, DYN, cost_params(temperature=T), penalty="barrier", smooth=True)
+        for e, s in zip(exact, smooth):
+            np.testing.assert_allclose(float(s), float(e), rtol=tol, atol=tol)
+
+
+def test_rollout_straight_and_rate_limited():
+    prob = problem(headings=0.3)
+    poses, prev, cmds, targets = rollout(prob, jnp.zeros((8, N)), DYN)
+    t = np.arange(1, 9)[:, None]
+    # u = 0 holds the heading: straight lines at 800 m/s (seed 000 eq. 3)
+    np.testing.assert_allclose(poses[..., 0], LAYOUT[:, 0] + 800.0 * t * np.cos(0.3), rtol=1e-12)
+    np.testing.assert_allclose(poses[..., 1], LAYOUT[:, 1] + 800.0 * t * np.sin(0.3), rtol=1e-12)
+    # the target mean follows the CV model
+    np.testing.assert_allclose(targets[-1], TARGET + 8 * np.array([200.0, 0, -1000.0, 0]) * [1, 0, 1, 0])
+    # any plan respects the eq. 4 turn-rate limit
+    u = jnp.asarray(np.random.default_rng(3).uniform(-1, 1, (8, N)))
+    poses, prev, cmds, _ = rollout(prob, u, DYN)
+    turn = np.abs(np.angle(np.exp(1j * (np.asarray(poses[..., 3]) - np.asarray(prev)))))
+    assert np.all(turn <= np.deg2rad(10.0) + 1e-12)
+    np.testing.assert_allclose(np.asarray(cmds) - np.asarray(prev), np.deg2rad(10.0) * np.asarray(u))
+
+
+def test_horizon_masks_steps_beyond_t_r():
+    prob = problem()
+    u = jnp.asarray(np.random.default_rng(4).uniform(-1, 1, (8, N)))
+    cp = cost_params()
+    # one compiled program for every t_r (t_r is data, not shape)
+    grad = jax.jit(lambda v, t_r: jax.grad(lambda w: horizon_cost(prob, w, DYN._replace(horizon=t_r), cp,
+                                                                  smooth=True))(v))
+    exact = jax.jit(lambda v, t_r: horizon_cost(prob, v, DYN._replace(horizon=t_r), cp))
+    for t_r in (3, 5, 8):
+        g = np.asarray(grad(u, float(t_r)))
+        assert np.all(g[t_r:] == 0.0) and np.any(g[:t_r] != 0.0)
+        changed = u.at[t_r:].set(-u[t_r:])
+        assert float(exact(changed, float(t_r))) == float(exact(u, float(t_r)))
+    assert grad._cache_size() == 1
+
+
+def test_shift_plan():
+    u = jnp.arange(8.0)[:, None] * jnp.ones((1, 2))
+    np.testing.assert_array_equal(shift_plan(u, 3, 5)[:, 0], [3, 4, 0, 0, 0, 0, 0, 0])
+    np.testing.assert_array_equal(shift_plan(u, 1, 8)[:, 0], [1, 2, 3, 4, 5, 6, 7, 0])
+
+
+def degenerate_batch(n_runs=1000, seed=5):
+    """Random planning problems, a quarter each with coincident UAVs, a UAV on the target,
+    every UAV out of sensing range, and a graph broken into isolated UAVs."""
+    rng = np.random.default_rng(seed)
+    xy = LAYOUT + rng.uniform(-40e3, 40e3, (n_runs, N, 2))
+    target = np.tile(TARGET, (n_runs, 1)) + rng.normal(0, 1, (n_runs, 4)) * [10e3, 50, 10e3, 50]
+    q = n_runs // 4
+    xy[:q, 1] = xy[:q, 0]                                   # coincident UAVs
+    xy[:q, 3] = xy[:q, 2] = xy[:q, 4]                       # three on one spot
+    xy[q:2 * q, 4] = target[q:2 * q][:, [0, 2]]             # a UAV on the target
+    xy[2 * q:3 * q] += np.array([-1000e3, 0.0])             # nobody in sensing range
+    xy[3 * q:] = np.array([[0, 0], [500e3, 0], [0, 500e3], [-500e3, 0], [0, -500e3]])  # no links
+    headings = rng.uniform(-np.pi, np.pi, (n_runs, N))
+    uavs = np.concatenate([xy, np.full((n_runs, N, 1), 800.0), headings[..., None]], -1)
+    sd = rng.uniform(10, 500, (n_runs, 4))
+    Y = np.einsum("bi,ij->bij", 1 / sd**2, np.eye(4))
+    u = rng.uniform(-1, 1, (n_runs, 8, N))
+    u[::7] = 0.0  # exactly straight plans too
+    return Problem(jnp.asarray(uavs), jnp.asarray(target), jnp.asarray(Y)), jnp.asarray(u)
+
+
+@pytest.mark.parametrize("penalty", ["barrier", "inverse"])
+def test_gradient_finite_in_degenerate_geometry(penalty):
+    probs, u = degenerate_batch()
+    cp = cost_params()
+    grads = jax.jit(jax.vmap(jax.grad(lambda q, v: horizon_cost(q, v, DYN, cp, penalty=penalty, smooth=True),
+                                      argnums=1)))(probs, u)
+    g = np.asarray(grads)
+    assert np.all(np.isfinite(g)), np.argwhere(~np.isfinite(g))[:5]
+    # and the geometry really is degenerate: coincident UAVs, no sensing, broken graphs
+    xy = np.asarray(probs.uavs[..., :2])
+    assert np.all(np.linalg.norm(xy[:250, 0] - xy[:250, 1], axis=-1) == 0.0)
+    assert np.all(np.asarray(graph.algebraic_connectivity(graph.adjacency(jnp.asarray(xy[750:]), 100e3))) < 1e-9)
+    r_t = np.linalg.norm(xy[500:750] - np.asarray(probs.target_mean)[500:750, None, [0, 2]], axis=-1)
+    assert np.all(r_t > 120e3)
+
+
+def test_gradient_planner_turns_towards_an_unseen_target():
+    """One UAV 200 km from the target, heading away: only the distance term acts, and the
+    best first move is to turn towards the target (the shorter way round)."""
+    uav = np.array([[0.0, 0.0]])
+    target = np.array([0.0, 0.0, 200e3, 0.0])  # due +y
+    prob = problem(uav, headings=0.1, target=target)  # heading ~east: turn left (+) to face north
+    cp = cost_params(n=1, alpha_I=0.0, alpha_C=0.0)
+    warm = jnp.zeros((8, 1))
+    plan = jax.jit(lambda w: solve(prob, w, jax.random.PRNGKey(0), DYN, cp, PlannerOptions("gradient", iterations=30)))(warm)
+    assert np.all(np.asarray(plan.u)[:5, 0] > 0.9)  # full left turn over the horizon
+    assert float(plan.cost) < float(horizon_cost(prob, warm, DYN, cp))
+
+
+@pytest.mark.parametrize("kind", ["gradient", "random", "cem"])
+def test_solvers_report_exact_cost_and_never_lose_to_the_warm_start(kind):
+    probs, warm = degenerate_batch(64, seed=7)
+    cp = cost_params()
+    opts = PlannerOptions(kind, iterations=4, samples=32)
+    keys = jax.random.split(jax.random.PRNGKey(0), 64)
+    plans = jax.jit(jax.vmap(lambda q, w, k: solve(q, w, k, DYN, cp, opts)))(probs, warm, keys)
+    exact = jax.vmap(lambda q, v: horizon_cost(q, v, DYN, cp))
+    np.testing.assert_allclose(plans.cost, exact(probs, plans.u), rtol=1e-12)
+    assert np.all(np.asarray(plans.cost) <= np.asarray(exact(probs, warm)))
+    assert np.all(np.abs(np.asarray(plans.u)) <= 1.0)
+    assert np.mean(np.asarray(plans.cost) < np.asarray(exact(probs, warm))) > 0.5  # it does improve
+
+
+def test_planner_options_validation():
+    with pytest.raises(ValueError, match="planner must be one of gradient, random, cem"):
+        PlannerOptions("newton")
+    with pytest.raises(ValueError, match="cem needs"):
+        PlannerOptions("cem", iterations=10, samples=8)
+    with pytest.raises(ValueError, match="robustness_penalty must be one of barrier, inverse"):
+        PlannerOptions(penalty="log")
