@@ -146,6 +146,7 @@ def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force):
 def _missing_chunks(spec, plan, out_dir) -> list[int]:
     """Chunks not completely on disk: some part (of ``runs/``, or ``timeseries/`` when the spec
     asks for it) is missing. Re-running one rewrites its parts under the same names."""
+    from mcjax import results
     from mcjax.sweep import chunk_parts
 
     tables = ["runs"] + (["timeseries"] if spec.timeseries else [])

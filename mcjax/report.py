@@ -84,6 +84,17 @@ AXIS_UNITS = {
     "p0_diag": "m^2, (m/s)^2",
     "kcf_epsilon": "-",
     "alive": "0/1",
+    "target_sigma_accel": "m/s^2",
+    "alpha_I": "-",
+    "alpha_C": "1/rad",
+    "alpha_L": "1/m",
+    "alpha_S": "-",
+    "d_safe": "m",
+    "d_lt": "m",
+    "robustness_scale": "m",
+    "plan_temperature": "m",
+    "horizon": "steps",
+    "replan_every": "steps",
 }
 
 #: Metric columns of :func:`summarize` (after the axis columns and ``filter``).
