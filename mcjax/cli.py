@@ -218,8 +218,6 @@ def list_scenarios(scenario):
         mod = scenarios.get(scenario)
     except ValueError as exc:
         _fail(str(exc))
-    from mcjax.filters.consensus import CONTRIBUTION_KINDS, FILTER_KINDS, ICF_VARIANTS, KCF_GAINS, WEIGHT_KINDS
-
     click.echo(f"{mod.NAME}: {mod.PAPER}\n\nParams (sweepable, no recompilation):")
     defaults = mod.default_params(mod.Config())
     ranges = getattr(mod, "PARAM_RANGES", {})
@@ -228,12 +226,10 @@ def list_scenarios(scenario):
         shown = value.tolist() if value.size <= 6 else f"array{value.shape}"
         allowed = ranges.get(field, (None, None, "any"))[2]
         click.echo(f"  {field:18s} [{mod.PARAM_UNITS.get(field, '')}] default {shown}; allowed {allowed}")
-    choices = {"filters": f"subset of {FILTER_KINDS}", "consensus_weights": WEIGHT_KINDS,
-               "contribution": CONTRIBUTION_KINDS, "icf_variant": ICF_VARIANTS, "kcf_gain": KCF_GAINS,
-               "dtype": ("float64", "float32")}
+    allowed_values = getattr(mod, "CONFIG_ALLOWED", {})
     click.echo("\nConfig (fixes shapes / the program; changing it recompiles):")
     for f in dataclasses.fields(mod.Config):
-        allowed = choices.get(f.name, "integer >= 0" if f.type == "int" else "> 0")
+        allowed = allowed_values.get(f.name, "any")
         click.echo(f"  {f.name:20s} default {f.default!r}; allowed {allowed}")
 
 

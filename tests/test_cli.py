@@ -183,3 +183,11 @@ def test_report_command_prints_table_and_writes_plots(tmp_path):
 def test_every_command_has_help(cmd):
     r = CliRunner().invoke(main, cmd)
     assert r.exit_code == 0 and "Usage:" in r.output and len(r.output) > 200
+
+
+@pytest.mark.parametrize("name", ["default", "sun2011_table1", "comm_radius", "alpha_horizon"])
+def test_shipped_sweeps_validate(tmp_path, name):
+    spec = __import__("pathlib").Path(__file__).parents[1] / "sweeps" / f"{name}.toml"
+    r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / "o"), "--dry-run"])
+    assert r.exit_code == 0, r.output
+    assert "runs" in r.output and not (tmp_path / "o").exists()

@@ -27,7 +27,11 @@ import numpy as np
 from mcjax import graph, metrics
 from mcjax.numerics import symmetrize
 from mcjax.filters.consensus import (
+    CONTRIBUTION_KINDS,
     FILTER_KINDS,
+    ICF_VARIANTS,
+    KCF_GAINS,
+    WEIGHT_KINDS,
     FilterOptions,
     Measurements,
     filter_step,
@@ -38,6 +42,7 @@ from mcjax.models.motion import cv_matrices, cv_process_noise, cv_step
 from mcjax.models.platforms import UnicycleLimits, unicycle_step
 from mcjax.models.sensors import measure_range_bearing, range_bearing
 from mcjax.planning import CostParams, Dynamics, PlannerOptions, Problem, rollout, shift_plan, solve
+from mcjax.planning.objectives import ROBUSTNESS_PENALTIES
 from mcjax.planning.solvers import PLANNER_KINDS
 
 NAME = "leader_follower"
@@ -103,6 +108,25 @@ class Config:
     def planner_options(self) -> PlannerOptions:
         return PlannerOptions(self.planner, self.plan_iterations, self.plan_samples,
                               self.plan_learning_rate, self.plan_elite_fraction, self.robustness_penalty)
+
+
+def _choices(values) -> str:
+    return "one of " + ", ".join(values)
+
+
+#: Allowed values of each Config field, as shown by ``mcjax list``.
+CONFIG_ALLOWED = {
+    "n_agents": "integer >= 1", "n_steps": "integer >= 1",
+    "filters": "non-empty subset of " + ", ".join(FILTER_KINDS),
+    "consensus_steps": "integer >= 0", "consensus_weights": _choices(WEIGHT_KINDS),
+    "contribution": _choices(CONTRIBUTION_KINDS), "icf_variant": _choices(ICF_VARIANTS),
+    "kcf_gain": _choices(KCF_GAINS), "divergence_threshold": "> 0 (m)",
+    "warmup_steps": "integer in [0, n_steps)", "dtype": _choices(("float64", "float32")),
+    "planner": _choices(("none",) + PLANNER_KINDS), "max_horizon": "integer >= 1",
+    "plan_iterations": "integer >= 1", "plan_samples": "integer >= 2 (cem: >= 2 per round)",
+    "plan_learning_rate": "> 0", "plan_elite_fraction": "in (0, 1]",
+    "robustness_penalty": _choices(ROBUSTNESS_PENALTIES),
+}
 
 
 class Params(NamedTuple):
