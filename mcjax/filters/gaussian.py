@@ -79,3 +79,103 @@ def from_information(y, Y) -> Gaussian:
     Y = symmetrize(Y)
     P = symmetrize(spd_inverse(Y))
     return Gaussian(matvec(P, y), P, Y)
+
+
+# --------------------------------------------------------------------------- unscented
+
+
+class Unscented(NamedTuple):
+    """Scaling of the unscented transform (Julier & Uhlmann; Wan & van der Merwe's α, β, κ)."""
+
+    alpha: float = 1.0
+    beta: float = 2.0
+    kappa: float = 0.0
+    jitter: float = 1e-12  # added to the diagonal (relative to its mean) before the Cholesky
+
+
+def sigma_points(x, P, ut: Unscented = Unscented()):
+    """The 2d+1 scaled sigma points and their mean / covariance weights (algorithms.md §2).
+
+    ``χ_0 = x``, ``χ_{±k} = x ± (√((d+λ)(P + εI)))_k`` with ``λ = α²(d+κ) − d``, the matrix
+    square root a lower Cholesky factor and ε = ``jitter`` × mean diagonal of P.
+    Returns ``(χ (2d+1, d), W_m (2d+1,), W_c (2d+1,))``."""
+    d = x.shape[-1]
+    lam = ut.alpha**2 * (d + ut.kappa) - d
+    eps = ut.jitter * jnp.trace(P) / d
+    L = jnp.linalg.cholesky(symmetrize(P) + eps * jnp.eye(d, dtype=P.dtype))
+    S = jnp.sqrt(d + lam) * L
+    chi = jnp.concatenate([x[None], x + S.T, x - S.T])
+    wm = jnp.full(2 * d + 1, 0.5 / (d + lam), dtype=x.dtype).at[0].set(lam / (d + lam))
+    wc = wm.at[0].add(1.0 - ut.alpha**2 + ut.beta)
+    return chi, wm, wc
+
+
+def unscented_transform(f: Callable, x, P, ut: Unscented = Unscented(), angle_mask=None):
+    """Mean, covariance and cross-covariance of ``y = f(x)`` for ``x ~ N(x, P)`` by the
+    unscented transform (algorithms.md §2). Components of ``y`` flagged in ``angle_mask``
+    are averaged as angles (residuals wrapped about the central point).
+    Returns ``(ȳ, P_yy, P_xy)``."""
+    chi, wm, wc = sigma_points(x, P, ut)
+    Y = jax.vmap(f)(chi)
+    dY = Y - Y[0]
+    if angle_mask is not None:
+        dY = jnp.where(angle_mask, wrap_angle(dY), dY)
+    y_mean = Y[0] + wm @ dY
+    r = dY - (y_mean - Y[0])
+    if angle_mask is not None:
+        r = jnp.where(angle_mask, wrap_angle(r), r)
+        y_mean = jnp.where(angle_mask, wrap_angle(y_mean), y_mean)
+    dx = chi - x
+    P_yy = symmetrize((wc[:, None] * r).T @ r)
+    P_xy = (wc[:, None] * dx).T @ r
+    return y_mean, P_yy, P_xy
+
+
+def ukf_predict(x, P, f: Callable, Q, ut: Unscented = Unscented()):
+    """UKF prediction ``x̄, P̄ = UT(f)(x, P) + (0, Q)`` (algorithms.md §2)."""
+    xb, Pb, _ = unscented_transform(f, x, P, ut)
+    return xb, symmetrize(Pb + Q)
+
+
+def gaussian_loglik(nu, S):
+    """``log N(ν; 0, S)`` via a Cholesky factor (IMM mode likelihood, algorithms.md §3)."""
+    L = jnp.linalg.cholesky(S)
+    w = jax.scipy.linalg.solve_triangular(L, nu, lower=True)
+    m = nu.shape[-1]
+    return -0.5 * (w @ w) - jnp.sum(jnp.log(jnp.diag(L))) - 0.5 * m * jnp.log(2.0 * jnp.pi)
+
+
+def ukf_update(x, P, z, h: Callable, R, ut: Unscented = Unscented(), angle_mask=None):
+    """UKF measurement update in moment form (algorithms.md §2).
+
+    ``K = P_xz S⁻¹`` with ``S = P_zz + R``; ``x⁺ = x + K ν``, ``P⁺ = P − K S Kᵀ``. A
+    measurement with a non-finite component leaves the state unchanged (log-likelihood 0).
+    Returns ``(x⁺, P⁺, log N(ν; 0, S))``."""
+    valid = jnp.all(jnp.isfinite(z))
+    zh, Pzz, Pxz = unscented_transform(h, x, P, ut, angle_mask)
+    S = symmetrize(Pzz + R)
+    nu = jnp.where(valid, z, zh) - zh
+    if angle_mask is not None:
+        nu = jnp.where(angle_mask, wrap_angle(nu), nu)
+    K = jnp.linalg.solve(S, Pxz.T).T
+    x_new = x + K @ nu
+    P_new = symmetrize(P - K @ S @ K.T)
+    ll = gaussian_loglik(nu, S)
+    return (jnp.where(valid, x_new, x), jnp.where(valid, P_new, P), jnp.where(valid, ll, 0.0))
+
+
+def ukf_pseudo_measurement(x_pred, P_pred, z, h: Callable, R_inv, ut: Unscented = Unscented(),
+                           angle_mask=None):
+    """Information contribution ``(i, I)`` of one UKF measurement for consensus (algorithms.md §2,
+    seed 001): with ``H̃ = (P̄⁻¹ P_xz)ᵀ``, ``i = H̃ᵀ R⁻¹ (ν + H̃ x̄)`` and ``I = H̃ᵀ R⁻¹ H̃``.
+    A non-finite measurement contributes ``(0, 0)``."""
+    valid = jnp.all(jnp.isfinite(z))
+    zh, _, Pxz = unscented_transform(h, x_pred, P_pred, ut, angle_mask)
+    Ht = jnp.linalg.solve(P_pred, Pxz).T
+    nu = jnp.where(valid, z, zh) - zh
+    if angle_mask is not None:
+        nu = jnp.where(angle_mask, wrap_angle(nu), nu)
+    HtRinv = Ht.T @ R_inv
+    i = HtRinv @ (nu + Ht @ x_pred)
+    I = symmetrize(HtRinv @ Ht)
+    return jnp.where(valid, i, 0.0), jnp.where(valid, I, 0.0), valid
