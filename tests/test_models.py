@@ -493,3 +493,38 @@ def test_zero_turn_rate_limit_is_finite():
     np.testing.assert_allclose(out[:, 3], 0.3, rtol=1e-15)
     np.testing.assert_allclose(out[:, :2], np.tile([200.0 * math.cos(0.3), 200.0 * math.sin(0.3)], (2, 1)),
                                rtol=1e-12)
+
+
+def test_ct_matrix_turns_velocity_and_tends_to_cv():
+    from mcjax.models.motion import ct_matrix, cv_matrices
+
+    x = np.array([100.0, 5.0, -50.0, 2.0])
+    for omega in (0.1, -0.05, 0.3):
+        F = np.asarray(ct_matrix(2.0, omega, jnp.float64))
+        y = F @ x
+        # speed kept, velocity rotated by ωT
+        np.testing.assert_allclose(np.hypot(y[1], y[3]), np.hypot(x[1], x[3]), rtol=1e-12)
+        ang = np.arctan2(y[3], y[1]) - np.arctan2(x[3], x[1])
+        np.testing.assert_allclose(np.angle(np.exp(1j * ang)), omega * 2.0, atol=1e-12)
+        # the position moves along the arc: chord = 2 v sin(ωT/2)/ω
+        chord = np.hypot(y[0] - x[0], y[2] - x[2])
+        np.testing.assert_allclose(chord, 2 * np.hypot(x[1], x[3]) * abs(np.sin(omega) / omega), rtol=1e-12)
+    F_cv, _ = cv_matrices(2.0, jnp.float64)
+    np.testing.assert_allclose(np.asarray(ct_matrix(2.0, 1e-9, jnp.float64)), np.asarray(F_cv), atol=1e-8)
+    # continuous across the Taylor-branch switch at |ωT| = 1e-4
+    np.testing.assert_allclose(np.asarray(ct_matrix(2.0, 0.4999999e-4, jnp.float64)),
+                               np.asarray(ct_matrix(2.0, 0.5000001e-4, jnp.float64)), atol=1e-10)
+    g = jax.grad(lambda w: jnp.sum(ct_matrix(2.0, w, jnp.float64) @ jnp.asarray(x)))(0.0)
+    assert np.isfinite(float(g))
+
+
+def test_markov_modes_follow_the_transition_matrix():
+    from mcjax.models.motion import markov_modes
+
+    P = np.array([[0.9, 0.1], [0.3, 0.7]])
+    m = np.asarray(markov_modes(jax.random.PRNGKey(0), P, 0, 20000))
+    assert m[0] == 0
+    counts = np.zeros((2, 2))
+    np.add.at(counts, (m[:-1], m[1:]), 1)
+    est = counts / counts.sum(1, keepdims=True)
+    np.testing.assert_allclose(est, P, atol=0.02)

@@ -136,3 +136,62 @@ def test_moment_prediction_matches_ukf_prediction_for_linear_f():
     b = predict_moments(x, P, F, Q)
     for u, v in zip(a, b):
         np.testing.assert_allclose(np.asarray(u), np.asarray(v), rtol=1e-10, atol=1e-10)
+
+
+def test_consensus_imm_ukf_approaches_the_centralised_imm_ukf():
+    """Seed 001's consensus IMM-UKF on a complete graph with many iterations tracks the
+    centralised IMM-UKF that stacks every node's range-bearing measurement; with no links
+    it does not (the test can fail)."""
+    from mcjax.filters.consensus_imm import consensus_imm_ukf_step
+    from mcjax.models.motion import ct_matrix
+    from mcjax.models.sensors import range_bearing
+
+    n = 4
+    Fm = jnp.stack([F, ct_matrix(DT, 0.1, jnp.float64)])
+    Qm = jnp.stack([cv_process_noise(DT, 0.5, jnp.float64)] * 2)
+    Pi = jnp.array([[0.95, 0.05], [0.05, 0.95]])
+    sensors = jnp.array([[0.0, 0.0], [500.0, 0.0], [0.0, 500.0], [500.0, 500.0]])
+    Rrb = jnp.diag(jnp.array([5.0, 0.01]))
+    am = jnp.array([False, True])
+    rng = np.random.default_rng(0)
+    x = np.array([100.0, 5.0, 200.0, 5.0])
+    truth, zs = [], []
+    for k in range(40):  # CV, a CT manoeuvre for 15 s, CV
+        x = np.asarray(Fm[1] if 15 <= k < 30 else Fm[0]) @ x
+        truth.append(x)
+        clean = np.asarray(jax.vmap(range_bearing, (None, 0))(jnp.asarray(x), sensors))
+        zs.append(clean + rng.normal(0, np.sqrt([5.0, 0.01]), (n, 2)))
+    x0, P0 = jnp.array([100.0, 5.0, 200.0, 5.0]), jnp.diag(jnp.array([25.0, 4.0, 25.0, 4.0]))
+
+    def h_all(s):
+        return jax.vmap(range_bearing, (None, 0))(s, sensors).reshape(-1)
+
+    def mode(xm, Pm, p, z):
+        xb, Pb = ukf_predict(xm, Pm, lambda s: p[0] @ s, p[1])
+        return ukf_update(xb, Pb, z, h_all, jnp.kron(jnp.eye(n), Rrb), angle_mask=jnp.tile(am, n))
+
+    state = IMMState(jnp.array([0.5, 0.5]), jnp.tile(x0, (2, 1)), jnp.tile(P0, (2, 1, 1)))
+    step = jax.jit(lambda s, z: imm_step(s, Pi, mode, (Fm, Qm), z))
+    central = []
+    for z in zs:
+        state, (xc, _) = step(state, jnp.asarray(z).reshape(-1))
+        central.append(np.asarray(xc)[[0, 2]])
+    central = np.array(central)
+    rmse = np.sqrt(np.mean(np.sum((central - np.array(truth)[:, [0, 2]]) ** 2, -1)))
+
+    def distributed(adj, L):
+        s = IMMState(jnp.tile(jnp.array([0.5, 0.5]), (n, 1)), jnp.tile(x0, (n, 2, 1)), jnp.tile(P0, (n, 2, 1, 1)))
+        f = jax.jit(lambda s, z: consensus_imm_ukf_step(s, Pi, Fm, Qm, z, sensors, range_bearing, Rrb,
+                                                        jnp.asarray(adj), steps=L, angle_mask=am))
+        out = []
+        for z in zs:
+            s, (xc, _) = f(s, jnp.asarray(z))
+            mu = np.asarray(s.mu)
+            assert np.all(np.isfinite(mu)) and np.allclose(mu.sum(-1), 1.0)
+            out.append(np.asarray(xc)[:, [0, 2]])
+        return np.abs(np.array(out) - central[:, None]).max()
+
+    complete = distributed(1.0 - np.eye(n), 20)
+    empty = distributed(np.zeros((n, n)), 1)
+    assert complete < 0.15 * rmse, (complete, rmse)
+    assert empty > 10 * complete

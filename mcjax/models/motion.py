@@ -50,3 +50,40 @@ def cv_step(x: jax.Array, key: jax.Array, dt, sigma_accel) -> jax.Array:
     f, g = cv_matrices(dt, x.dtype)
     w = sigma_accel * jax.random.normal(key, (2,), dtype=x.dtype)
     return matvec(f, x) + matvec(g, w)
+
+
+def ct_matrix(dt, omega, dtype=None) -> jax.Array:
+    """Coordinated-turn transition (4×4) at a known turn rate ω, state ``[x, ẋ, y, ẏ]``.
+
+    Bar-Shalom, Li & Kirubarajan 2001 §11.7; the CT mode of seed 001 (algorithms.md §3):
+    ``F = [[1, s/ω, 0, −(1−c)/ω], [0, c, 0, −s], [0, (1−c)/ω, 1, s/ω], [0, s, 0, c]]`` with
+    ``s = sin ωT, c = cos ωT``. At ω = 0 the limits ``s/ω → T``, ``(1−c)/ω → 0`` give the
+    CV matrix (taken by a Taylor series near 0, so gradients in ω stay finite)."""
+    dt = jnp.asarray(dt, dtype=dtype)
+    w = jnp.asarray(omega, dtype=dt.dtype)
+    wt = w * dt
+    small = jnp.abs(wt) < 1e-4
+    w_safe = jnp.where(small, 1.0, w)
+    s, c = jnp.sin(wt), jnp.cos(wt)
+    sw = jnp.where(small, dt * (1.0 - wt**2 / 6.0), s / w_safe)        # sin(ωT)/ω
+    cw = jnp.where(small, dt * wt / 2.0 * (1.0 - wt**2 / 12.0), (1.0 - c) / w_safe)  # (1−cos ωT)/ω
+    one, zero = jnp.ones_like(wt), jnp.zeros_like(wt)
+    return jnp.stack([
+        jnp.stack([one, sw, zero, -cw], -1),
+        jnp.stack([zero, c, zero, -s], -1),
+        jnp.stack([zero, cw, one, sw], -1),
+        jnp.stack([zero, s, zero, c], -1),
+    ], -2)
+
+
+def markov_modes(key, transition, first_mode, n_steps: int) -> jax.Array:
+    """A mode sequence (n_steps,) of the Markov chain ``P(m_k = j | m_{k−1} = l) = transition[l, j]``
+    starting at ``first_mode`` — the switching CV↔CT target of seed 001 (algorithms.md §3)."""
+    logp = jnp.log(jnp.asarray(transition))
+
+    def body(m, k):
+        nxt = jax.random.categorical(k, logp[m])
+        return nxt, nxt
+
+    _, rest = jax.lax.scan(body, jnp.asarray(first_mode), jax.random.split(key, n_steps - 1))
+    return jnp.concatenate([jnp.asarray(first_mode)[None], rest])
