@@ -157,7 +157,8 @@ def _missing_chunks(spec, plan, out_dir) -> list[int]:
 
 @main.command()
 @click.argument("config", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--seeds", type=click.IntRange(min=1), default=20, show_default=True, help="Monte-Carlo seeds.")
+@click.option("--seeds", type=click.IntRange(min=1), default=None,
+              help="Monte-Carlo seeds [default: the config's `seeds` (the paper's run count), else 20].")
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
               help="Override a value, e.g. --set params.comm_radius=80e3. Repeatable.")
 def run(config, seeds, sets):

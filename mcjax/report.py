@@ -65,7 +65,7 @@ __all__ = [
 FORMATS = ("text", "csv", "markdown")
 #: Display order (and colour) of the known filters; other filters follow alphabetically.
 FILTER_ORDER = ("cif", "icf", "modified_icf", "kcf", "local")
-#: Units of swept parameters (mirrors ``mcjax.scenarios.leader_follower.PARAM_UNITS``,
+#: Units of swept parameters (mirrors the scenarios' ``PARAM_UNITS``,
 #: copied so this module does not import JAX).  Unknown axes get no unit.
 AXIS_UNITS = {
     "dt": "s",
@@ -95,6 +95,11 @@ AXIS_UNITS = {
     "plan_temperature": "m",
     "horizon": "steps",
     "replan_every": "steps",
+    # uuv_imm (mcjax.scenarios.uuv_imm.PARAM_UNITS)
+    "turn_rate": "rad/s",
+    "model_turn_rate_error": "rad/s",
+    "ct_start": "steps",
+    "ct_stop": "steps",
 }
 
 #: Metric columns of :func:`summarize` (after the axis columns and ``filter``).

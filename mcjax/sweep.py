@@ -1,6 +1,7 @@
 """Sweep specs → batched Params; point ids; running a sweep into a Parquet dataset.
 
-A config file (``configs/*.toml``) holds a scenario's ``[config]`` and ``[params]``. A sweep
+A config file (``configs/*.toml``) holds a scenario's ``[config]`` and ``[params]`` (and may
+give ``seeds``, the paper's run count, used when the spec or ``mcjax run`` gives none). A sweep
 spec (``sweeps/*.toml``) names a base config file and adds overrides and axes::
 
     base = "../configs/sun2011.toml"   # relative to the spec file
@@ -147,7 +148,10 @@ def load_config_file(path: str | Path):
     """``(scenario, Config, params dict)`` from a ``configs/*.toml`` file."""
     path = Path(path)
     data = _read_toml(path, "config file")
-    _check_keys(f"{path.name}: ", data, ("scenario", "config", "params", "description"))
+    _check_keys(f"{path.name}: ", data, ("scenario", "config", "params", "description", "seeds"))
+    seeds = data.get("seeds", 20)
+    if not isinstance(seeds, int) or isinstance(seeds, bool) or seeds < 1:
+        raise SpecError(f"{path.name}: seeds: must be an integer >= 1; got {seeds!r}")
     if "scenario" not in data:
         raise SpecError(f"{path.name}: scenario: missing; allowed: {', '.join(scenarios.SCENARIOS)}")
     try:
@@ -172,7 +176,8 @@ def load_spec(path: str | Path, *, seeds: int | None = None, chunk_size: int | N
     _check_keys("", data, SPEC_KEYS)
     if "base" not in data:
         raise SpecError("base: missing; give the config file the sweep starts from")
-    scenario, cfg, params = load_config_file((path.parent / data["base"]).resolve())
+    base = (path.parent / data["base"]).resolve()
+    scenario, cfg, params = load_config_file(base)
     if "scenario" in data and data["scenario"] != scenario.NAME:
         raise SpecError(f"scenario: {data['scenario']!r} does not match the base config's {scenario.NAME!r}")
     cfg_over = data.get("config", {})
@@ -204,7 +209,8 @@ def load_spec(path: str | Path, *, seeds: int | None = None, chunk_size: int | N
         base_params = scenario.default_params(cfg, **params)
     except ValueError as exc:
         raise SpecError(f"params: {exc}") from None
-    seeds = data.get("seeds", 20) if seeds is None else seeds
+    # the spec's seeds, else the config file's (the paper's run count), else 20
+    seeds = data.get("seeds", _read_toml(base, "config file").get("seeds", 20)) if seeds is None else seeds
     chunk = data.get("chunk_size", 1000) if chunk_size is None else chunk_size
     base_seed = data.get("base_seed", 0)
     for name, value in (("seeds", seeds), ("chunk_size", chunk), ("base_seed", base_seed)):
@@ -229,9 +235,13 @@ def _check_points(spec: SweepSpec, params: dict) -> None:
     merged = {**params, **{axis: table[axis].to_numpy() for axis in spec.axes}}
     for name, allowed in check(spec.config, merged):
         where = "grid." if name in spec.grid else "zip." if name in spec.zipped else "params."
-        got = merged.get(name, getattr(spec.base_params, name))
-        got = sorted(set(np.atleast_1d(np.asarray(got)).tolist()))
-        raise SpecError(f"{where}{name}: must be {allowed}; got {got if len(got) > 1 else got[0]!r}")
+        got = np.asarray(merged.get(name, getattr(spec.base_params, name)))
+        if name in spec.axes or got.ndim == 0:  # an axis: its distinct values over the points
+            got = sorted(set(np.atleast_1d(got).tolist()))
+            got = got if len(got) > 1 else got[0]
+        else:  # a vector or matrix param: as given
+            got = got.tolist()
+        raise SpecError(f"{where}{name}: must be {allowed}; got {got!r}")
 
 
 def points(spec: SweepSpec) -> pd.DataFrame:

@@ -185,9 +185,12 @@ def test_every_command_has_help(cmd):
     assert r.exit_code == 0 and "Usage:" in r.output and len(r.output) > 200
 
 
-@pytest.mark.parametrize("name", ["default", "sun2011_table1", "comm_radius", "alpha_horizon"])
-def test_shipped_sweeps_validate(tmp_path, name):
-    spec = __import__("pathlib").Path(__file__).parents[1] / "sweeps" / f"{name}.toml"
+SWEEPS = sorted((__import__("pathlib").Path(__file__).parents[1] / "sweeps").glob("*.toml"))
+
+
+@pytest.mark.parametrize("spec", SWEEPS, ids=[p.stem for p in SWEEPS])
+def test_shipped_sweeps_validate(tmp_path, spec):
+    assert len(SWEEPS) >= 5
     r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / "o"), "--dry-run"])
     assert r.exit_code == 0, r.output
     assert "runs" in r.output and not (tmp_path / "o").exists()

@@ -8,10 +8,11 @@ from __future__ import annotations
 
 from types import ModuleType
 
-from mcjax.scenarios import leader_follower
+from mcjax.scenarios import leader_follower, uuv_imm
 
 SCENARIOS: dict[str, ModuleType] = {
     leader_follower.NAME: leader_follower,
+    uuv_imm.NAME: uuv_imm,
 }
 
 
