@@ -64,7 +64,7 @@ __all__ = [
 #: Output formats accepted by :func:`format_table` and :func:`report`.
 FORMATS = ("text", "csv", "markdown")
 #: Display order (and colour) of the known filters; other filters follow alphabetically.
-FILTER_ORDER = ("cif", "icf", "modified_icf", "kcf", "local")
+FILTER_ORDER = ("cif", "icf", "modified_icf", "kcf", "local", "imm", "cv", "ct")
 #: Units of swept parameters (mirrors the scenarios' ``PARAM_UNITS``,
 #: copied so this module does not import JAX).  Unknown axes get no unit.
 AXIS_UNITS = {

@@ -202,9 +202,17 @@ def test_swept_axes_from_metadata():
 
 
 def test_axis_units_mirror_scenario_units():
-    from mcjax.scenarios import leader_follower
+    """report.py copies the units (it does not import JAX): every scenario's scalar Params
+    are covered, and no unit disagrees with a scenario's."""
+    from mcjax.scenarios import SCENARIOS
 
-    assert rp.AXIS_UNITS == leader_follower.PARAM_UNITS
+    for mod in SCENARIOS.values():
+        defaults = mod.default_params(mod.Config())
+        for field, unit in mod.PARAM_UNITS.items():
+            if getattr(defaults, field).ndim == 0:
+                assert field in rp.AXIS_UNITS, (mod.NAME, field)
+            if field in rp.AXIS_UNITS:
+                assert rp.AXIS_UNITS[field] == unit, (mod.NAME, field)
 
 
 # --------------------------------------------------------------------------------------

@@ -222,3 +222,11 @@ def test_bad_uuv_spec_exit_2(tmp_path, body, message):
     r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / "o")])
     assert r.exit_code == 2, r.output
     assert message in r.output and not (tmp_path / "o").exists()
+
+
+def test_run_uses_the_configs_seed_count():
+    """`mcjax run` without --seeds runs the config's `seeds` (the paper's 50 runs)."""
+    r = CliRunner().invoke(main, ["run", CONFIG, "--set", "config.n_steps=8", "--set", "config.warmup_steps=1"])
+    assert r.exit_code == 0, r.output
+    rows = [line.split() for line in r.output.splitlines() if line.split()[:1] == ["0"]]
+    assert {row[1] for row in rows} == {"imm", "cv", "ct"} and all(row[2] == "50" for row in rows)
