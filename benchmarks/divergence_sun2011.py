@@ -6,7 +6,7 @@ each planner (gradient = optax Adam on the smoothed cost, cem = sampled search).
 beside the paper's numbers: divergence count, mean position error of ICF / modified ICF /
 CIF over all runs and over non-divergent runs, min λ2, disconnected steps and wall time
 (per run, and for the whole N-run batch including compilation). Writes every run to
-``OUT/runs.parquet`` and, for seed 0 of each case, PNG figures like the paper's Fig. 4–11
+``OUT/runs/`` (one Parquet part) and, for seed 0 of each case, PNG figures like the paper's Fig. 4–11
 (paths, λ2 and degrees over time, error curves of the three filters).
 
     python benchmarks/divergence_sun2011.py                       # 1,000 runs, both planners
@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import time
 from pathlib import Path
 
@@ -30,7 +29,7 @@ import numpy as np
 import pandas as pd
 
 from mcjax import engine
-from mcjax.results import environment_metadata
+from mcjax.results import environment_metadata, write_part
 from mcjax.sweep import load_config_file
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -205,13 +204,8 @@ def main(argv=None) -> int:
     df = pd.concat(frames, ignore_index=True)
     meta = {"benchmark": "divergence_sun2011", "config": str(args.config), "runs": args.runs,
             "walls_s": {f"{c}/{p}": w for (c, p), w in walls.items()}, **environment_metadata()}
-    df.attrs = {}
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-    tbl = pa.Table.from_pandas(df, preserve_index=False)
-    tbl = tbl.replace_schema_metadata({**(tbl.schema.metadata or {}), b"mcjax": json.dumps(meta).encode()})
-    pq.write_table(tbl, args.out / "runs.parquet")
-    print(f"runs: {args.out / 'runs.parquet'} ({len(df)} rows)\n")
+    path = write_part(args.out, "runs", df, "part-000000", meta)
+    print(f"runs: {path} ({len(df)} rows; read back with pandas.read_parquet(\"{args.out / 'runs'}\"))\n")
     print(table(df, walls))
     print()
     failed = 0

@@ -6,7 +6,7 @@ markov`` draws the modes from the Markov chain instead). Prints the paper's Tabl
 UUV, the max / min / mean over time of its position error, averaged over the runs, for the
 consensus IMM-UKF and the CV-only and CT-only consensus UKFs — then the mean error of each
 filter while the target flies straight and while it turns, and checks the paper's qualitative
-claims. Writes every run's summary to ``OUT/runs.parquet`` and PNG figures: each UUV's error
+claims. Writes every run's summary to ``OUT/runs/`` (one Parquet part) and PNG figures: each UUV's error
 over time (mean over runs), the IMM's CT probability over time, and one run's geometry.
 
     python benchmarks/imm_ren2017.py                  # 1,000 runs
@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import time
 from pathlib import Path
 
@@ -30,7 +29,7 @@ import numpy as np
 import pandas as pd
 
 from mcjax import engine
-from mcjax.results import environment_metadata
+from mcjax.results import environment_metadata, write_part
 from mcjax.sweep import load_config_file
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -207,12 +206,8 @@ def main(argv=None) -> int:
     df = rows(out)
     meta = {"benchmark": "imm_ren2017", "config": str(args.config), "runs": args.runs, "schedule": cfg.schedule,
             "wall_s": wall, **environment_metadata()}
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-    tbl = pa.Table.from_pandas(df, preserve_index=False)
-    tbl = tbl.replace_schema_metadata({**(tbl.schema.metadata or {}), b"mcjax": json.dumps(meta).encode()})
-    pq.write_table(tbl, args.out / "runs.parquet")
-    print(f"runs: {args.out / 'runs.parquet'} ({len(df)} rows)")
+    path = write_part(args.out, "runs", df, "part-000000", meta)
+    print(f"runs: {path} ({len(df)} rows; read back with pandas.read_parquet(\"{args.out / 'runs'}\"))")
     if not args.no_figures:
         for path in figures(cfg, p, records, args.out):
             print(f"figure: {path}")

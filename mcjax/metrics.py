@@ -20,6 +20,14 @@ def nees(estimate, information, truth):
     return jnp.sum(e * matvec(information, e), axis=-1)
 
 
+def alive_weights(alive, n: int, dtype):
+    """Per-agent weights (n,): 1 for alive agents, 0 for dropped-out ones, from a scalar or
+    per-agent 0/1 ``alive`` (``None``: every agent alive) — the masks of the summaries."""
+    if alive is None:
+        return jnp.ones(n, dtype)
+    return (jnp.broadcast_to(jnp.asarray(alive, dtype), (n,)) > 0.5).astype(dtype)
+
+
 def _after_warmup(n_steps, warmup):
     return (jnp.arange(n_steps) >= warmup)
 
@@ -57,3 +65,17 @@ def diverged(errors, threshold, warmup: int = 0, weights=None):
         mask = jnp.logical_and(mask, weights > 0)
     big = jnp.where(mask, errors > threshold, False)
     return jnp.logical_or(jnp.any(big), nonfinite(errors))
+
+
+def graph_summary(lambda2):
+    """Per-run graph statistics of a λ2 series (T,) (algorithms.md §8): ``lambda2_min``,
+    ``lambda2_mean`` and ``disconnected_steps`` (steps with λ2 ≤ 1e-9)."""
+    return dict(lambda2_min=jnp.min(lambda2), lambda2_mean=jnp.mean(lambda2),
+                disconnected_steps=jnp.sum(lambda2 <= 1e-9))
+
+
+def error_series(errors, weights):
+    """Per-step ``error_mean`` and ``error_max`` over the agents (last axis) with non-zero
+    ``weights`` (n,) — the per-step series of a sweep's timeseries table."""
+    return dict(error_mean=jnp.sum(errors * weights, -1) / jnp.maximum(jnp.sum(weights), 1.0),
+                error_max=jnp.max(jnp.where(weights > 0, errors, -jnp.inf), -1))

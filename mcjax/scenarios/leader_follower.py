@@ -423,10 +423,7 @@ SUMMARY_FIELDS = (
 def summarize(cfg: Config, records: Record, params: Params | None = None) -> dict:
     """Reduce one run's records (stacked over time) to scalars (algorithms.md §8)."""
     w = cfg.warmup_steps
-    alive = None
-    if params is not None:
-        alive = jnp.broadcast_to(jnp.asarray(params.alive, records.error.dtype) > 0.5,
-                                 (cfg.n_agents,)).astype(records.error.dtype)
+    alive = metrics.alive_weights(None if params is None else params.alive, cfg.n_agents, records.error.dtype)
     out = {name: [] for name, per_filter, _ in SUMMARY_FIELDS if per_filter}
     for f in range(len(cfg.filters)):
         e = records.error[:, f, :]
@@ -442,9 +439,7 @@ def summarize(cfg: Config, records: Record, params: Params | None = None) -> dic
     summary = {k: jnp.stack(v) for k, v in out.items()}
     lam = records.lambda2
     summary.update(
-        lambda2_min=jnp.min(lam),
-        lambda2_mean=jnp.mean(lam),
-        disconnected_steps=jnp.sum(lam <= 1e-9),
+        **metrics.graph_summary(lam),
         robustness_min=jnp.min(records.robustness),
         seeing_mean=jnp.mean(records.n_seeing.astype(lam.dtype)),
         seeing_min=jnp.min(records.n_seeing),
@@ -469,12 +464,9 @@ TIMESERIES_FIELDS = (
 def timeseries(cfg: Config, records: Record, params: Params | None = None) -> dict:
     """A few per-step series of one run: (T, F) per filter, (T,) otherwise."""
     e = records.error  # (T, F, n)
-    alive = jnp.ones(e.shape[-1], e.dtype)
-    if params is not None:
-        alive = (jnp.broadcast_to(jnp.asarray(params.alive, e.dtype), (cfg.n_agents,)) > 0.5).astype(e.dtype)
+    alive = metrics.alive_weights(None if params is None else params.alive, cfg.n_agents, e.dtype)
     return dict(
-        error_mean=jnp.sum(e * alive, -1) / jnp.maximum(jnp.sum(alive), 1.0),
-        error_max=jnp.max(jnp.where(alive > 0, e, -jnp.inf), -1),
+        **metrics.error_series(e, alive),
         leader_error=e[..., 0],
         lambda2=records.lambda2,
         robustness_min=jnp.min(records.robustness, -1),

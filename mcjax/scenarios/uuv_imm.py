@@ -371,9 +371,7 @@ def summarize(cfg: Config, records: Record, params: Params | None = None) -> dic
     w = cfg.warmup_steps
     T, n = records.error.shape[0], cfg.n_agents
     dtype = records.error.dtype
-    alive = jnp.ones(n, dtype)
-    if params is not None:
-        alive = (jnp.broadcast_to(jnp.asarray(params.alive, dtype), (n,)) > 0.5).astype(dtype)
+    alive = metrics.alive_weights(None if params is None else params.alive, n, dtype)
     after = jnp.arange(T) >= w
     in_ct = records.mode == CT
     out = {name: [] for name, per_filter, _ in SUMMARY_FIELDS if per_filter}
@@ -398,9 +396,7 @@ def summarize(cfg: Config, records: Record, params: Params | None = None) -> dic
     lam = records.lambda2
     likelier_ct = records.mu_ct > 0.5
     summary.update(
-        lambda2_min=jnp.min(lam),
-        lambda2_mean=jnp.mean(lam),
-        disconnected_steps=jnp.sum(lam <= 1e-9),
+        **metrics.graph_summary(lam),
         ct_steps=jnp.sum(in_ct),
         mode_accuracy=jnp.where(jnp.any(jnp.isnan(records.mu_ct)), jnp.nan,
                                 _masked_mean((likelier_ct == in_ct[:, None]).astype(dtype), after[:, None] * alive)),
@@ -422,14 +418,10 @@ TIMESERIES_FIELDS = (
 def timeseries(cfg: Config, records: Record, params: Params | None = None) -> dict:
     """A few per-step series of one run: (T, F) per filter, (T,) otherwise."""
     e = records.error
-    alive = jnp.ones(e.shape[-1], e.dtype)
-    if params is not None:
-        alive = (jnp.broadcast_to(jnp.asarray(params.alive, e.dtype), (cfg.n_agents,)) > 0.5).astype(e.dtype)
-    count = jnp.maximum(jnp.sum(alive), 1.0)
+    alive = metrics.alive_weights(None if params is None else params.alive, cfg.n_agents, e.dtype)
     return dict(
-        error_mean=jnp.sum(e * alive, -1) / count,
-        error_max=jnp.max(jnp.where(alive > 0, e, -jnp.inf), -1),
+        **metrics.error_series(e, alive),
         mode=records.mode,
-        mu_ct=jnp.sum(records.mu_ct * alive, -1) / count,
+        mu_ct=jnp.sum(records.mu_ct * alive, -1) / jnp.maximum(jnp.sum(alive), 1.0),
         lambda2=records.lambda2,
     )
