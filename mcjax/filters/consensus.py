@@ -177,13 +177,16 @@ def kcf_step(h, angle_mask, opts, epsilon, post: Gaussian, meas: Measurements, F
     inclusive = A + jnp.eye(A.shape[0], dtype=A.dtype)
     S = mix(inclusive, U)
     yv = mix(inclusive, u)
-    Y = symmetrize(spd_inverse(Pb) + S)
+    Yb = spd_inverse(Pb)
+    Y = symmetrize(Yb + S)
     M = symmetrize(spd_inverse(Y))
     disagreement = mix(A, xb) - jnp.sum(A, axis=1)[:, None] * xb
     base = M if opts.kcf_gain == "gamma_M" else Pb
     fro = jnp.sqrt(sum(base[:, i, j] ** 2 for i in range(base.shape[-2]) for j in range(base.shape[-1])))
     gain = (epsilon / (1.0 + fro))[:, None, None] * base
-    x = xb + matvec(M, yv - matvec(S, xb)) + matvec(gain, disagreement)
+    # x̄ + M(y − S x̄) computed as M(Ȳ x̄ + y) (equal, since M⁻¹ = Ȳ + S): inside the scenario's
+    # scan XLA compiles the first form ~4x slower (22.9 vs 5.8 ms per run, measured 2026-11-23)
+    x = matvec(M, matvec(Yb, xb) + yv) + matvec(gain, disagreement)
     return Gaussian(x, M, Y)
 
 
