@@ -4,13 +4,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from filterpy.kalman import IMMEstimator, KalmanFilter
+from filterpy.kalman import ExtendedKalmanFilter, IMMEstimator, KalmanFilter
 
 from mcjax.filters.gaussian import (
-    Unscented, predict_moments, ukf_predict, ukf_pseudo_measurement, ukf_update, unscented_transform,
+    Unscented, ekf_update, predict_moments, ukf_predict, ukf_pseudo_measurement, ukf_update, unscented_transform,
 )
 from mcjax.filters.imm import IMMState, imm_step
-from mcjax.models.motion import cv_matrices, cv_process_noise
+from mcjax.models.motion import ct_matrix, cv_matrices, cv_process_noise
+from mcjax.models.sensors import range_bearing
 
 DT = 1.0
 F, _ = cv_matrices(DT, jnp.float64)
@@ -113,6 +114,66 @@ def test_imm_equals_filterpy():
         np.testing.assert_allclose(np.asarray(x), ref.x[:, 0], rtol=1e-8, atol=1e-8)
         np.testing.assert_allclose(np.asarray(P), ref.P, rtol=1e-8, atol=1e-10)
         np.testing.assert_allclose(np.asarray(state.mu), ref.mu, rtol=1e-8, atol=1e-12)
+
+
+def test_imm_of_ekfs_equals_filterpy_on_range_bearing():
+    """The same IMM code with EKF modes (the base filter of seed 003's IMM-EKF): CV and CT
+    (ω = 0.1 rad/s) EKFs on range–bearing measurements of a target that turns mid-way, vs
+    filterpy's IMMEstimator of ExtendedKalmanFilters, to 1e-8 at every step."""
+    sensor = np.array([-300.0, 150.0])
+    R = np.diag([4.0, 0.01**2])
+    Fs = [np.asarray(F), np.asarray(ct_matrix(DT, 0.1, jnp.float64))]
+    Q = np.asarray(cv_process_noise(DT, 0.1, jnp.float64))
+    rng = np.random.default_rng(3)
+    x, zs = np.array([0.0, 5.0, 0.0, 5.0]), []
+    for k in range(40):
+        x = Fs[1 if 15 <= k < 30 else 0] @ x
+        zs.append(np.asarray(range_bearing(jnp.asarray(x), jnp.asarray(sensor))) + rng.normal(0, np.sqrt(np.diag(R))))
+
+    def hx(s):
+        return np.asarray(range_bearing(jnp.asarray(s), jnp.asarray(sensor)))
+
+    def jac(s):
+        return np.asarray(jax.jacfwd(range_bearing)(jnp.asarray(s), jnp.asarray(sensor)))
+
+    def residual(a, b):
+        d = a - b
+        d[1] = (d[1] + np.pi) % (2 * np.pi) - np.pi
+        return d
+
+    class EKF(ExtendedKalmanFilter):  # binds h for IMMEstimator's update(z); no control input
+        def predict(self, u=None):
+            super().predict(0)
+
+        def update(self, z):
+            super().update(z, jac, hx, residual=residual)
+
+    refs = []
+    for Fm in Fs:
+        f = EKF(4, 2)
+        f.x, f.P, f.F, f.Q, f.R = np.array([0.0, 5.0, 0.0, 5.0]), np.diag([25.0, 1.0, 25.0, 1.0]), Fm, Q, R
+        refs.append(f)
+    ref = IMMEstimator(refs, np.array([0.5, 0.5]), TRANSITION)
+
+    def mode(x0, P0, Fm, z):
+        xb, Pb = predict_moments(x0, P0, Fm, jnp.asarray(Q))
+        return ekf_update(xb, Pb, z, lambda s: range_bearing(s, jnp.asarray(sensor)), jnp.asarray(R),
+                          jnp.array([False, True]))
+
+    state = IMMState(jnp.array([0.5, 0.5]), jnp.stack([jnp.asarray(f.x) for f in refs]),
+                     jnp.stack([jnp.asarray(f.P) for f in refs]))
+    step = jax.jit(lambda s, z: imm_step(s, jnp.asarray(TRANSITION), mode, jnp.asarray(np.stack(Fs)), z))
+    mu_ct = []
+    for z in zs:
+        ref.predict()
+        ref.update(z)
+        state, (xc, Pc) = step(state, jnp.asarray(z))
+        mu_ct.append(float(state.mu[1]))
+        np.testing.assert_allclose(np.asarray(xc), ref.x, rtol=1e-8, atol=1e-8)
+        np.testing.assert_allclose(np.asarray(Pc), ref.P, rtol=1e-7, atol=1e-9)
+        np.testing.assert_allclose(np.asarray(state.mu), ref.mu, rtol=1e-8, atol=1e-12)
+    # the comparison covers both regimes: CT likely during the turn, CV after it
+    assert max(mu_ct[15:32]) > 0.8 and min(mu_ct[33:]) < 0.1, np.round(mu_ct, 2)
 
 
 @pytest.mark.parametrize("sigmas", [100.0, 1e4])

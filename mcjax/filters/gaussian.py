@@ -164,6 +164,29 @@ def ukf_update(x, P, z, h: Callable, R, ut: Unscented = Unscented(), angle_mask=
     return (jnp.where(valid, x_new, x), jnp.where(valid, P_new, P), jnp.where(valid, ll, 0.0))
 
 
+def ekf_update(x, P, z, h: Callable, R, angle_mask=None):
+    """EKF measurement update in moment form, returning the mode likelihood an IMM needs
+    (algorithms.md §2–3; the mode-matched filter of seed 003's LOS/NLOS IMM-EKF).
+
+    ``H = ∂h/∂x (x̄)`` by autodiff, ``S = H P Hᵀ + R``, ``K = P Hᵀ S⁻¹``, ``x⁺ = x + K ν``,
+    ``P⁺ = P − K S Kᵀ``, with the angle components of ``ν`` wrapped. A measurement with a
+    non-finite component leaves the state unchanged (log-likelihood 0).
+    Returns ``(x⁺, P⁺, log N(ν; 0, S))``."""
+    valid = jnp.all(jnp.isfinite(z))
+    zh = h(x)
+    H = jax.jacfwd(h)(x)
+    nu = jnp.where(valid, z, zh) - zh
+    if angle_mask is not None:
+        nu = jnp.where(angle_mask, wrap_angle(nu), nu)
+    PHt = P @ H.T
+    S = symmetrize(H @ PHt + R)
+    K = jnp.linalg.solve(S, PHt.T).T
+    x_new = x + K @ nu
+    P_new = symmetrize(P - K @ S @ K.T)
+    ll = gaussian_loglik(nu, S)
+    return (jnp.where(valid, x_new, x), jnp.where(valid, P_new, P), jnp.where(valid, ll, 0.0))
+
+
 def ukf_pseudo_measurement(x_pred, P_pred, z, h: Callable, R_inv, ut: Unscented = Unscented(),
                            angle_mask=None):
     """Information contribution ``(i, I)`` of one UKF measurement for consensus (algorithms.md §2,
