@@ -1,10 +1,12 @@
 """The multi-UUV IMM scenario (seed 001) against filterpy, the CT geometry and the Markov chain."""
 
 import dataclasses
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pandas as pd
 import pytest
 from click.testing import CliRunner
 from filterpy.kalman import IMMEstimator, MerweScaledSigmaPoints, UnscentedKalmanFilter
@@ -14,8 +16,9 @@ from mcjax.cli import main
 from mcjax.filters.imm import combine
 from mcjax.models.motion import ct_matrix, cv_matrices, cv_process_noise
 from mcjax.scenarios import uuv_imm as S
+from mcjax.sweep import load_config_file
 
-CONFIG = str((__import__("pathlib").Path(__file__).parents[1] / "configs" / "ren2017.toml").resolve())
+CONFIG = str((Path(__file__).parents[1] / "configs" / "ren2017.toml").resolve())
 
 
 def simulate(cfg, params, seed=0):
@@ -154,7 +157,7 @@ def test_consensus_agrees_on_a_complete_graph():
 
 def test_imm_beats_both_single_models_and_mismatch_costs_during_the_manoeuvre():
     """Seed 001's qualitative claims over 30 runs (the benchmark shows them over 1,000)."""
-    scenario, cfg, params = __import__("mcjax.sweep", fromlist=["x"]).load_config_file(CONFIG)
+    scenario, cfg, params = load_config_file(CONFIG)
     cfg = dataclasses.replace(cfg, n_steps=75)
     p = engine.stack_points([scenario.default_params(cfg, **{**params, "ct_start": 25, "ct_stop": 50})])
     out = next(engine.run_chunks(S, cfg, p, 30))[3]
@@ -197,8 +200,6 @@ def test_sweep_over_comm_radius_and_turn_rate(tmp_path):
     out = tmp_path / "o"
     r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out)])
     assert r.exit_code == 0, r.output
-    import pandas as pd
-
     df = pd.read_parquet(out / "runs")
     assert len(df) == 4 * 3 * 3 and set(df["filter"]) == {"imm", "cv", "ct"}
     assert {"uuv6_max_error", "error_ct", "mode_accuracy"} <= set(df.columns)
