@@ -67,6 +67,15 @@ def diverged(errors, threshold, warmup: int = 0, weights=None):
     return jnp.logical_or(jnp.any(big), nonfinite(errors))
 
 
+#: The fields of :func:`graph_summary`, as ``(name, per_filter, description)`` for a
+#: scenario's ``SUMMARY_FIELDS``.
+GRAPH_SUMMARY_FIELDS = (
+    ("lambda2_min", False, "smallest algebraic connectivity over the run"),
+    ("lambda2_mean", False, "mean algebraic connectivity"),
+    ("disconnected_steps", False, "steps with lambda2 <= 1e-9 (graph disconnected)"),
+)
+
+
 def graph_summary(lambda2):
     """Per-run graph statistics of a λ2 series (T,) (algorithms.md §8): ``lambda2_min``,
     ``lambda2_mean`` and ``disconnected_steps`` (steps with λ2 ≤ 1e-9)."""

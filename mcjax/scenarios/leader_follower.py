@@ -44,6 +44,7 @@ from mcjax.models.sensors import measure_range_bearing, range_bearing
 from mcjax.planning import CostParams, Dynamics, PlannerOptions, Problem, rollout, shift_plan, solve
 from mcjax.planning.objectives import ROBUSTNESS_PENALTIES
 from mcjax.planning.solvers import PLANNER_KINDS
+from mcjax.scenarios.common import DTYPES, agents, cast, check_config, choices, make_params
 
 NAME = "leader_follower"
 PAPER = "Sun, Zhou, Zou, Ding 2011 (seed 000)"
@@ -73,23 +74,7 @@ class Config:
     robustness_penalty: str = "barrier"  # "barrier" (ours, algorithms.md §5) | "inverse" (paper's 1/|R|)
 
     def __post_init__(self):
-        if not isinstance(self.n_agents, int) or self.n_agents < 1:
-            raise ValueError(f"n_agents must be an integer >= 1; got {self.n_agents!r}")
-        if not isinstance(self.n_steps, int) or self.n_steps < 1:
-            raise ValueError(f"n_steps must be an integer >= 1; got {self.n_steps!r}")
-        if not self.filters:
-            raise ValueError("filters must name at least one filter")
-        for f in self.filters:
-            if f not in FILTER_KINDS:
-                raise ValueError(f"filters: unknown filter {f!r}; allowed: {', '.join(FILTER_KINDS)}")
-        if len(set(self.filters)) != len(self.filters):
-            raise ValueError(f"filters must not repeat a filter; got {self.filters}")
-        if self.dtype not in ("float64", "float32"):
-            raise ValueError(f"dtype must be 'float64' or 'float32'; got {self.dtype!r}")
-        if not 0 <= self.warmup_steps < self.n_steps:
-            raise ValueError(f"warmup_steps must be in [0, n_steps); got {self.warmup_steps}")
-        if not self.divergence_threshold > 0:
-            raise ValueError(f"divergence_threshold must be > 0 m; got {self.divergence_threshold}")
+        check_config(self, FILTER_KINDS)
         self.filter_options()  # validates the filter choices
         if self.planner not in ("none",) + PLANNER_KINDS:
             raise ValueError(f"planner must be one of none, {', '.join(PLANNER_KINDS)}; got {self.planner!r}")
@@ -110,22 +95,19 @@ class Config:
                               self.plan_learning_rate, self.plan_elite_fraction, self.robustness_penalty)
 
 
-def _choices(values) -> str:
-    return "one of " + ", ".join(values)
-
 
 #: Allowed values of each Config field, as shown by ``mcjax list``.
 CONFIG_ALLOWED = {
     "n_agents": "integer >= 1", "n_steps": "integer >= 1",
     "filters": "non-empty subset of " + ", ".join(FILTER_KINDS),
-    "consensus_steps": "integer >= 0", "consensus_weights": _choices(WEIGHT_KINDS),
-    "contribution": _choices(CONTRIBUTION_KINDS), "icf_variant": _choices(ICF_VARIANTS),
-    "kcf_gain": _choices(KCF_GAINS), "divergence_threshold": "> 0 (m)",
-    "warmup_steps": "integer in [0, n_steps)", "dtype": _choices(("float64", "float32")),
-    "planner": _choices(("none",) + PLANNER_KINDS), "max_horizon": "integer >= 1",
+    "consensus_steps": "integer >= 0", "consensus_weights": choices(WEIGHT_KINDS),
+    "contribution": choices(CONTRIBUTION_KINDS), "icf_variant": choices(ICF_VARIANTS),
+    "kcf_gain": choices(KCF_GAINS), "divergence_threshold": "> 0 (m)",
+    "warmup_steps": "integer in [0, n_steps)", "dtype": choices(DTYPES),
+    "planner": choices(("none",) + PLANNER_KINDS), "max_horizon": "integer >= 1",
     "plan_iterations": "integer >= 1", "plan_samples": "integer >= 2 (cem: >= 2 per round)",
     "plan_learning_rate": "> 0", "plan_elite_fraction": "in (0, 1]",
-    "robustness_penalty": _choices(ROBUSTNESS_PENALTIES),
+    "robustness_penalty": choices(ROBUSTNESS_PENALTIES),
 }
 
 
@@ -247,11 +229,7 @@ def default_params(cfg: Config = Config(), **overrides) -> Params:
         alive=np.ones(n),
         **PLANNING_DEFAULTS,
     )
-    unknown = set(overrides) - set(Params._fields)
-    if unknown:
-        raise ValueError(f"unknown Params field(s) {sorted(unknown)}; allowed: {', '.join(Params._fields)}")
-    values.update(overrides)
-    return Params(**{k: np.asarray(v, dtype=np.float64) for k, v in values.items()})
+    return make_params(Params, values, overrides)
 
 
 class State(NamedTuple):
@@ -279,24 +257,17 @@ class Record(NamedTuple):
     plan_cost: jax.Array       # () exact eq. 16 cost of the plan in force (0 in open loop)
 
 
-def _cast(params: Params, dtype) -> Params:
-    return jax.tree.map(lambda a: jnp.asarray(a, dtype), params)
-
-
-def _agents(p, n, dtype):
-    return jnp.broadcast_to(jnp.asarray(p, dtype), (n,))
-
 
 def init(cfg: Config, params: Params, key) -> State:
     """State before step 0: true target, UAVs at their initial poses, filters at the prior
     (the true initial state with covariance ``diag(p0_diag)``, seed 000 §5)."""
     del key
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
-    params = _cast(params, dtype)
+    params = cast(params, dtype)
     uavs = jnp.concatenate([
         jnp.asarray(params.initial_positions, dtype),
-        _agents(params.uav_speed, n, dtype)[:, None],
-        _agents(params.initial_headings, n, dtype)[:, None],
+        agents(params.uav_speed, n, dtype)[:, None],
+        agents(params.initial_headings, n, dtype)[:, None],
     ], axis=-1)
     x0 = jnp.asarray(params.target_x0, dtype)
     P0 = jnp.diag(jnp.asarray(params.p0_diag, dtype))
@@ -318,9 +289,9 @@ def _plan(cfg: Config, params: Params, state: State, uavs, filters, age, key):
     dyn = Dynamics(params.dt, params.alpha_phi, params.turn_rate_max, horizon, params.sigma_accel)
     cost = CostParams(
         params.alpha_I, params.alpha_C, params.alpha_L, params.alpha_S, params.d_safe, params.d_lt,
-        params.robustness_scale, params.plan_temperature, _agents(params.sensing_radius, n, dtype),
-        _agents(params.comm_radius, n, dtype), params.sigma_range, params.sigma_bearing,
-        _agents(params.alive, n, dtype))
+        params.robustness_scale, params.plan_temperature, agents(params.sensing_radius, n, dtype),
+        agents(params.comm_radius, n, dtype), params.sigma_range, params.sigma_bearing,
+        agents(params.alive, n, dtype))
     warm = shift_plan(state.plan_u, age, horizon)
     plan = solve(problem, warm, key, dyn, cost, cfg.planner_options())
     _, _, commands, _ = rollout(problem, plan.u, dyn)
@@ -339,30 +310,30 @@ def step(cfg: Config, params: Params, state: State, key) -> tuple[State, Record]
     without predicting (algorithms.md §2).
     """
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
-    params = _cast(params, dtype)
+    params = cast(params, dtype)
     first = state.t == 0
     k_target, k_meas = jax.random.split(key)
     dt = jnp.asarray(params.dt, dtype)
     dt_move = jnp.where(first, 0.0, dt)
 
     target = jnp.where(first, state.target, cv_step(state.target, k_target, dt, params.target_sigma_accel))
-    speed = _agents(params.uav_speed, n, dtype)
+    speed = agents(params.uav_speed, n, dtype)
     limits = UnicycleLimits(speed, speed, jnp.zeros((), dtype), jnp.zeros((), dtype),
                             jnp.asarray(params.turn_rate_max, dtype))
     if cfg.planner == "none":
-        command, age = _agents(params.heading_cmd, n, dtype), state.plan_age
+        command, age = agents(params.heading_cmd, n, dtype), state.plan_age
     else:  # the next command of the plan in force (step 0 does not move)
         command = state.plan_cmd[jnp.minimum(state.plan_age, cfg.max_horizon - 1)]
         age = jnp.where(first, state.plan_age, state.plan_age + 1)
     uavs = unicycle_step(state.uavs, command, 0.0, params.alpha_phi, limits, dt_move)
     sensors = uavs[:, :2]
-    alive = _agents(params.alive, n, dtype) > 0.5
+    alive = agents(params.alive, n, dtype) > 0.5
 
-    sensing = _agents(params.sensing_radius, n, dtype)
+    sensing = agents(params.sensing_radius, n, dtype)
     keys = jax.random.split(k_meas, n)
     z = jax.vmap(measure_range_bearing, in_axes=(0, None, 0, None, None, 0, 0))(
         keys, target, sensors, params.sigma_range, params.sigma_bearing, sensing, alive)
-    comm = _agents(params.comm_radius, n, dtype)
+    comm = agents(params.comm_radius, n, dtype)
     adj = graph.adjacency(sensors, comm, alive)
 
     F, _ = cv_matrices(dt, dtype)
@@ -410,9 +381,7 @@ SUMMARY_FIELDS = (
     ("anees", True, "mean full-state NEES over agents and steps after warm-up (4 dof)"),
     ("diverged", True, "error above divergence_threshold after warm-up, or non-finite"),
     ("nonfinite", True, "some estimate went NaN/inf"),
-    ("lambda2_min", False, "smallest algebraic connectivity over the run"),
-    ("lambda2_mean", False, "mean algebraic connectivity"),
-    ("disconnected_steps", False, "steps with lambda2 <= 1e-9 (graph disconnected)"),
+    *metrics.GRAPH_SUMMARY_FIELDS,
     ("robustness_min", False, "smallest R_I of any agent over the run, m"),
     ("seeing_mean", False, "mean number of agents that see the target"),
     ("seeing_min", False, "fewest agents that see the target at any step"),

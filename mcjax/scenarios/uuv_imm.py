@@ -35,6 +35,7 @@ from mcjax.filters.imm import IMMState
 from mcjax.models.motion import ct_matrix, cv_matrices, cv_process_noise
 from mcjax.models.sensors import measure_range_bearing, range_bearing
 from mcjax.numerics import matvec, spd_inverse
+from mcjax.scenarios.common import DTYPES, agents, cast, check_config, choices, make_params
 
 NAME = "uuv_imm"
 PAPER = "Ren, Lv 2017 (seed 001)"
@@ -66,51 +67,31 @@ class Config:
     ut_kappa: float = 0.0
 
     def __post_init__(self):
-        if not isinstance(self.n_agents, int) or self.n_agents < 1:
-            raise ValueError(f"n_agents must be an integer >= 1; got {self.n_agents!r}")
-        if not isinstance(self.n_steps, int) or self.n_steps < 2:
-            raise ValueError(f"n_steps must be an integer >= 2; got {self.n_steps!r}")
-        if not self.filters:
-            raise ValueError("filters must name at least one filter")
-        for f in self.filters:
-            if f not in FILTER_KINDS:
-                raise ValueError(f"filters: unknown filter {f!r}; allowed: {', '.join(FILTER_KINDS)}")
-        if len(set(self.filters)) != len(self.filters):
-            raise ValueError(f"filters must not repeat a filter; got {self.filters}")
+        check_config(self, FILTER_KINDS, min_steps=2)
         if not isinstance(self.consensus_steps, int) or self.consensus_steps < 0:
             raise ValueError(f"consensus_steps must be an integer >= 0; got {self.consensus_steps!r}")
         for name, value, allowed in (("consensus_weights", self.consensus_weights, WEIGHT_KINDS),
                                      ("likelihood", self.likelihood, LIKELIHOODS),
-                                     ("schedule", self.schedule, SCHEDULES),
-                                     ("dtype", self.dtype, ("float64", "float32"))):
+                                     ("schedule", self.schedule, SCHEDULES)):
             if value not in allowed:
-                raise ValueError(f"{name} must be one of {', '.join(allowed)}; got {value!r}")
-        if not 0 <= self.warmup_steps < self.n_steps:
-            raise ValueError(f"warmup_steps must be in [0, n_steps); got {self.warmup_steps}")
-        if not self.divergence_threshold > 0:
-            raise ValueError(f"divergence_threshold must be > 0 m; got {self.divergence_threshold}")
-        if not self.ut_alpha > 0 or not self.ut_beta >= 0 or not self.n_state + self.ut_kappa > 0:
+                raise ValueError(f"{name} must be {choices(allowed)}; got {value!r}")
+        if not self.ut_alpha > 0 or not self.ut_beta >= 0 or not self.ut_kappa > -4:
             raise ValueError("ut_alpha must be > 0, ut_beta >= 0 and ut_kappa > -4 (the state has 4 components); "
                              f"got ({self.ut_alpha}, {self.ut_beta}, {self.ut_kappa})")
-
-    n_state = 4
 
     def unscented(self) -> Unscented:
         return Unscented(self.ut_alpha, self.ut_beta, self.ut_kappa)
 
-
-def _choices(values) -> str:
-    return "one of " + ", ".join(values)
 
 
 #: Allowed values of each Config field, as shown by ``mcjax list``.
 CONFIG_ALLOWED = {
     "n_agents": "integer >= 1", "n_steps": "integer >= 2",
     "filters": "non-empty subset of " + ", ".join(FILTER_KINDS),
-    "consensus_steps": "integer >= 0", "consensus_weights": _choices(WEIGHT_KINDS),
-    "likelihood": _choices(LIKELIHOODS), "schedule": _choices(SCHEDULES),
+    "consensus_steps": "integer >= 0", "consensus_weights": choices(WEIGHT_KINDS),
+    "likelihood": choices(LIKELIHOODS), "schedule": choices(SCHEDULES),
     "divergence_threshold": "> 0 (m)", "warmup_steps": "integer in [0, n_steps)",
-    "dtype": _choices(("float64", "float32")), "ut_alpha": "> 0", "ut_beta": ">= 0",
+    "dtype": choices(DTYPES), "ut_alpha": "> 0", "ut_beta": ">= 0",
     "ut_kappa": "> -4",
 }
 
@@ -216,11 +197,7 @@ def default_params(cfg: Config = Config(), **overrides) -> Params:
         p0_diag=np.array([10.0**2, 1.0, 10.0**2, 1.0]),
         alive=np.ones(n),
     )
-    unknown = set(overrides) - set(Params._fields)
-    if unknown:
-        raise ValueError(f"unknown Params field(s) {sorted(unknown)}; allowed: {', '.join(Params._fields)}")
-    values.update(overrides)
-    return Params(**{k: np.asarray(v, dtype=np.float64) for k, v in values.items()})
+    return make_params(Params, values, overrides)
 
 
 class State(NamedTuple):
@@ -241,20 +218,13 @@ class Record(NamedTuple):
     measurements: jax.Array  # (n, 2) range–bearing, NaN where none
 
 
-def _cast(params: Params, dtype) -> Params:
-    return jax.tree.map(lambda a: jnp.asarray(a, dtype), params)
-
-
-def _agents(p, n, dtype):
-    return jnp.broadcast_to(jnp.asarray(p, dtype), (n,))
-
 
 def init(cfg: Config, params: Params, key) -> State:
     """State before step 0: the target at ``target_x0`` in CV, and every UUV's filters at the
     prior (the true initial state, covariance ``diag(p0_diag)``; IMM mode probabilities ``mu0``)."""
     del key
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
-    params = _cast(params, dtype)
+    params = cast(params, dtype)
     x0 = params.target_x0
     P0 = jnp.diag(params.p0_diag)
     states = []
@@ -284,7 +254,7 @@ def step(cfg: Config, params: Params, state: State, key) -> tuple[State, Record]
     Step 0 is the first measurement time: nothing moves and the filters update their prior
     without predicting or mixing (algorithms.md §2)."""
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
-    params = _cast(params, dtype)
+    params = cast(params, dtype)
     first = state.t == 0
     k_mode, k_target, k_meas = jax.random.split(key, 3)
     dt = params.dt
@@ -296,11 +266,11 @@ def step(cfg: Config, params: Params, state: State, key) -> tuple[State, Record]
     target = jnp.where(first, state.target, matvec(F_true, state.target) + matvec(G, w))
 
     sensors = jnp.asarray(params.uuv_positions, dtype)
-    alive = _agents(params.alive, n, dtype) > 0.5
+    alive = agents(params.alive, n, dtype) > 0.5
     z = jax.vmap(measure_range_bearing, in_axes=(0, None, 0, None, None, 0, 0))(
         jax.random.split(k_meas, n), target, sensors, params.sigma_range, params.sigma_bearing,
-        _agents(params.sensing_radius, n, dtype), alive)
-    adj = graph.adjacency(sensors, _agents(params.comm_radius, n, dtype), alive)
+        agents(params.sensing_radius, n, dtype), alive)
+    adj = graph.adjacency(sensors, agents(params.comm_radius, n, dtype), alive)
 
     Q = cv_process_noise(dt, params.sigma_accel, dtype)
     F_model = jnp.stack([F_cv, ct_matrix(dt, params.turn_rate + params.model_turn_rate_error, dtype)])
@@ -352,9 +322,7 @@ SUMMARY_FIELDS = (
     ("anees", True, "mean full-state NEES over UUVs and steps after warm-up (4 dof)"),
     ("diverged", True, "error above divergence_threshold after warm-up, or non-finite"),
     ("nonfinite", True, "some estimate went NaN/inf"),
-    ("lambda2_min", False, "smallest algebraic connectivity over the run"),
-    ("lambda2_mean", False, "mean algebraic connectivity"),
-    ("disconnected_steps", False, "steps with lambda2 <= 1e-9 (graph disconnected)"),
+    *metrics.GRAPH_SUMMARY_FIELDS,
     ("ct_steps", False, "steps the target spent turning (CT)"),
     ("mode_accuracy", False, "fraction of (UUV, step) after warm-up where the IMM's likelier mode is the true one"),
     ("mu_ct_during_ct", False, "the IMM's mean CT probability while the target turns"),
