@@ -1,4 +1,4 @@
-"""Divergence statistics of Sun et al. 2011 (seed 000) Table 1, closed loop, over N runs.
+"""Divergence statistics of Sun et al. 2011 Table 1, closed loop, over N runs.
 
 Case 1 ignores the connectivity robustness (α_I = 0); case 2 weights it (α_I from
 ``configs/sun2011.toml``). Each case runs N seeds (default 1,000; the paper ran 20) with
@@ -30,7 +30,7 @@ import pandas as pd
 
 from mcjax import engine
 from mcjax.results import environment_metadata, write_part
-from mcjax.sweep import load_config_file
+from mcjax.sweep import load_config_file, run_rows
 
 ROOT = Path(__file__).resolve().parent.parent
 FILTERS = ("icf", "modified_icf", "cif")
@@ -59,24 +59,16 @@ def run_case(scenario, cfg, p, runs: int, base_seed: int):
     """All runs of one case; returns (summary dict of arrays, wall seconds incl. compile)."""
     point = engine.stack_points([p])
     t0 = time.perf_counter()
-    with jax.enable_x64(cfg.dtype == "float64"):
-        outs = [o for _, _, _, o in engine.run_chunks(scenario, cfg, point, runs, base_seed=base_seed,
-                                                      chunk_size=max(runs, 1))]
+    outs = [o for _, _, _, o in engine.run_chunks(scenario, cfg, point, runs, base_seed=base_seed,
+                                                  chunk_size=max(runs, 1))]
     wall = time.perf_counter() - t0
     out = {k: np.concatenate([o[k] for o in outs]) for k in outs[0]}
     return out, wall
 
 
-def rows(out: dict, case: str, planner: str) -> pd.DataFrame:
-    frames = []
+def rows(scenario, cfg, out: dict, case: str, planner: str) -> pd.DataFrame:
     n = len(out["lambda2_min"])
-    for f, name in enumerate(FILTERS):
-        cols = {"case": case, "planner": planner, "seed_index": np.arange(n), "filter": name}
-        for k, v in out.items():
-            v = np.asarray(v)
-            cols[k] = v[:, f] if v.ndim == 2 else v
-        frames.append(pd.DataFrame(cols))
-    return pd.concat(frames, ignore_index=True)
+    return run_rows(scenario, cfg, out, {"case": case, "planner": planner, "seed_index": np.arange(n)})
 
 
 def table(df: pd.DataFrame, walls: dict) -> str:
@@ -102,7 +94,7 @@ def table(df: pd.DataFrame, walls: dict) -> str:
 
 
 def checks(df: pd.DataFrame) -> list[tuple[str, bool]]:
-    """The qualitative claims of seed 000 Table 1, per planner."""
+    """The qualitative claims of Sun et al. 2011 Table 1, per planner."""
     res = []
     for planner, g in df.groupby("planner"):
         m = g.groupby(["case", "filter"])
@@ -129,11 +121,10 @@ def figures(scenario, cfg, p_by_case: dict, out_dir: Path) -> list[Path]:
     import matplotlib.pyplot as plt
 
     paths = []
-    fn = engine.compiled(scenario, cfg, False)
+    fn = engine.compiled(scenario, cfg, records=True)
     for case, p in p_by_case.items():
         params, keys = engine.chunk_inputs(engine.stack_points([p]), 1, 0, 0, 1, 1)
-        with jax.enable_x64(cfg.dtype == "float64"):
-            rec = jax.tree.map(lambda a: np.asarray(a)[0], fn(params, keys))
+        rec = jax.tree.map(lambda a: np.asarray(a)[0], fn(params, keys))
         t = np.arange(rec.lambda2.shape[0]) * float(p.dt)
         title = {"case1": "case 1: robustness ignored (α_I = 0)", "case2": "case 2: robustness weighted"}[case]
 
@@ -197,12 +188,12 @@ def main(argv=None) -> int:
             walls[(case, planner)] = wall
             print(f"{case} / {planner}: {args.runs} runs x {cfg.n_steps} steps in {wall:.1f} s "
                   f"including compilation ({wall / args.runs * 1e3:.0f} ms/run)", flush=True)
-            frames.append(rows(out, case, planner))
+            frames.append(rows(scenario, cfg, out, case, planner))
         if planner == args.planners[0] and not args.no_figures:
             for path in figures(scenario, cfg, p_by_case, args.out):
                 print(f"figure: {path}")
     df = pd.concat(frames, ignore_index=True)
-    meta = {"benchmark": "divergence_sun2011", "config": str(args.config), "runs": args.runs,
+    meta = {**scenario.metadata(cfg), "benchmark": "divergence_sun2011", "config": str(args.config), "runs": args.runs,
             "walls_s": {f"{c}/{p}": w for (c, p), w in walls.items()}, **environment_metadata()}
     path = write_part(args.out, "runs", df, "part-000000", meta)
     print(f"runs: {path} ({len(df)} rows; read back with pandas.read_parquet(\"{args.out / 'runs'}\"))\n")

@@ -1,6 +1,6 @@
 """Filter throughput: mcjax (one batched, compiled call) vs a per-run numpy loop.
 
-The five filters of algorithms.md §2 run on the open-loop leader–follower data of seed 000
+The five filters of docs/equations.md run on the open-loop leader–follower data of Sun et al. 2011
 (5 UAVs, 200 steps, range–bearing, comm range 100 km) over B runs. mcjax runs the B runs in
 one call of :func:`mcjax.filters.run_filter` (float64, every run with its own
 measurements, sensor positions and graph); the peer is ``benchmarks/numpy_peer.py``, a
@@ -32,7 +32,7 @@ FILTERS = ("cif", "icf", "modified_icf", "kcf", "local")
 
 
 def make_runs(n_runs: int, steps: int, seed: int = 0):
-    """``n_runs`` independent open-loop runs of seed 000's set-up (numpy simulator)."""
+    """``n_runs`` independent open-loop runs of Sun et al. 2011's set-up (numpy simulator)."""
     rng = np.random.default_rng(seed)
     positions = np.array([[20, 150], [80, 150], [130, 200], [130, 100], [180, 150]]) * KM
     heading = np.full(5, np.arctan2(-1000.0, 200.0))
@@ -59,7 +59,7 @@ def main(argv=None) -> None:
     n_agents = 5
     distinct = max(args.peer_runs, min(args.distinct, max(args.batches)))
     z, s, a, truth, common = make_runs(distinct, args.steps)
-    x0 = truth[0, 0]  # every run starts from the same true state (seed 000 §5)
+    x0 = truth[0, 0]  # every run starts from the same true state (Sun et al. 2011 §5)
 
     print(f"# filter throughput: {n_agents} agents x {args.steps} steps per run, float64")
     print("| filter | B | mcjax agent-steps/s | numpy loop agent-steps/s | ratio | mcjax compile s |")

@@ -30,7 +30,7 @@ import pandas as pd
 
 from mcjax import engine
 from mcjax.results import environment_metadata, write_part
-from mcjax.sweep import load_config_file
+from mcjax.sweep import load_config_file, run_rows
 
 ROOT = Path(__file__).resolve().parent.parent
 FILTERS = ("imm", "cv", "ct")
@@ -43,24 +43,12 @@ def run(config: Path, runs: int, schedule: str | None, base_seed: int):
     cfg = dataclasses.replace(cfg, filters=FILTERS, **({"schedule": schedule} if schedule else {}))
     p = scenario.default_params(cfg, **params)
     t0 = time.perf_counter()
-    with jax.enable_x64(cfg.dtype == "float64"):
-        chunks = [o for _, _, _, o in engine.run_chunks(scenario, cfg, engine.stack_points([p]), runs,
-                                                        base_seed=base_seed, chunk_size=runs, summarize=False)]
-        records = jax.tree.map(lambda *xs: np.concatenate(xs), *chunks)
-        summaries = jax.jit(jax.vmap(lambda r: scenario.summarize(cfg, r, p)))(records)
-        summaries = {k: np.asarray(v) for k, v in summaries.items()}
+    chunks = [o for _, _, _, o in engine.run_chunks(scenario, cfg, engine.stack_points([p]), runs,
+                                                    base_seed=base_seed, chunk_size=runs, records=True)]
+    records = jax.tree.map(lambda *xs: np.concatenate(xs), *chunks)
+    summaries = jax.jit(jax.vmap(lambda r: scenario.reduce(cfg, r, p)))(records)
+    summaries = {k: np.asarray(v) for k, v in summaries.items()}
     return scenario, cfg, p, records, summaries, time.perf_counter() - t0
-
-
-def rows(out: dict) -> pd.DataFrame:
-    frames = []
-    n = len(out["lambda2_min"])
-    for f, name in enumerate(FILTERS):
-        cols = {"seed_index": np.arange(n), "filter": name}
-        for k, v in out.items():
-            cols[k] = v[:, f] if v.ndim == 2 else v
-        frames.append(pd.DataFrame(cols))
-    return pd.concat(frames, ignore_index=True)
 
 
 def table1(out: dict, n_agents: int) -> pd.DataFrame:
@@ -96,7 +84,7 @@ def segments(out: dict) -> str:
 
 
 def checks(t1: pd.DataFrame, out: dict) -> list[tuple[str, bool]]:
-    """The qualitative claims of seed 001 §4 (Table 1, Figs. 2–5)."""
+    """The qualitative claims of Ren & Lv 2017 §4 (Table 1, Figs. 2–5)."""
     mean = {f: t1[(f, "mean")] for f in FILTERS}
     during_ct = {f: np.nanmean(out["error_ct"][:, k]) for k, f in enumerate(FILTERS)}
     during_cv = {f: np.nanmean(out["error_cv"][:, k]) for k, f in enumerate(FILTERS)}
@@ -203,9 +191,9 @@ def main(argv=None) -> int:
     print(f"{args.runs} runs x {cfg.n_steps} steps ({cfg.schedule} schedule, {cfg.n_agents} UUVs, "
           f"L = {cfg.consensus_steps}, {cfg.consensus_weights} weights) in {wall:.1f} s including compilation "
           f"({wall / args.runs * 1e3:.1f} ms/run)", flush=True)
-    df = rows(out)
-    meta = {"benchmark": "imm_ren2017", "config": str(args.config), "runs": args.runs, "schedule": cfg.schedule,
-            "wall_s": wall, **environment_metadata()}
+    df = run_rows(scenario, cfg, out, {"seed_index": np.arange(args.runs)})
+    meta = {**scenario.metadata(cfg), "benchmark": "imm_ren2017", "config": dataclasses.asdict(cfg),
+            "config_file": str(args.config), "runs": args.runs, "wall_s": wall, **environment_metadata()}
     path = write_part(args.out, "runs", df, "part-000000", meta)
     print(f"runs: {path} ({len(df)} rows; read back with pandas.read_parquet(\"{args.out / 'runs'}\"))")
     if not args.no_figures:

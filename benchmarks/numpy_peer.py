@@ -6,15 +6,15 @@ loop peer in the throughput benchmark.
 
 Equation sources:
 
-* Sun et al. 2011 (seed 000): CV target model (eq. 1), range-bearing sensor (§1.3),
+* Sun et al. 2011: CV target model (eq. 1), range-bearing sensor (§1.3),
   information-form prediction (eq. 8), measurement contributions (eq. 10, with the
   linearised-measurement correction ``i = Hᵀ R⁻¹ (ν + H x̄)``), consensus (eq. 11) and
   estimate recovery (eq. 12) — the "modified ICF" (eqs. 8–12).
 * Kamal, Farrell & Roy-Chowdhury 2013: information-weighted consensus filter (ICF),
   averaging contributions / priors and scaling by the number of agents.
 * Olfati-Saber 2009, "Kalman-consensus filter: optimality, stability and performance"
-  (seed 002 eqs. 6–11): the KCF.
-* Xiao & Boyd 2004 (seed 002 eq. 7): Metropolis and max-degree consensus weights.
+  (Chen & Lu 2013 eqs. 6–11): the KCF.
+* Xiao & Boyd 2004 (Chen & Lu 2013 eq. 7): Metropolis and max-degree consensus weights.
 
 State ``x = [px, vx, py, vy]``; measurement ``z = [range (m), bearing (rad)]``.
 """
@@ -153,7 +153,7 @@ def consensus_weights(adjacency: np.ndarray, kind: str = "eq11") -> np.ndarray:
     """Consensus weight matrix ``W`` (n×n) of one step's adjacency ``A``.
 
     * ``"eq11"`` (Sun et al. 2011 eq. 11): ``W_ij = a_ij/(1+d_i)``, ``W_ii = 1/(1+d_i)``.
-    * ``"metropolis"`` (Xiao & Boyd 2004; seed 002 eq. 7):
+    * ``"metropolis"`` (Xiao & Boyd 2004; Chen & Lu 2013 eq. 7):
       ``W_ij = a_ij/(1+max(d_i,d_j))``, ``W_ii = 1 − Σ_{j≠i} W_ij``.
     * ``"max_degree"`` (Xiao & Boyd 2004): ``W_ij = a_ij/n``, ``W_ii = 1 − d_i/n``.
     """
@@ -390,7 +390,7 @@ def _run_cif(z_all, s_all, x0, P0, F, Q, Rinv):
 
 
 def _run_kcf(z_all, s_all, A_all, x0, P0, F, Q, Rinv, gain, epsilon):
-    """Kalman-consensus filter, Olfati-Saber 2009 (seed 002 eqs. 6–11).
+    """Kalman-consensus filter, Olfati-Saber 2009 (Chen & Lu 2013 eqs. 6–11).
 
     ``(u_j, U_j)`` = contribution of ``j`` at its own prior ``x̄_j``;
     ``S_i = Σ_{j∈N_i∪{i}} U_j``, ``y_i = Σ_{j∈N_i∪{i}} u_j``; ``M_i = (P̄_i⁻¹ + S_i)⁻¹``;

@@ -1,6 +1,6 @@
-"""Gradient vs sampled planners on the same receding-horizon problems (seed 000 eq. 16).
+"""Gradient vs sampled planners on the same receding-horizon problems (Sun et al. 2011, eq. 16).
 
-Builds B planning problems of the seed 000 team (the paper's UAV layout jittered by up to
+Builds B planning problems of the Sun et al. 2011 team (the paper's UAV layout jittered by up to
 ±30 km, random headings, the target near its initial state, a leader posterior with
 position std 20–300 m and velocity std 5–50 m/s), for case 1 (α_I = 0) and case 2 (α_I
 from configs/sun2011.toml), all other weights from the config. Every planner solves the
@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcjax.planning import CostParams, Dynamics, PlannerOptions, Problem, horizon_cost, solve
+from mcjax.planning import CostParams, Dynamics, PlannerOptions, Problem, horizon_cost, horizon_plan_cost, solve
 from mcjax.sweep import load_config_file
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -70,12 +70,13 @@ def main(argv=None) -> None:
                           p["robustness_scale"], p["plan_temperature"], jnp.full(n, p.get("sensing_radius", 120e3)),
                           jnp.full(n, p.get("comm_radius", 100e3)), p.get("sigma_range", 10.0),
                           p.get("sigma_bearing", 0.017), jnp.ones(n))
-        warm_cost = jax.jit(jax.vmap(lambda q, u: horizon_cost(q, u, dyn, cost)))(probs, warm)
+        warm_cost = jax.jit(jax.vmap(lambda q, u: horizon_cost(q, u, dyn, cost, penalty=cfg.robustness_penalty)))(
+            probs, warm)
         results = []
         for kind, budget in BUDGETS:
-            opts = PlannerOptions(kind=kind, penalty=cfg.robustness_penalty,
-                                  learning_rate=cfg.plan_learning_rate, **budget)
-            fn = jax.jit(jax.vmap(lambda q, w, k: solve(q, w, k, dyn, cost, opts)))
+            opts = PlannerOptions(kind=kind, learning_rate=cfg.plan_learning_rate, **budget)
+            fn = jax.jit(jax.vmap(lambda q, w, k: solve(
+                horizon_plan_cost(q, dyn, cost, penalty=cfg.robustness_penalty), w, k, opts)))
             t0 = time.perf_counter()
             jax.block_until_ready(fn(probs, warm, keys))
             first = time.perf_counter() - t0

@@ -1,14 +1,9 @@
 """mcjax — batched Monte-Carlo simulation of distributed cooperative target tracking in JAX.
 
-float64 is switched on by the entry points (CLI, engine, ``run_filter``), never as an import
-side effect; see :func:`mcjax.enable_float64`.
+Precision: importing any mcjax module that computes with JAX switches on JAX's 64-bit mode
+(in :mod:`mcjax.numerics`, the one place that does it), so computations run in the dtype of
+their input: float64 by default, float32 where a Config or caller asks for it. The Parquet,
+report and contract modules import no JAX.
 """
 
 __version__ = "0.1.0"
-
-
-def enable_float64() -> None:
-    """Switch JAX to 64-bit floats (the default precision of every mcjax entry point)."""
-    import jax
-
-    jax.config.update("jax_enable_x64", True)

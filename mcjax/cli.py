@@ -1,4 +1,4 @@
-"""The ``mcjax`` command line: ``mcjax sweep``, ``mcjax run``, ``mcjax list``.
+"""The ``mcjax`` command line: ``mcjax sweep``, ``mcjax run``, ``mcjax report``, ``mcjax list``.
 
 click gives us typed options, ``--help`` for every subcommand and clean usage errors;
 tqdm draws the progress bar.
@@ -6,16 +6,11 @@ tqdm draws the progress bar.
 
 from __future__ import annotations
 
-import dataclasses
-import json
-import shutil
 import sys
 import time
 from pathlib import Path
 
 import click
-
-from mcjax import enable_float64
 
 
 def _parse_set(values: tuple[str, ...]) -> dict:
@@ -40,11 +35,12 @@ def _fail(message: str) -> None:
     sys.exit(2)
 
 
-def _print_summary(df, axes) -> None:
-    from mcjax.sweep import summary_table
+def _print_summary(df, spec) -> None:
+    """The report's table of a sweep's rows (per point and filter), from the declarations."""
+    from mcjax.report import summary_text
+    from mcjax.sweep import part_metadata
 
-    table = summary_table(df, axes)
-    click.echo(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+    click.echo(summary_text(df, part_metadata(spec, spec.chunk_size)))
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -75,15 +71,13 @@ def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force):
 
     Each chunk of runs is written as one Parquet part file (atomically: temporary name,
     then rename), so Ctrl-C or a killed process loses at most the chunk in flight, and
-    --resume completes exactly the missing chunks. Prints a summary per point and filter
-    (runs, divergences, mean RMSE over all and over non-divergent runs, smallest lambda2).
+    --resume completes exactly the missing chunks. Prints the report's summary per point
+    and filter (the scenario's error metric with its interval, divergences, graph statistics).
     """
     from mcjax import results
     from mcjax.engine import chunk_plan
-    from mcjax.sweep import SpecError, load_spec, points, run_sweep
+    from mcjax.sweep import OutputError, SpecError, load_spec, missing_chunks, points, prepare_output, run_sweep
 
-    if resume and force:
-        _fail("--resume and --force exclude each other")
     try:
         s = load_spec(spec, seeds=seeds, chunk_size=chunk_size, overrides=_parse_set(sets))
     except SpecError as exc:
@@ -91,48 +85,28 @@ def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force):
     out_dir = out_dir or Path("results") / spec.stem
     plan = chunk_plan(s.n_runs, s.chunk_size)
     size = plan[0][1] - plan[0][0]
-    click.echo(f"scenario {s.scenario.NAME}: {s.n_points} point(s) x {s.seeds} seed(s) = {s.n_runs} runs, "
+    click.echo(f"scenario {s.scenario.name}: {s.n_points} point(s) x {s.seeds} seed(s) = {s.n_runs} runs, "
                f"{len(plan)} chunk(s) of {size}, filters {', '.join(s.config.filters)}")
     if dry_run:
         click.echo(points(s).to_string(index=False))
         for i, (a, b) in enumerate(plan):
             click.echo(f"chunk {i}: runs {a}..{b - 1}")
         return
-    identity = json.loads(json.dumps({"spec": s.source, "seeds": s.seeds, "base_seed": s.base_seed,
-                                      "chunk_size": size, "n_runs": s.n_runs}, default=str))
-    state = out_dir / "sweep.json"
-    todo = None
-    if resume:
-        if not state.exists():
-            _fail(f"nothing to resume in {out_dir}: no sweep.json (start the sweep without --resume)")
-        saved = json.loads(state.read_text())
-        if saved != identity:
-            diff = sorted(k for k in identity if saved.get(k) != identity.get(k))
-            _fail(f"{out_dir} holds a different sweep ({', '.join(diff)} differ); --resume needs the same "
-                  f"spec, seeds and chunk size")
-        results.clean_staging(out_dir)
-        todo = _missing_chunks(s, plan, out_dir)
+    try:
+        todo = prepare_output(s, out_dir, resume=resume, force=force)
+    except OutputError as exc:
+        _fail(str(exc))
+    if todo is not None:
         click.echo(f"resuming: {len(plan) - len(todo)} of {len(plan)} chunk(s) already written")
-    elif out_dir.exists() and any(out_dir.iterdir()):
-        if not force:
-            _fail(f"output folder {out_dir} is not empty; pass --resume to finish it, --force to replace it, "
-                  f"or choose another --out")
-        shutil.rmtree(out_dir)
-    if not resume:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        state.write_text(json.dumps(identity, indent=1))
-    enable_float64()
     from tqdm import tqdm
 
-    meta = {"spec": s.source, "config": dataclasses.asdict(s.config), "scenario": s.scenario.NAME,
-            "seeds": s.seeds, "base_seed": s.base_seed, "chunk_size": size, **results.environment_metadata()}
     remaining = s.n_runs if todo is None else sum(plan[i][1] - plan[i][0] for i in todo)
     t0 = time.perf_counter()
     try:
         with tqdm(total=remaining, unit="run", desc="sweep", disable=None) as bar:
-            run_sweep(s, out_dir, chunks=todo, progress=bar.update, metadata=meta)
+            run_sweep(s, out_dir, chunks=todo, progress=bar.update)
     except KeyboardInterrupt:
-        n_done = len(plan) - len(_missing_chunks(s, plan, out_dir))
+        n_done = len(plan) - len(missing_chunks(s, out_dir))
         click.echo(f"\ninterrupted: {n_done} of {len(plan)} chunk(s) written to {out_dir}; "
                    f"finish with: mcjax sweep {spec} --out {out_dir} --resume", err=True)
         sys.exit(130)
@@ -140,19 +114,7 @@ def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force):
     df = results.read_table(out_dir, "runs")
     click.echo(f"{len(df)} rows in {out_dir / 'runs'}; {remaining} runs in {elapsed:.1f} s "
                f"({remaining / max(elapsed, 1e-9):.1f} runs/s incl. compilation)")
-    _print_summary(df, s.axes)
-
-
-def _missing_chunks(spec, plan, out_dir) -> list[int]:
-    """Chunks not completely on disk: some part (of ``runs/``, or ``timeseries/`` when the spec
-    asks for it) is missing. Re-running one rewrites its parts under the same names."""
-    from mcjax import results
-    from mcjax.sweep import chunk_parts
-
-    tables = ["runs"] + (["timeseries"] if spec.timeseries else [])
-    have = {t: set(results.existing_parts(out_dir, t)) for t in tables}
-    return [i for i, (a, b) in enumerate(plan)
-            if not all(set(chunk_parts(spec, i, a, b)) <= have[t] for t in tables)]
+    _print_summary(df, s)
 
 
 @main.command()
@@ -162,21 +124,16 @@ def _missing_chunks(spec, plan, out_dir) -> list[int]:
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
               help="Override a value, e.g. --set params.comm_radius=80e3. Repeatable.")
 def run(config, seeds, sets):
-    """Run one parameter point of CONFIG (configs/*.toml) and print a summary table."""
-    import tempfile
+    """Run one parameter point of CONFIG (configs/*.toml) and print a summary table
+    (nothing is written to disk)."""
+    from mcjax.sweep import SpecError, build_spec, run_sweep
 
-    from mcjax.sweep import SpecError, load_spec, run_sweep
-
-    with tempfile.TemporaryDirectory() as tmp:
-        spec_path = Path(tmp) / "point.toml"
-        spec_path.write_text(f"base = {json.dumps(str(config.resolve()))}\n")
-        try:
-            s = load_spec(spec_path, seeds=seeds, overrides=_parse_set(sets))
-        except SpecError as exc:
-            _fail(str(exc))
-    enable_float64()
+    try:
+        s = build_spec({"base": str(config.resolve())}, Path.cwd(), seeds=seeds, overrides=_parse_set(sets))
+    except SpecError as exc:
+        _fail(str(exc))
     df = run_sweep(s)
-    _print_summary(df, [])
+    _print_summary(df, s)
 
 
 @main.command()
@@ -206,32 +163,43 @@ def report(out_dir, fmt, no_plots):
 @main.command(name="list")
 @click.argument("scenario", required=False)
 def list_scenarios(scenario):
-    """List the scenarios; with SCENARIO, every Params field (unit, default, allowed values)
-    and every Config field (default, allowed values)."""
+    """List the scenarios (built-in and installed plugins); with SCENARIO, every Params field
+    (unit, default, allowed values, description), every Config field and every output."""
     from mcjax import scenarios
 
     if scenario is None:
-        for name, mod in scenarios.SCENARIOS.items():
-            click.echo(f"{name:18s} {mod.PAPER}")
+        for name in scenarios.known():
+            try:
+                title = scenarios.get(name).title
+            except Exception as exc:  # a broken plugin must not hide the others
+                title = f"(cannot be loaded: {exc})"
+            click.echo(f"{name:18s} {title}")
         click.echo("details: mcjax list SCENARIO")
         return
     try:
-        mod = scenarios.get(scenario)
+        sc = scenarios.get(scenario, base_dir=Path.cwd())
     except ValueError as exc:
         _fail(str(exc))
-    click.echo(f"{mod.NAME}: {mod.PAPER}\n\nParams (sweepable, no recompilation):")
-    defaults = mod.default_params(mod.Config())
-    ranges = getattr(mod, "PARAM_RANGES", {})
-    for field in mod.Params._fields:
-        value = getattr(defaults, field)
+    cfg = sc.Config()
+    defaults = sc.default_params(cfg)
+    click.echo(f"{sc.name}: {sc.title}\n\nParams (sweepable, no recompilation):")
+    for name, p in sc.params_table.items():
+        value = getattr(defaults, name)
         shown = value.tolist() if value.size <= 6 else f"array{value.shape}"
-        allowed = ranges.get(field, (None, None, "any"))[2]
-        click.echo(f"  {field:18s} [{mod.PARAM_UNITS.get(field, '')}] default {shown}; allowed {allowed}")
-    allowed_values = getattr(mod, "CONFIG_ALLOWED", {})
+        unit = f" [{p.unit}]" if p.unit else ""
+        agent = ", scalar or per agent" if p.per_agent else ""
+        if p.shape is not None:
+            agent += ", shape " + "x".join("n_agents" if d == "n" else str(d) for d in p.shape)
+        click.echo(f"  {name}{unit}: {p.description}\n      default {shown}; allowed {p.allowed()}{agent}")
     click.echo("\nConfig (fixes shapes / the program; changing it recompiles):")
-    for f in dataclasses.fields(mod.Config):
-        allowed = allowed_values.get(f.name, "any")
-        click.echo(f"  {f.name:20s} default {f.default!r}; allowed {allowed}")
+    for name, st in sc.settings.items():
+        unit = f" [{st.unit}]" if st.unit else ""
+        click.echo(f"  {name}{unit}: {st.description}\n      default {st.default!r}; allowed {st.allowed()}")
+    click.echo("\nOutputs (one row per run and filter in OUT/runs):")
+    for name, o in sc.outputs(cfg).items():
+        unit = f" [{o.unit}]" if o.unit else ""
+        role = f" (role: {o.role})" if o.role else ""
+        click.echo(f"  {name}{unit}{'' if o.per_filter else ' per run'}: {o.description}{role}")
 
 
 if __name__ == "__main__":

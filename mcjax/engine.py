@@ -1,7 +1,7 @@
 """The batch engine: ``vmap`` over runs of ``lax.scan`` over time, cut into fixed-size chunks.
 
-A *scenario* is a module with ``Config``, ``Params``, ``init``, ``step`` and ``summarize``
-(design.md, "The contract of a scenario"). A sweep is ``points × seeds`` runs, ordered
+A *scenario* is a :class:`mcjax.contract.Scenario` (``init``, ``step``, ``reduce``, optional
+``timeseries``; docs/architecture.md). A sweep is ``points × seeds`` runs, ordered
 point-major (run r = point ``r // n_seeds``, seed ``r % n_seeds``). Runs are cut into chunks
 of one fixed size, the last one padded and trimmed, so one compiled program serves every
 chunk and memory is bounded by the chunk, not the sweep.
@@ -14,12 +14,14 @@ size. Step t's key is ``fold_in(run_key, t)`` (noise drawn per step, never pre-d
 from __future__ import annotations
 
 from functools import lru_cache
-from types import ModuleType
 from typing import Callable, Iterator
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from mcjax import numerics  # noqa: F401  (its import switches on float64)
+from mcjax.contract import Scenario
 
 
 def run_key(base_seed: int, seed_index) -> jax.Array:
@@ -37,28 +39,31 @@ def _run(scenario, cfg, params, key):
     return records
 
 
-def simulate(scenario: ModuleType, cfg, params, keys, *, summarize: bool = True, timeseries: bool = False):
+def simulate(scenario: Scenario, cfg, params, keys, *, records: bool = False, timeseries: bool = False):
     """Run a batch: ``params`` and ``keys`` carry a leading run axis.
 
-    Returns the per-run summaries (``summarize=True``) or the records stacked over time
-    (run, time, …) — the caller chooses what is kept, so a large sweep need not keep every
-    trajectory. ``timeseries=True`` returns ``(summaries, scenario.timeseries(...))``: the
-    summaries plus a few per-step series, from one simulation. Not jitted: see :func:`compiled`.
+    Returns each run's reduced outputs (``scenario.reduce``: a dict of (runs, …) arrays) or,
+    with ``records=True``, the records stacked over time (run, time, …) — the caller chooses
+    what is kept, so a large sweep need not keep every trajectory. ``timeseries=True``
+    returns ``(outputs, scenario.timeseries(...))`` from one simulation. Not jitted: see
+    :func:`compiled`.
     """
 
     def one(p, k):
-        records = _run(scenario, cfg, p, k)
+        recs = _run(scenario, cfg, p, k)
+        if records:
+            return recs
         if timeseries:
-            return scenario.summarize(cfg, records, p), scenario.timeseries(cfg, records, p)
-        return scenario.summarize(cfg, records, p) if summarize else records
+            return scenario.reduce(cfg, recs, p), scenario.timeseries(cfg, recs, p)
+        return scenario.reduce(cfg, recs, p)
 
     return jax.vmap(one)(params, keys)
 
 
 @lru_cache(maxsize=32)
-def compiled(scenario: ModuleType, cfg, summarize: bool = True, timeseries: bool = False) -> Callable:
+def compiled(scenario: Scenario, cfg, records: bool = False, timeseries: bool = False) -> Callable:
     """The jitted :func:`simulate` for one scenario and config (defined once per process)."""
-    return jax.jit(lambda params, keys: simulate(scenario, cfg, params, keys, summarize=summarize,
+    return jax.jit(lambda params, keys: simulate(scenario, cfg, params, keys, records=records,
                                                  timeseries=timeseries))
 
 
@@ -100,14 +105,14 @@ def chunk_inputs(point_params, n_seeds: int, base_seed: int, start: int, stop: i
     return params, keys
 
 
-def run_chunks(scenario: ModuleType, cfg, point_params, n_seeds: int, *, base_seed: int = 0,
+def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed: int = 0,
                chunk_size: int = 1000, chunks: list[int] | None = None,
-               summarize: bool = True, timeseries: bool = False) -> Iterator[tuple[int, int, int, dict]]:
+               records: bool = False, timeseries: bool = False) -> Iterator[tuple[int, int, int, dict]]:
     """Run a sweep chunk by chunk; yields ``(chunk_index, start, stop, outputs)`` with the
     outputs trimmed to the chunk's real runs and converted to numpy.
 
     ``point_params``: Params with a leading point axis. ``chunks`` restricts the run to those
-    chunk indices (for resuming). ``timeseries=True`` yields ``(summaries, series)`` as the
+    chunk indices (for resuming). ``timeseries=True`` yields ``(outputs, series)`` as the
     outputs (see :func:`simulate`). Each chunk is computed as consecutive calls of one
     compiled :data:`BATCH_SIZE`-run program (the last call padded), dispatched
     asynchronously, so memory is bounded by the chunk and numbers do not depend on it.
@@ -115,7 +120,7 @@ def run_chunks(scenario: ModuleType, cfg, point_params, n_seeds: int, *, base_se
     n_points = int(jax.tree.leaves(point_params)[0].shape[0])
     n_runs = n_points * n_seeds
     b = batch_size_for(n_runs)
-    fn = compiled(scenario, cfg, summarize, timeseries)
+    fn = compiled(scenario, cfg, records, timeseries)
     for idx, (start, stop) in enumerate(chunk_plan(n_runs, chunk_size)):
         if chunks is not None and idx not in chunks:
             continue

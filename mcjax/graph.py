@@ -1,4 +1,4 @@
-"""Communication topology of a team and its metrics (shared/algorithms.md §1).
+"""Communication topology of a team and its metrics (docs/equations.md).
 
 Every function is pure, jit- and vmap-friendly, and accepts any leading batch shape: agent
 positions are ``(..., n, d)``, adjacency matrices ``(..., n, n)``. The only Python loops run
@@ -63,7 +63,7 @@ def _clean_adjacency(adj) -> jax.Array:
 
 
 def pairwise_distances(positions) -> jax.Array:
-    """Inter-agent distances ``l_ij = ‖q_i − q_j‖`` (Sun et al. 2011 (seed 000) eq. 13).
+    """Inter-agent distances ``l_ij = ‖q_i − q_j‖`` (Sun et al. 2011 eq. 13).
 
     ``positions`` (..., n, d) -> (..., n, n), zero diagonal. Uses the double-``where`` safe
     norm, so ``jax.grad`` is finite (zero) where two agents coincide.
@@ -74,7 +74,7 @@ def pairwise_distances(positions) -> jax.Array:
 
 
 def link_margins(positions, radius) -> jax.Array:
-    """Signed link margins ``m_ij = min(r_i, r_j) − l_ij`` (Sun et al. 2011 (seed 000) eqs. 13–14).
+    """Signed link margins ``m_ij = min(r_i, r_j) − l_ij`` (Sun et al. 2011 eqs. 13–14).
 
     ``m_ij ≥ 0`` iff i and j are linked (eq. 13); a non-link has a negative margin. The
     diagonal is ``+inf`` (an agent is always "linked" to itself with infinite margin, the
@@ -88,7 +88,7 @@ def link_margins(positions, radius) -> jax.Array:
 
 
 def adjacency(positions, radius, alive=None) -> jax.Array:
-    """Comm-graph adjacency: link i–j iff ``l_ij ≤ min(r_i, r_j)`` (Sun et al. 2011 (seed 000) eq. 13).
+    """Comm-graph adjacency: link i–j iff ``l_ij ≤ min(r_i, r_j)`` (Sun et al. 2011 eq. 13).
 
     ``positions`` (..., n, d); ``radius`` scalar or per agent (..., n); ``alive`` optional
     bool (..., n) — a dead agent has no links. Returns a float 0/1 matrix (..., n, n),
@@ -105,13 +105,13 @@ def adjacency(positions, radius, alive=None) -> jax.Array:
 
 
 def hysteresis_adjacency(previous, positions, radius, epsilon) -> jax.Array:
-    """Adjacency with hysteresis on new links (Lou et al. 2013 (seed 004) §1.1, edge rules 1–3).
+    """Adjacency with hysteresis on new links (Lou et al. 2013 §1.1, edge rules 1–3).
 
     With ``R = min(r_i, r_j)``: a link that existed (``previous_ij = 1``) survives while
     ``l_ij < R`` and breaks when ``l_ij ≥ R`` (rule 3); a link that did not exist forms only
     when ``l_ij < R − ε`` (rule 2). Zero diagonal; symmetric when ``previous`` is. Note the
     strict inequality: an existing link at exactly ``l_ij = R`` breaks here, whereas
-    :func:`adjacency` (seed 000 eq. 13) keeps it. The initial graph (rule 1, ``l_ij < R``)
+    :func:`adjacency` (Sun et al. 2011 eq. 13) keeps it. The initial graph (rule 1, ``l_ij < R``)
     is obtained by passing ``previous = 1`` everywhere. ``epsilon`` is a scalar or
     broadcastable to (..., n, n). Returns a float 0/1 matrix in the dtype of ``positions``.
     """
@@ -127,7 +127,7 @@ def hysteresis_adjacency(previous, positions, radius, epsilon) -> jax.Array:
 
 
 def degree(adj) -> jax.Array:
-    """Degrees ``d_i = Σ_j a_ij`` (Sun et al. 2011 (seed 000) eq. 11; shared/algorithms.md §1).
+    """Degrees ``d_i = Σ_j a_ij`` (Sun et al. 2011 eq. 11; docs/equations.md).
 
     (..., n, n) -> (..., n); the diagonal (self-loops) is ignored.
     """
@@ -135,7 +135,7 @@ def degree(adj) -> jax.Array:
 
 
 def laplacian(adj) -> jax.Array:
-    """Graph Laplacian ``L = D − A`` (shared/algorithms.md §1; seed 000 Figs. 6 and 10).
+    """Graph Laplacian ``L = D − A`` (docs/equations.md; Sun et al. 2011 Figs. 6 and 10).
 
     (..., n, n) -> (..., n, n); the diagonal of ``adj`` is ignored.
     """
@@ -148,7 +148,7 @@ def laplacian(adj) -> jax.Array:
 def algebraic_connectivity(adj) -> jax.Array:
     """Algebraic connectivity λ2, the second-smallest eigenvalue of ``L = D − A``.
 
-    shared/algorithms.md §1 (seed 000 Figs. 6/10, seed 004 "λ2 > 0"): λ2 = 0 iff the graph is
+    docs/equations.md (Sun et al. 2011 Figs. 6/10, Lou et al. 2013 "λ2 > 0"): λ2 = 0 iff the graph is
     disconnected. (..., n, n) -> (...,), via ``jnp.linalg.eigvalsh``. Round-off can make the
     eigenvalue of a disconnected graph a tiny negative number (~−1e−16); it is clipped to 0,
     so the result is always ≥ 0. Needs ``n ≥ 2`` (λ2 does not exist for one agent): a
@@ -162,7 +162,7 @@ def algebraic_connectivity(adj) -> jax.Array:
 
 
 def component_sizes(adj) -> jax.Array:
-    """Size of each agent's connected component, itself included (shared/algorithms.md §1).
+    """Size of each agent's connected component, itself included (docs/equations.md).
 
     Boolean transitive closure of ``A ∨ I`` by repeated squaring — a static
     ``ceil(log2 n) + 1`` squarings, enough for paths of any length ≤ n − 1. (..., n, n) ->
@@ -183,10 +183,10 @@ def component_sizes(adj) -> jax.Array:
 def laplacian_step_weights(adj) -> jax.Array:
     """Seed 000 eq. 11 as a matrix: ``x_i ← x_i − (1/(1+d_i)) Σ_j a_ij (x_i − x_j) = Σ_j W_ij x_j``.
 
-    Sun et al. 2011 (seed 000) eq. 11: ``W_ij = a_ij/(1+d_i)`` for j ≠ i and
+    Sun et al. 2011 eq. 11: ``W_ij = a_ij/(1+d_i)`` for j ≠ i and
     ``W_ii = 1/(1+d_i)``. Row-stochastic but in general NOT doubly stochastic (the fixed
     point is the average weighted by ``1 + d_i``); kept as the paper has it
-    (shared/algorithms.md §1). (..., n, n) -> (..., n, n).
+    (docs/equations.md). (..., n, n) -> (..., n, n).
     """
     a = _clean_adjacency(adj)
     n = a.shape[-1]
@@ -197,7 +197,7 @@ def laplacian_step_weights(adj) -> jax.Array:
 def metropolis_weights(adj) -> jax.Array:
     """Metropolis weights ``W_ij = a_ij/(1+max(d_i,d_j))``, ``W_ii = 1 − Σ_{j≠i} W_ij``.
 
-    shared/algorithms.md §1 (the weights of Ren & Lv 2017, seed 001). Symmetric, non-negative
+    docs/equations.md (the weights of Ren & Lv 2017, Ren & Lv 2017). Symmetric, non-negative
     and doubly stochastic for any undirected graph. (..., n, n) -> (..., n, n).
     """
     a = _clean_adjacency(adj)
@@ -208,7 +208,7 @@ def metropolis_weights(adj) -> jax.Array:
 
 
 def max_degree_weights(adj) -> jax.Array:
-    """Max-degree weights ``W_ij = a_ij/n``, ``W_ii = 1 − d_i/n`` (Chen & Lu 2013 (seed 002) eq. 7).
+    """Max-degree weights ``W_ij = a_ij/n``, ``W_ii = 1 − d_i/n`` (Chen & Lu 2013 eq. 7).
 
     Symmetric, non-negative, doubly stochastic. (..., n, n) -> (..., n, n).
     """
@@ -226,10 +226,10 @@ _WEIGHT_FUNCTIONS = {
 
 
 def consensus_weights(adj, kind: str) -> jax.Array:
-    """Consensus matrix of the given ``kind`` (shared/algorithms.md §1).
+    """Consensus matrix of the given ``kind`` (docs/equations.md).
 
-    ``"eq11"``: :func:`laplacian_step_weights` (seed 000 eq. 11); ``"metropolis"``:
-    :func:`metropolis_weights`; ``"max_degree"``: :func:`max_degree_weights` (seed 002
+    ``"eq11"``: :func:`laplacian_step_weights` (Sun et al. 2011 eq. 11); ``"metropolis"``:
+    :func:`metropolis_weights`; ``"max_degree"``: :func:`max_degree_weights` (Chen & Lu 2013
     eq. 7). ``kind`` is a Python string (static under ``jit``); anything else raises
     ``ValueError``.
     """
@@ -248,8 +248,8 @@ def consensus_weights(adj, kind: str) -> jax.Array:
 def pair_robustness(positions, radius) -> jax.Array:
     """Pair robustness ρ(i,j): the widest (max over paths of the min link margin) path.
 
-    Spanos & Murray 2004; Sun et al. 2011 (seed 000) eq. 14 extended to multi-hop paths as
-    in shared/algorithms.md §1. Paths run over the complete graph with signed margins
+    Spanos & Murray 2004; Sun et al. 2011 eq. 14 extended to multi-hop paths as
+    in docs/equations.md. Paths run over the complete graph with signed margins
     ``m_ij = min(r_i, r_j) − l_ij`` (:func:`link_margins`), so ρ(i,j) ≥ 0 iff a path of
     links joins i and j, and otherwise −ρ(i,j) is the least extra range (added to every
     agent) that would join them. Exact, by Floyd–Warshall in the (max, min) semiring:
@@ -273,8 +273,8 @@ def _info_mask(n: int, info_neighbours) -> jax.Array:
 def connectivity_robustness(positions, radius, info_neighbours=None) -> jax.Array:
     """Connectivity robustness ``R_I(i) = ½ min_{j ∈ N_I(i), j≠i} ρ(i,j)``.
 
-    Sun et al. 2011 (seed 000) eq. 15 (Spanos & Murray 2004), with ρ the exact multi-hop pair
-    robustness of :func:`pair_robustness` (shared/algorithms.md §1). ``info_neighbours``:
+    Sun et al. 2011 eq. 15 (Spanos & Murray 2004), with ρ the exact multi-hop pair
+    robustness of :func:`pair_robustness` (docs/equations.md). ``info_neighbours``:
     optional bool (..., n, n) mask of the information neighbours N_I(i) (row i), default
     every other agent. An agent with no information neighbour gets ``+inf``. ``radius``
     scalar or per agent. (..., n, d) -> (..., n).
@@ -287,8 +287,8 @@ def connectivity_robustness(positions, radius, info_neighbours=None) -> jax.Arra
 def smooth_pair_robustness(positions, radius, temperature) -> jax.Array:
     """Smooth ρ(i,j): :func:`pair_robustness` with max/min replaced by soft forms.
 
-    Spanos & Murray 2004; Sun et al. 2011 (seed 000) eq. 14, multi-hop as in
-    shared/algorithms.md §1. The Floyd–Warshall update becomes
+    Spanos & Murray 2004; Sun et al. 2011 eq. 14, multi-hop as in
+    docs/equations.md. The Floyd–Warshall update becomes
     ``ρ_ij ← softmax_T(ρ_ij, softmin_T(ρ_ik, ρ_kj))`` for k ∉ {i, j} (the k = i, j updates
     are no-ops of the exact recursion and are skipped, so no ``T log 2`` bias is added
     there). Every soft operation is within ``T log 2`` of the hard one and both are
@@ -325,7 +325,7 @@ def smooth_pair_robustness(positions, radius, temperature) -> jax.Array:
 def smooth_connectivity_robustness(positions, radius, temperature, info_neighbours=None) -> jax.Array:
     """Smooth ``R_I(i) ≈ ½ min_{j ∈ N_I(i)} ρ(i,j)`` for gradient-based planning.
 
-    Sun et al. 2011 (seed 000) eq. 15 (Spanos & Murray 2004) with every max/min — in the
+    Sun et al. 2011 eq. 15 (Spanos & Murray 2004) with every max/min — in the
     Floyd–Warshall recursion (:func:`smooth_pair_robustness`) and in the outer minimum —
     replaced by ``softmax_value`` / ``softmin`` at ``temperature`` T (same units as the
     positions). Tends to :func:`connectivity_robustness` as T → 0, within

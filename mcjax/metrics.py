@@ -1,4 +1,4 @@
-"""Run metrics: position errors, RMSE, NEES, the divergence rule (algorithms.md §8)."""
+"""Run metrics: position errors, RMSE, NEES, the divergence rule (docs/equations.md)."""
 
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ def _after_warmup(n_steps, warmup):
 
 def rmse(errors, warmup: int = 0, weights=None):
     """Root-mean-square of ``errors`` (T, …) over steps ≥ ``warmup`` and the other axes
-    (algorithms.md §8; seed 003 eq. 23 averages it over runs)."""
+    (docs/equations.md)."""
     mask = _after_warmup(errors.shape[0], warmup).reshape((-1,) + (1,) * (errors.ndim - 1))
     w = jnp.broadcast_to(mask, errors.shape).astype(errors.dtype)
     if weights is not None:
@@ -58,7 +58,7 @@ def nonfinite(errors):
 
 
 def diverged(errors, threshold, warmup: int = 0, weights=None):
-    """Divergence rule of algorithms.md §8: the error exceeded ``threshold`` (metres) at
+    """Divergence rule of docs/equations.md: the error exceeded ``threshold`` (metres) at
     any step ≥ ``warmup`` (for any agent with non-zero weight), or went non-finite."""
     mask = _after_warmup(errors.shape[0], warmup).reshape((-1,) + (1,) * (errors.ndim - 1))
     if weights is not None:
@@ -67,17 +67,8 @@ def diverged(errors, threshold, warmup: int = 0, weights=None):
     return jnp.logical_or(jnp.any(big), nonfinite(errors))
 
 
-#: The fields of :func:`graph_summary`, as ``(name, per_filter, description)`` for a
-#: scenario's ``SUMMARY_FIELDS``.
-GRAPH_SUMMARY_FIELDS = (
-    ("lambda2_min", False, "smallest algebraic connectivity over the run"),
-    ("lambda2_mean", False, "mean algebraic connectivity"),
-    ("disconnected_steps", False, "steps with lambda2 <= 1e-9 (graph disconnected)"),
-)
-
-
 def graph_summary(lambda2):
-    """Per-run graph statistics of a λ2 series (T,) (algorithms.md §8): ``lambda2_min``,
+    """Per-run graph statistics of a λ2 series (T,) (docs/equations.md): ``lambda2_min``,
     ``lambda2_mean`` and ``disconnected_steps`` (steps with λ2 ≤ 1e-9)."""
     return dict(lambda2_min=jnp.min(lambda2), lambda2_mean=jnp.mean(lambda2),
                 disconnected_steps=jnp.sum(lambda2 <= 1e-9))

@@ -7,7 +7,7 @@ finite at zero.
 The small-matrix kernels (``spd_inverse``, ``spd_solve``) are written as unrolled scalar
 code over the last two axes. On the CPU, XLA runs ``jnp.linalg`` on tiny matrices through
 per-matrix library calls, which is overhead-bound; unrolled elementwise code fuses into a
-few vectorised loops over the batch (design.md, "Lessons measured"). They fall back to
+few vectorised loops over the batch (docs/architecture.md). They fall back to
 ``jnp.linalg`` above ``UNROLL_MAX``.
 """
 
@@ -15,6 +15,12 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+
+# The one place mcjax switches on JAX's 64-bit mode (docs/architecture.md, "Precision"): every
+# mcjax module that computes with JAX imports this one, so float64 input stays float64 (e.g.
+# graph.algebraic_connectivity of a float64 numpy adjacency) and float32 input, or a Config
+# with dtype = "float32", stays float32.
+jax.config.update("jax_enable_x64", True)
 
 UNROLL_MAX = 6
 
@@ -75,7 +81,7 @@ def matvec(a: jax.Array, v: jax.Array) -> jax.Array:
     return out
 
 
-def mix(w: jax.Array, values: jax.Array) -> jax.Array:
+def weighted_agent_sum(w: jax.Array, values: jax.Array) -> jax.Array:
     """``out_i = Σ_j w_ij values_j`` over the leading (agent) axis of ``values`` (n, ...),
     unrolled over j like :func:`matmul`."""
     extra = (1,) * (values.ndim - 1)

@@ -125,7 +125,7 @@ def _encode_metadata(metadata: Mapping[str, Any] | None) -> dict[bytes, bytes]:
         if not isinstance(key, str) or not key:
             raise ValueError(f"metadata keys must be non-empty str, got {key!r}")
         try:
-            text = json.dumps(value, sort_keys=True)
+            text = json.dumps(value)  # key order kept: a spec's grid axes are in the order written
         except (TypeError, ValueError) as exc:
             raise TypeError(
                 f"metadata[{key!r}] is not JSON-serialisable ({type(value).__name__}): {exc}"

@@ -158,7 +158,7 @@ def test_bad_config_value_exit_2(tmp_path):
     spec = tmp_path / "spec.toml"
     spec.write_text(f'base = "{BASE}"\n[config]\nfilters = ["cif", "ukf"]\n')
     r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / "o")])
-    assert r.exit_code == 2 and "unknown filter 'ukf'" in r.output and not (tmp_path / "o").exists()
+    assert r.exit_code == 2 and "filters must be a non-empty list of distinct values from cif" in r.output and "(unknown: 'ukf')" in r.output and not (tmp_path / "o").exists()
 
 
 def test_report_command_prints_table_and_writes_plots(tmp_path):

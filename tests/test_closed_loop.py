@@ -1,4 +1,4 @@
-"""The closed loop of seed 000 §4 in the leader–follower scenario: one program for a batch of
+"""The closed loop of Sun et al. 2011 §4 in the leader–follower scenario: one program for a batch of
 mixed horizons and weights, plan cadence τ_r, limits respected, validation."""
 
 import jax
@@ -21,7 +21,7 @@ def batch(cfg, points, seeds):
 
 @pytest.fixture(scope="module")
 def mixed():
-    fn = engine.compiled(lf, CFG, summarize=False)
+    fn = engine.compiled(lf.SCENARIO, CFG, records=True)
     mixed_points = [dict(horizon=3, replan_every=3, alpha_I=0.0),
                     dict(horizon=5, replan_every=3, alpha_I=1000.0),
                     dict(horizon=8, replan_every=2, alpha_I=300.0)]
@@ -42,7 +42,7 @@ def test_mixed_horizons_share_one_program(mixed):
 
 def test_run_alone_equals_run_in_mixed_batch(mixed):
     _, a, _ = mixed
-    alone = engine.compiled(lf, CFG, summarize=False)(*batch(CFG, [dict(horizon=5, replan_every=3, alpha_I=1000.0)], [1]))
+    alone = engine.compiled(lf.SCENARIO, CFG, records=True)(*batch(CFG, [dict(horizon=5, replan_every=3, alpha_I=1000.0)], [1]))
     np.testing.assert_allclose(np.asarray(alone.positions)[0], a.positions[1], rtol=1e-9, atol=1e-6)
     np.testing.assert_allclose(np.asarray(alone.error)[0], a.error[1], rtol=1e-6, atol=1e-6)
 
@@ -66,7 +66,7 @@ def test_replans_every_tau_r_and_respects_the_turn_rate(mixed):
 def test_sampled_planners_close_the_loop(planner):
     cfg = lf.Config(planner=planner, filters=("modified_icf",), n_steps=12, warmup_steps=2,
                     plan_iterations=2, plan_samples=16)
-    out = engine.compiled(lf, cfg)(*batch(cfg, [{}] * 2, [0, 1]))
+    out = engine.compiled(lf.SCENARIO, cfg)(*batch(cfg, [{}] * 2, [0, 1]))
     assert np.all(np.isfinite(np.asarray(out["plan_cost_mean"])))
     assert np.all(np.asarray(out["plan_cost_mean"]) > 0)
 

@@ -15,7 +15,7 @@ def _points(*overrides):
 
 
 def _collect(cfg, points, n_seeds, chunk_size):
-    outs = [out for _, _, _, out in engine.run_chunks(lf, cfg, points, n_seeds, chunk_size=chunk_size)]
+    outs = [out for _, _, _, out in engine.run_chunks(lf.SCENARIO, cfg, points, n_seeds, chunk_size=chunk_size)]
     return {k: np.concatenate([o[k] for o in outs]) for k in outs[0]}
 
 
@@ -63,7 +63,7 @@ def test_nan_in_one_run_is_flagged_and_isolated():
 
 
 def test_records_can_be_kept():
-    fn = engine.compiled(lf, CFG, summarize=False)
+    fn = engine.compiled(lf.SCENARIO, CFG, records=True)
     params, keys = engine.chunk_inputs(_points({}), 3, 0, 0, 3, 3)
     rec = fn(params, keys)
     assert rec.error.shape == (3, CFG.n_steps, len(CFG.filters), CFG.n_agents)

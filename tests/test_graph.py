@@ -363,7 +363,7 @@ def test_eq11_weights_are_the_paper_step():
         np.testing.assert_allclose(w.sum(1), 1.0, atol=1e-14)
         assert np.all(w >= 0)
         not_doubly += not np.allclose(w.sum(0), 1.0)
-        # One step of seed 000 eq. 11 written out with a loop.
+        # One step of Sun et al. 2011 eq. 11 written out with a loop.
         x = rng.normal(size=n)
         d = a.sum(1)
         step = np.array([x[i] - sum(a[i, j] * (x[i] - x[j]) for j in range(n)) / (1 + d[i]) for i in range(n)])

@@ -1,4 +1,4 @@
-"""The leader–follower scenario (seed 000) wired correctly: records checked against
+"""The leader–follower scenario (Sun et al. 2011) wired correctly: records checked against
 independent computations from the recorded positions, measurements and graph."""
 
 import sys
@@ -20,7 +20,7 @@ CFG = lf.Config(n_steps=60, warmup_steps=5)
 def records():
     params = lf.default_params(CFG)
     p, k = engine.chunk_inputs(engine.stack_points([params]), 4, 0, 0, 4, 4)
-    rec = engine.compiled(lf, CFG, summarize=False)(p, k)
+    rec = engine.compiled(lf.SCENARIO, CFG, records=True)(p, k)
     return params, {name: np.asarray(v) for name, v in rec._asdict().items()}
 
 
@@ -77,7 +77,7 @@ def test_scenario_filters_equal_numpy_peer_on_recorded_data(records, kind):
 
 def test_cif_beats_local_and_summaries_consistent():
     params = lf.default_params(CFG)
-    outs = list(engine.run_chunks(lf, CFG, engine.stack_points([params]), 16, chunk_size=16))
+    outs = list(engine.run_chunks(lf.SCENARIO, CFG, engine.stack_points([params]), 16, chunk_size=16))
     s = outs[0][3]
     f = {k: i for i, k in enumerate(CFG.filters)}
     assert np.median(s["rmse"][:, f["cif"]]) < np.median(s["rmse"][:, f["local"]])
@@ -88,13 +88,13 @@ def test_cif_beats_local_and_summaries_consistent():
 def test_dead_agent_is_masked():
     params = lf.default_params(CFG, alive=[1, 1, 1, 0, 1])
     p, k = engine.chunk_inputs(engine.stack_points([params]), 1, 0, 0, 1, 1)
-    rec = engine.compiled(lf, CFG, summarize=False)(p, k)
+    rec = engine.compiled(lf.SCENARIO, CFG, records=True)(p, k)
     assert np.all(np.isnan(np.asarray(rec.measurements)[0, :, 3]))
     assert np.all(np.asarray(rec.adjacency)[0, :, 3, :] == 0)
 
 
 def test_config_validation_names_the_field():
-    with pytest.raises(ValueError, match="filters: unknown filter 'ukf'"):
+    with pytest.raises(ValueError, match=r"filters must be a non-empty list .*\(unknown: 'ukf'\)"):
         lf.Config(filters=("cif", "ukf"))
     with pytest.raises(ValueError, match="consensus_weights|weights must be one of"):
         lf.Config(consensus_weights="uniform")

@@ -382,7 +382,7 @@ def test_speed_stays_within_limits():
 
 @pytest.mark.parametrize("dt", [0.1, 0.05])
 def test_step_matches_solve_ivp(dt):
-    """No limit active: one step equals the ODE solution (seed 000 eq. 3) to ~1e-6."""
+    """No limit active: one step equals the ODE solution (Sun et al. 2011 eq. 3) to ~1e-6."""
     alpha, accel, cmd = 0.5, 1.0, 0.15
     s0 = np.array([1e3, -500.0, 200.0, 0.1])
     lim = _limits(v_min=50.0, v_max=400.0, a_min=-5.0, a_max=5.0, turn=1.0)

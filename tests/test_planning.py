@@ -1,5 +1,7 @@
-"""Receding-horizon planning (seed 000 §4): cost terms against independent forms, rollout
-invariants, t_r masking, finite gradients in degenerate geometry, and the solvers."""
+"""Planning: the receding-horizon cost of Sun et al. 2011 §4 against independent forms,
+rollout invariants, t_r masking, finite gradients in degenerate geometry; and the planners,
+generic over a cost — on that cost and on simple costs with known minimisers,
+including the grid kind."""
 
 import jax
 import jax.numpy as jnp
@@ -9,9 +11,12 @@ import pytest
 from mcjax import graph
 from mcjax.models.sensors import range_bearing
 from mcjax.planning import (
-    CostParams, Dynamics, PlannerOptions, Problem, horizon_cost, horizon_terms, rollout, shift_plan, solve,
+    CostParams, Dynamics, PlanCost, PlannerOptions, Problem, horizon_cost, horizon_plan_cost, horizon_terms, rollout,
+    shift_plan, solve,
 )
-from mcjax.planning.objectives import a_optimality, position_information, robustness_penalty
+from mcjax.planning.objectives import (
+    a_optimality, information_after_prediction, position_information, robustness_penalty,
+)
 
 N = 5
 LAYOUT = np.array([[20, 150], [80, 150], [130, 200], [130, 100], [180, 150]]) * 1e3
@@ -35,7 +40,7 @@ def problem(xy=LAYOUT, headings=0.0, target=TARGET, pos_sd=100.0, vel_sd=10.0):
 
 
 def test_position_information_is_jacobian_form():
-    """I = Hᵀ R⁻¹ H (seed 000 eq. 10) with H the Jacobian of the range–bearing model."""
+    """I = Hᵀ R⁻¹ H (Sun et al. 2011, eq. 10) with H the Jacobian of the range–bearing model."""
     rng = np.random.default_rng(0)
     sensors = rng.uniform(-50e3, 50e3, (6, 2))
     x = np.array([3e3, 100.0, -7e3, 5.0])
@@ -86,7 +91,7 @@ def test_rollout_straight_and_rate_limited():
     prob = problem(headings=0.3)
     poses, prev, cmds, targets = rollout(prob, jnp.zeros((8, N)), DYN)
     t = np.arange(1, 9)[:, None]
-    # u = 0 holds the heading: straight lines at 800 m/s (seed 000 eq. 3)
+    # u = 0 holds the heading: straight lines at 800 m/s (Sun et al. 2011, eq. 3)
     np.testing.assert_allclose(poses[..., 0], LAYOUT[:, 0] + 800.0 * t * np.cos(0.3), rtol=1e-12)
     np.testing.assert_allclose(poses[..., 1], LAYOUT[:, 1] + 800.0 * t * np.sin(0.3), rtol=1e-12)
     # the target mean follows the CV model
@@ -166,7 +171,9 @@ def test_gradient_planner_turns_towards_an_unseen_target():
     prob = problem(uav, headings=0.1, target=target)  # heading ~east: turn left (+) to face north
     cp = cost_params(n=1, alpha_I=0.0, alpha_C=0.0)
     warm = jnp.zeros((8, 1))
-    plan = jax.jit(lambda w: solve(prob, w, jax.random.PRNGKey(0), DYN, cp, PlannerOptions("gradient", iterations=30)))(warm)
+    plan_cost = horizon_plan_cost(prob, DYN, cp, penalty="barrier")
+    opts = PlannerOptions("gradient", iterations=30)
+    plan = jax.jit(lambda w: solve(plan_cost, w, jax.random.PRNGKey(0), opts))(warm)
     assert np.all(np.asarray(plan.u)[:5, 0] > 0.9)  # full left turn over the horizon
     assert float(plan.cost) < float(horizon_cost(prob, warm, DYN, cp))
 
@@ -177,7 +184,8 @@ def test_solvers_report_exact_cost_and_never_lose_to_the_warm_start(kind):
     cp = cost_params()
     opts = PlannerOptions(kind, iterations=4, samples=32)
     keys = jax.random.split(jax.random.PRNGKey(0), 64)
-    plans = jax.jit(jax.vmap(lambda q, w, k: solve(q, w, k, DYN, cp, opts)))(probs, warm, keys)
+    plans = jax.jit(jax.vmap(lambda q, w, k: solve(horizon_plan_cost(q, DYN, cp, penalty="barrier"), w, k, opts)))(
+        probs, warm, keys)
     exact = jax.vmap(lambda q, v: horizon_cost(q, v, DYN, cp))
     np.testing.assert_allclose(plans.cost, exact(probs, plans.u), rtol=1e-12)
     assert np.all(np.asarray(plans.cost) <= np.asarray(exact(probs, warm)))
@@ -185,10 +193,158 @@ def test_solvers_report_exact_cost_and_never_lose_to_the_warm_start(kind):
     assert np.mean(np.asarray(plans.cost) < np.asarray(exact(probs, warm))) > 0.5  # it does improve
 
 
+def test_information_after_prediction():
+    """``(F P Fᵀ + Q)⁻¹`` against numpy, with a CV F and Q (Sun et al. 2011, eq. 1)."""
+    rng = np.random.default_rng(12)
+    A = rng.normal(size=(4, 4))
+    P = A @ A.T + np.eye(4)
+    F = np.eye(4) + np.diag([1.0, 0, 1.0], 1)
+    Q = np.diag([0.25, 1.0, 0.25, 1.0]) * 50.0**2
+    got = information_after_prediction(jnp.asarray(P), jnp.asarray(F), jnp.asarray(Q))
+    np.testing.assert_allclose(np.asarray(got), np.linalg.inv(F @ P @ F.T + Q), rtol=1e-10)
+
+
+def test_horizon_plan_cost_is_horizon_cost():
+    """exact / smooth are eq. 16 with smooth=False / True, with the penalty passed through
+    (the non-default one here). One jitted program: eager horizon costs are slow."""
+    prob, u = problem(), jnp.asarray(np.random.default_rng(13).uniform(-1, 1, (8, N)))
+    cp = cost_params()
+    pc = horizon_plan_cost(prob, DYN, cp, penalty="inverse")
+    got = jax.jit(lambda v: jnp.stack([
+        pc.exact(v), horizon_cost(prob, v, DYN, cp, penalty="inverse", smooth=False),
+        pc.smooth(v), horizon_cost(prob, v, DYN, cp, penalty="inverse", smooth=True),
+        horizon_cost(prob, v, DYN, cp, penalty="barrier", smooth=False)]))(u)
+    exact, exact_ref, smooth, smooth_ref, barrier = np.asarray(got)
+    assert exact == exact_ref and smooth == smooth_ref
+    assert exact != smooth and exact != barrier
+
+
 def test_planner_options_validation():
-    with pytest.raises(ValueError, match="planner must be one of gradient, random, cem"):
+    with pytest.raises(ValueError, match="planner must be one of gradient, random, cem, grid"):
         PlannerOptions("newton")
     with pytest.raises(ValueError, match="cem needs"):
         PlannerOptions("cem", iterations=10, samples=8)
+    with pytest.raises(ValueError, match="plan_iterations must be an integer >= 1"):
+        PlannerOptions("gradient", iterations=0)
+    with pytest.raises(ValueError, match="plan_samples must be an integer >= 2"):
+        PlannerOptions("random", samples=1)
+    with pytest.raises(ValueError, match="plan_learning_rate must be > 0"):
+        PlannerOptions(learning_rate=0.0)
+    with pytest.raises(ValueError, match="plan_elite_fraction must be in"):
+        PlannerOptions("cem", elite_fraction=1.5)
+    with pytest.raises(TypeError):  # the penalty belongs to the cost, not to the solver
+        PlannerOptions(penalty="barrier")
     with pytest.raises(ValueError, match="robustness_penalty must be one of barrier, inverse"):
-        PlannerOptions(penalty="log")
+        horizon_plan_cost(problem(), DYN, cost_params(), penalty="log")
+
+
+# --- generic costs -------------------------------------------------------------------------
+
+
+def quadratic(centre, weights=1.0, offset=0.0):
+    """``Σ w (u − c)² + offset``: the minimiser is ``centre`` exactly, its cost ``offset``."""
+    return lambda u: jnp.sum(weights * (u - centre) ** 2) + offset
+
+
+def test_grid_returns_the_known_minimiser_among_the_candidates():
+    """Candidates well outside [−1, 1] (grid must not clip); the cost's minimiser is candidate
+    #k, a different k in every problem of a jitted, vmapped batch."""
+    rng = np.random.default_rng(20)
+    B, K = 6, 9
+    cands = rng.uniform(-4.0, 4.0, (B, K, 2))
+    ks = rng.permutation(K)[:B]
+    centres = cands[np.arange(B), ks]
+    warm = rng.uniform(-1, 1, (B, 2))
+    weights = np.array([1.0, 3.0])
+    opts = PlannerOptions("grid")
+
+    def one(w, c, centre):
+        return solve(PlanCost(quadratic(centre, weights, 1.5)), w, jax.random.PRNGKey(0), opts, candidates=c)
+
+    plans = jax.jit(jax.vmap(one))(jnp.asarray(warm), jnp.asarray(cands), jnp.asarray(centres))
+    np.testing.assert_array_equal(np.asarray(plans.u), centres)  # exactly candidate #k, unclipped
+    np.testing.assert_array_equal(np.asarray(plans.cost), np.full(B, 1.5))
+    assert np.any(np.abs(centres) > 1.0)
+    # and against brute force for a cost whose minimiser is not a candidate
+    off = np.array([0.3, -0.2])
+    plans = jax.jit(jax.vmap(lambda w, c: solve(PlanCost(quadratic(off, weights)), w, None, opts, candidates=c)))(
+        jnp.asarray(warm), jnp.asarray(cands))
+    every = np.concatenate([warm[:, None], cands], 1)
+    scores = np.sum(weights * (every - off) ** 2, -1)
+    best = np.argmin(scores, 1)
+    np.testing.assert_array_equal(np.asarray(plans.u), every[np.arange(B), best])
+    np.testing.assert_allclose(np.asarray(plans.cost), scores[np.arange(B), best], rtol=1e-14)
+
+
+@pytest.mark.parametrize("nan_at", [0, 2, 4])
+def test_grid_nan_cost_never_wins(nan_at):
+    """The NaN candidate sits on the quadratic's minimiser (it would win if NaN compared
+    low, or if argmin returned the first NaN as numpy's does)."""
+    cands = np.array([[2.0, 2.0], [1.0, -1.0], [0.5, 0.5], [-3.0, 1.0], [0.2, 0.1]])
+    nan_c = cands[nan_at]
+    centre = jnp.asarray(nan_c)
+    exact = lambda u: jnp.where(jnp.all(u == centre), jnp.nan, jnp.sum((u - centre) ** 2))
+    warm = jnp.array([9.0, 9.0])
+    plan = jax.jit(lambda w, c: solve(PlanCost(exact), w, None, PlannerOptions("grid"), candidates=c))(
+        warm, jnp.asarray(cands))
+    scores = np.sum((cands - nan_c) ** 2, -1)
+    scores[nan_at] = np.inf
+    np.testing.assert_array_equal(np.asarray(plan.u), cands[np.argmin(scores)])
+    assert np.isfinite(float(plan.cost)) and float(plan.cost) == scores.min()
+    # a NaN warm start loses to any finite candidate
+    plan = solve(PlanCost(exact), centre, None, PlannerOptions("grid"), candidates=jnp.asarray(cands))
+    assert np.isfinite(float(plan.cost)) and not np.array_equal(np.asarray(plan.u), nan_c)
+    # every cost NaN: the warm start is kept (scored +inf)
+    plan = solve(PlanCost(lambda u: jnp.nan * jnp.sum(u)), warm, None, PlannerOptions("grid"),
+                 candidates=jnp.asarray(cands))
+    np.testing.assert_array_equal(np.asarray(plan.u), np.asarray(warm))
+    assert float(plan.cost) == np.inf
+
+
+def test_grid_keeps_the_warm_start_when_every_candidate_is_worse():
+    warm = jnp.array([[0.25, -0.5], [0.75, 0.0]])  # a (2, 2) plan: any fixed shape works
+    cands = jnp.asarray(np.random.default_rng(21).uniform(-2, 2, (7, 2, 2)))
+    plan = solve(PlanCost(quadratic(warm, offset=-2.0)), warm, None, PlannerOptions("grid"), candidates=cands)
+    np.testing.assert_array_equal(np.asarray(plan.u), np.asarray(warm))
+    assert float(plan.cost) == -2.0
+    # a tie goes to the warm start too: equal cost, different plan
+    plan = solve(PlanCost(lambda u: jnp.sum(u**2)), jnp.array([1.0, 0.0]), None, PlannerOptions("grid"),
+                 candidates=jnp.array([[0.0, 1.0], [-1.0, 0.0]]))
+    np.testing.assert_array_equal(np.asarray(plan.u), [1.0, 0.0])
+
+
+def test_solve_errors():
+    cost = PlanCost(quadratic(0.0))
+    warm, key = jnp.zeros(2), jax.random.PRNGKey(0)
+    with pytest.raises(ValueError, match="grid planner needs candidates"):
+        solve(cost, warm, key, PlannerOptions("grid"))
+    with pytest.raises(ValueError, match=r"must have shape \(K, \*warm.shape\) = \(K, 2\); got \(4, 3\)"):
+        solve(cost, warm, key, PlannerOptions("grid"), candidates=jnp.zeros((4, 3)))
+    with pytest.raises(ValueError, match=r"= \(K, 2\); got \(2,\)"):  # a single plan, no K axis
+        solve(cost, warm, key, PlannerOptions("grid"), candidates=jnp.zeros(2))
+    with pytest.raises(ValueError, match="gradient planner needs a differentiable surrogate"):
+        solve(cost, warm, key, PlannerOptions("gradient"))
+    with pytest.raises(ValueError, match="candidates are only used by the grid planner; got planner 'cem'"):
+        solve(cost, warm, key, PlannerOptions("cem", iterations=2, samples=8), candidates=jnp.zeros((4, 2)))
+    with pytest.raises(TypeError, match="cost must be a PlanCost"):
+        solve(quadratic(0.0), warm, key, PlannerOptions("random"))
+
+
+@pytest.mark.parametrize("kind", ["random", "cem", "gradient"])
+def test_planners_on_a_generic_cost(kind):
+    """Not Sun et al.'s cost: a weighted L1 distance to a point inside [−1, 1]^(3×2) (non-smooth
+    exact cost; the gradient planner descends a smooth surrogate and reports the exact cost)."""
+    target = jnp.asarray(np.random.default_rng(22).uniform(-0.8, 0.8, (3, 2)))
+    exact = lambda u: jnp.sum(jnp.abs(u - target))
+    smooth = lambda u: jnp.sum(jnp.sqrt((u - target) ** 2 + 1e-4))
+    cost = PlanCost(exact, smooth)
+    opts = PlannerOptions(kind, iterations=30 if kind == "gradient" else 4, samples=64, learning_rate=0.1)
+    warms = jnp.asarray(np.random.default_rng(23).uniform(-1, 1, (8, 3, 2)))
+    keys = jax.random.split(jax.random.PRNGKey(3), 8)
+    plans = jax.jit(jax.vmap(lambda w, k: solve(cost, w, k, opts)))(warms, keys)
+    warm_cost = np.asarray(jax.vmap(exact)(warms))
+    assert np.all(np.asarray(plans.cost) < warm_cost)
+    np.testing.assert_allclose(np.asarray(plans.cost), np.asarray(jax.vmap(exact)(plans.u)), rtol=1e-14)
+    assert np.all(np.abs(np.asarray(plans.u)) <= 1.0)
+    if kind == "gradient":  # it converges (the sampled planners only improve, at this budget)
+        assert np.all(np.asarray(plans.cost) < 0.1 * warm_cost)

@@ -1,4 +1,4 @@
-"""UKF and IMM (algorithms.md §2–3) against filterpy and textbook moments."""
+"""UKF and IMM (docs/equations.md) against filterpy and textbook moments."""
 
 import jax
 import jax.numpy as jnp
@@ -117,7 +117,7 @@ def test_imm_equals_filterpy():
 
 
 def test_imm_of_ekfs_equals_filterpy_on_range_bearing():
-    """The same IMM code with EKF modes (the base filter of seed 003's IMM-EKF): CV and CT
+    """The same IMM code with EKF modes (the base filter of Chen & Hao 2022's IMM-EKF): CV and CT
     (ω = 0.1 rad/s) EKFs on range–bearing measurements of a target that turns mid-way, vs
     filterpy's IMMEstimator of ExtendedKalmanFilters, to 1e-8 at every step."""
     sensor = np.array([-300.0, 150.0])

@@ -1,4 +1,4 @@
-"""The multi-UUV IMM scenario (seed 001) against filterpy, the CT geometry and the Markov chain."""
+"""The multi-UUV IMM scenario (Ren & Lv 2017) against filterpy, the CT geometry and the Markov chain."""
 
 import dataclasses
 from pathlib import Path
@@ -38,7 +38,7 @@ def simulate(cfg, params, seed=0):
 
 class RegeneratingUKF(UnscentedKalmanFilter):
     """filterpy's UKF, but the update draws fresh sigma points from the predicted (x̄, P̄)
-    (filterpy reuses the propagated ones; algorithms.md §2 and our UKF redraw)."""
+    (filterpy reuses the propagated ones; docs/equations.md and our UKF redraw)."""
 
     def update(self, z, **kw):
         self.sigmas_f = self.points_fn.sigma_points(self.x, self.P)
@@ -94,7 +94,7 @@ def test_isolated_uuv_filters_match_filterpy_ukf_and_imm():
                            np.asarray(p.mu0), np.asarray(p.imm_transition))
         for t in range(cfg.n_steps):
             z = recs.measurements[t, i]
-            if t > 0:  # step 0 updates the prior without predicting (algorithms.md §2)
+            if t > 0:  # step 0 updates the prior without predicting (docs/equations.md)
                 cv.predict()
                 imm.predict()
             cv.update(z)
@@ -132,7 +132,7 @@ def test_markov_schedule_has_the_chain_statistics():
     P = np.array([[0.9, 0.1], [0.3, 0.7]])
     p = engine.stack_points([S.default_params(cfg, target_transition=P)])
     params, keys = engine.chunk_inputs(p, 300, 0, 0, 300, 300)
-    recs = engine.compiled(S, cfg, False)(params, keys)
+    recs = engine.compiled(S.SCENARIO, cfg, records=True)(params, keys)
     m = np.asarray(recs.mode)
     assert np.all(m[:, 0] == 0)  # starts in CV
     prev, nxt = m[:, :-1].ravel(), m[:, 1:].ravel()
@@ -160,7 +160,7 @@ def test_imm_beats_both_single_models_and_mismatch_costs_during_the_manoeuvre():
     scenario, cfg, params = load_config_file(CONFIG)
     cfg = dataclasses.replace(cfg, n_steps=75)
     p = engine.stack_points([scenario.default_params(cfg, **{**params, "ct_start": 25, "ct_stop": 50})])
-    out = next(engine.run_chunks(S, cfg, p, 30))[3]
+    out = next(engine.run_chunks(S.SCENARIO, cfg, p, 30))[3]
     imm, cv, ct = (cfg.filters.index(f) for f in ("imm", "cv", "ct"))
     for i in range(1, 7):
         m = out[f"uuv{i}_mean_error"].mean(0)
@@ -229,5 +229,7 @@ def test_run_uses_the_configs_seed_count():
     """`mcjax run` without --seeds runs the config's `seeds` (the paper's 50 runs)."""
     r = CliRunner().invoke(main, ["run", CONFIG, "--set", "config.n_steps=8", "--set", "config.warmup_steps=1"])
     assert r.exit_code == 0, r.output
-    rows = [line.split() for line in r.output.splitlines() if line.split()[:1] == ["0"]]
-    assert {row[1] for row in rows} == {"imm", "cv", "ct"} and all(row[2] == "50" for row in rows)
+    header = next(line.split() for line in r.output.splitlines() if line.split()[:2] == ["filter", "n"])
+    rows = [dict(zip(header, line.split())) for line in r.output.splitlines()
+            if line.split()[:1] in (["imm"], ["cv"], ["ct"])]
+    assert {row["filter"] for row in rows} == {"imm", "cv", "ct"} and all(row["n"] == "50" for row in rows)

@@ -1,6 +1,6 @@
 """Distributed information filters: CIF, ICF, modified ICF, KCF and the local EKF.
 
-One call of :func:`filter_step` advances every agent of one run by one step (algorithms.md
+One call of :func:`filter_step` advances every agent of one run by one step (docs/equations.md
 §2 timing: the caller passes ``F = I, Q = 0`` at the first measurement time, so step 0
 updates without predicting). Agents sit on the leading axis; nothing loops over agents.
 
@@ -12,10 +12,10 @@ Choices where the papers are silent or ambiguous (documented in README "Filters"
   consensus divides information by the number of agents it is spread over; the weight
   restores the sum, so on a complete graph ICF and modified ICF reproduce the centralised
   filter exactly, and on an empty graph (``n_i = 1``) they are the local filters.
-  ``contribution="one"`` is seed 000 eq. 9 as printed.
-* ``icf_variant="contributions"`` (default) reads the ICF of seed 000's refs [4]–[5]
+  ``contribution="one"`` is Sun et al. 2011 eq. 9 as printed.
+* ``icf_variant="contributions"`` (default) reads the ICF of Sun et al. 2011's refs [4]–[5]
   (Casbeer & Beard 2009) as consensus on the new measurement information before it is
-  added to each agent's own prediction; ``"priors"`` is the reading of algorithms.md §2
+  added to each agent's own prediction; ``"priors"`` is the reading of docs/equations.md
   (consensus on the predicted pairs, then add the local contribution). Only the first
   converges to the centralised filter on a complete graph.
 """
@@ -36,7 +36,7 @@ from mcjax.filters.gaussian import (
     predict_information,
     predict_moments,
 )
-from mcjax.numerics import matvec, mix, spd_inverse, symmetrize
+from mcjax.numerics import matvec, spd_inverse, symmetrize, weighted_agent_sum
 
 FILTER_KINDS = ("cif", "icf", "modified_icf", "kcf", "local")
 CONTRIBUTION_KINDS = ("component", "one")
@@ -49,9 +49,9 @@ WEIGHT_KINDS = ("eq11", "metropolis", "max_degree")
 class FilterOptions:
     """Static choices of the distributed filters (changing one recompiles).
 
-    ``consensus_steps`` is L, the consensus iterations per comm interval (seed 000 uses
+    ``consensus_steps`` is L, the consensus iterations per comm interval (Sun et al. 2011 uses
     one message per interval: L = 1). ``weights`` picks the consensus matrix: ``"eq11"``
-    (seed 000 eq. 11), ``"metropolis"`` or ``"max_degree"`` (seed 002 eq. 7).
+    (Sun et al. 2011 eq. 11), ``"metropolis"`` or ``"max_degree"`` (Chen & Lu 2013 eq. 7).
     """
 
     consensus_steps: int = 1
@@ -87,11 +87,11 @@ class Measurements(NamedTuple):
 def consensus(W: jax.Array, values: jax.Array, steps: int) -> jax.Array:
     """``steps`` synchronous consensus iterations ``v_i ← Σ_j W_ij v_j``.
 
-    With ``W`` from :func:`mcjax.graph.laplacian_step_weights` one iteration is seed 000
+    With ``W`` from :func:`mcjax.graph.laplacian_step_weights` one iteration is Sun et al. 2011
     eq. 11, ``v_i ← v_i − (1/(1+d_i)) Σ_j a_ij (v_i − v_j)``. ``values`` is (n, ...).
     """
     def body(_, v):
-        return mix(W, v)
+        return weighted_agent_sum(W, v)
 
     if steps == 0:
         return values
@@ -117,7 +117,7 @@ def cif_step(h, angle_mask, post: Gaussian, meas: Measurements, F, Q) -> Gaussia
     xb, _, yb, Yb = predict_information(post.x, post.P, F, Q)
     i, I, _ = contributions(h, meas.z, meas.sensors, xb, meas.R_inv, angle_mask)
     ones = jnp.ones((1, i.shape[0]), i.dtype)
-    return from_information(yb + mix(ones, i)[0], Yb + mix(ones, I)[0])
+    return from_information(yb + weighted_agent_sum(ones, i)[0], Yb + weighted_agent_sum(ones, I)[0])
 
 
 def local_step(h, angle_mask, post: Gaussian, meas: Measurements, F, Q) -> Gaussian:
@@ -128,7 +128,7 @@ def local_step(h, angle_mask, post: Gaussian, meas: Measurements, F, Q) -> Gauss
 
 
 def modified_icf_step(h, angle_mask, opts, post: Gaussian, meas: Measurements, F, Q) -> Gaussian:
-    """Modified ICF of Sun et al. 2011 (seed 000 §2.2, eqs. 8–12): predict (eq. 8), add the
+    """Modified ICF of Sun et al. 2011 (§2.2, eqs. 8–12): predict (eq. 8), add the
     local contribution (eqs. 9–10, weighted by ``n_i`` unless ``contribution="one"``), then
     L consensus steps on the information pairs (eq. 11), and recover the estimate (eq. 12)."""
     xb, _, yb, Yb = predict_information(post.x, post.P, F, Q)
@@ -141,7 +141,7 @@ def modified_icf_step(h, angle_mask, opts, post: Gaussian, meas: Measurements, F
 
 
 def icf_step(h, angle_mask, opts, post: Gaussian, meas: Measurements, F, Q) -> Gaussian:
-    """ICF of seed 000's refs [4]–[5] (Casbeer & Beard 2009): consensus before the update.
+    """ICF of Sun et al. 2011's refs [4]–[5] (Casbeer & Beard 2009): consensus before the update.
 
     ``icf_variant="contributions"``: each agent predicts (eq. 8) and computes its
     contribution (eq. 10); L consensus steps average the contributions; the agent adds
@@ -164,23 +164,23 @@ def icf_step(h, angle_mask, opts, post: Gaussian, meas: Measurements, F, Q) -> G
 
 
 def kcf_step(h, angle_mask, opts, epsilon, post: Gaussian, meas: Measurements, F, Q) -> Gaussian:
-    """Kalman-consensus filter (Olfati-Saber 2009; seed 002 eqs. 6–11, seed 004 Alg. 1).
+    """Kalman-consensus filter (Olfati-Saber 2009; Lou et al. 2013 Alg. 1).
 
     ``S_i = Σ_{J_i} U_j``, ``y_i = Σ_{J_i} u_j``, ``M_i = (P̄_i⁻¹ + S_i)⁻¹``,
     ``x̂_i = x̄_i + M_i (y_i − S_i x̄_i) + G_i Σ_{N_i} (x̄_j − x̄_i)`` with
-    ``G_i = γ M_i, γ = ε/(1+‖M_i‖_F)`` (``kcf_gain="gamma_M"``, seed 002) or
-    ``G_i = μ P̄_i, μ = ε/(1+‖P̄_i‖_F)`` (``"mu_P"``, seed 004). One exchange per step.
+    ``G_i = γ M_i, γ = ε/(1+‖M_i‖_F)`` (``kcf_gain="gamma_M"``, Olfati-Saber 2009) or
+    ``G_i = μ P̄_i, μ = ε/(1+‖P̄_i‖_F)`` (``"mu_P"``, Lou et al. 2013). One exchange per step.
     """
     xb, Pb = predict_moments(post.x, post.P, F, Q)
     u, U, _ = contributions(h, meas.z, meas.sensors, xb, meas.R_inv, angle_mask)
     A = meas.adjacency
     inclusive = A + jnp.eye(A.shape[0], dtype=A.dtype)
-    S = mix(inclusive, U)
-    yv = mix(inclusive, u)
+    S = weighted_agent_sum(inclusive, U)
+    yv = weighted_agent_sum(inclusive, u)
     Yb = spd_inverse(Pb)
     Y = symmetrize(Yb + S)
     M = symmetrize(spd_inverse(Y))
-    disagreement = mix(A, xb) - jnp.sum(A, axis=1)[:, None] * xb
+    disagreement = weighted_agent_sum(A, xb) - jnp.sum(A, axis=1)[:, None] * xb
     base = M if opts.kcf_gain == "gamma_M" else Pb
     fro = jnp.sqrt(sum(base[:, i, j] ** 2 for i in range(base.shape[-2]) for j in range(base.shape[-1])))
     gain = (epsilon / (1.0 + fro))[:, None, None] * base

@@ -1,4 +1,4 @@
-"""Consensus IMM-UKF — Ren & Lv 2017 (seed 001) after Li & Jia 2012, algorithms.md §3.
+"""Consensus IMM-UKF — Ren & Lv 2017 after Li & Jia 2012, docs/equations.md.
 
 Per node i and mode j: mix (:func:`mcjax.filters.imm.mix`) → UKF predict with the mode's
 transition → the pseudo-measurement information ``(i_ij, I_ij)`` of the node's own
@@ -26,7 +26,7 @@ import jax.numpy as jnp
 from mcjax import graph
 from mcjax.filters.gaussian import Unscented, ukf_predict, ukf_pseudo_measurement, ukf_update
 from mcjax.filters.imm import IMMState, combine, mix, mode_probabilities
-from mcjax.numerics import mix as consensus_mix
+from mcjax.numerics import weighted_agent_sum
 from mcjax.numerics import spd_inverse, symmetrize
 
 LIKELIHOODS = ("fused", "local")
@@ -35,10 +35,10 @@ LIKELIHOODS = ("fused", "local")
 def consensus_imm_ukf_step(state: IMMState, transition, F_modes, Q_modes, z, sensors, h: Callable, R,
                            adjacency, *, steps: int, weights: str = "metropolis",
                            likelihood: str = "fused", ut: Unscented = Unscented(), angle_mask=None):
-    """One step of every node (seed 001, algorithms.md §3). ``state``: IMMState with a node
+    """One step of every node (Ren & Lv 2017, docs/equations.md). ``state``: IMMState with a node
     axis first (μ (n, M), x (n, M, d), P (n, M, d, d)); ``F_modes``/``Q_modes`` (M, d, d);
     ``z`` (n, m) (NaN: no measurement); ``sensors`` (n, ·); ``h(x, sensor)``; ``R`` (m, m);
-    ``steps`` = L; ``weights`` "metropolis" or "max_degree" (seed 001 eqs. for W).
+    ``steps`` = L; ``weights`` "metropolis" or "max_degree" (the iteration of Ren & Lv 2017 eq. 8).
     Returns ``(new state, (x, P) combined per node)``."""
     if likelihood not in LIKELIHOODS:
         raise ValueError(f"likelihood must be one of {', '.join(LIKELIHOODS)}; got {likelihood!r}")
@@ -63,7 +63,7 @@ def consensus_imm_ukf_step(state: IMMState, transition, F_modes, Q_modes, z, sen
     W = graph.consensus_weights(adjacency, weights)
 
     def run(v):
-        return jax.lax.fori_loop(0, steps, lambda _, u: consensus_mix(W, u), v)
+        return jax.lax.fori_loop(0, steps, lambda _, u: weighted_agent_sum(W, u), v)
 
     Y = run(Yb + size[:, None, None, None] * I)
     y = run(yb + size[:, None, None] * i)

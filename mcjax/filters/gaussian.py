@@ -1,7 +1,7 @@
 """Gaussian filter steps in moment and information form (EKF flavour).
 
 Every function works on one run; agents sit on a leading axis where noted. Jacobians come
-from ``jax.jacfwd`` of the measurement function (design.md, Numerics), never from
+from ``jax.jacfwd`` of the measurement function (docs/architecture.md), never from
 hand-typed formulas.
 """
 
@@ -25,15 +25,22 @@ class Gaussian(NamedTuple):
     Y: jax.Array
 
 
+def first_step_model(first, F, Q):
+    """The ``(F, Q)`` of a step, or ``(I, 0)`` at the first measurement time, where the prior
+    is updated without predicting (the filters' timing convention, docs/equations.md)."""
+    return jnp.where(first, jnp.eye(F.shape[-1], dtype=F.dtype), F), jnp.where(first, 0.0, Q)
+
+
 def predict_moments(x, P, F, Q):
-    """Moment-form prediction ``x̄ = F x``, ``P̄ = F P Fᵀ + Q`` (seed 000 eq. 1)."""
+    """Moment-form prediction ``x̄ = F x``, ``P̄ = F P Fᵀ + Q`` (Sun et al. 2011 eq. 1)."""
     return matvec(F, x), symmetrize(quad(F, P) + Q)
 
 
 def predict_information(x, P, F, Q):
-    """Information-filter prediction in the stable form of algorithms.md §2.
+    """Information-filter prediction in the stable form of docs/equations.md.
 
-    Seed 000 eq. 8: ``Y⁻ = (F Y⁻¹ Fᵀ + G Q Gᵀ)⁻¹``, ``y⁻ = Y⁻ F x``. Carrying the previous
+    Sun et al. 2011 eq. 8 with the inverse of ``Y`` its print omits: ``Y⁻ = (F Y⁻¹ Fᵀ + G Q Gᵀ)⁻¹``,
+    ``y⁻ = Y⁻ F x``. Carrying the previous
     posterior as ``(x, P)`` avoids the inverse of ``Y``; the one inverse left is an SPD
     Cholesky inverse. Returns ``(x̄, P̄, ȳ, Ȳ)``.
     """
@@ -45,7 +52,7 @@ def predict_information(x, P, F, Q):
 def information_contribution(h: MeasurementFn, z, sensor, x_lin, R_inv, angle_mask):
     """One sensor's information contribution ``(i, I)`` linearised at ``x_lin``.
 
-    algorithms.md §2 (corrected seed 000 eq. 10):
+    docs/equations.md (corrected Sun et al. 2011 eq. 10):
     ``i = Hᵀ R⁻¹ (z − h(x̄) + H x̄)``, ``I = Hᵀ R⁻¹ H`` with ``H = ∂h/∂x (x̄)`` by autodiff and
     the angle components of the innovation (``angle_mask``) wrapped to (−π, π]. A
     measurement with any non-finite component contributes ``(0, 0)`` (out of range, not
@@ -75,7 +82,7 @@ def contributions(h: MeasurementFn, z, sensors, x_lin, R_inv, angle_mask):
 
 
 def from_information(y, Y) -> Gaussian:
-    """Moment form of an information pair: ``P = Y⁻¹``, ``x = P y`` (seed 000 eq. 12)."""
+    """Moment form of an information pair: ``P = Y⁻¹``, ``x = P y`` (Sun et al. 2011 eq. 12)."""
     Y = symmetrize(Y)
     P = symmetrize(spd_inverse(Y))
     return Gaussian(matvec(P, y), P, Y)
@@ -94,7 +101,7 @@ class Unscented(NamedTuple):
 
 
 def sigma_points(x, P, ut: Unscented = Unscented()):
-    """The 2d+1 scaled sigma points and their mean / covariance weights (algorithms.md §2).
+    """The 2d+1 scaled sigma points and their mean / covariance weights (docs/equations.md).
 
     ``χ_0 = x``, ``χ_{±k} = x ± (√((d+λ)(P + εI)))_k`` with ``λ = α²(d+κ) − d``, the matrix
     square root a lower Cholesky factor and ε = ``jitter`` × mean diagonal of P.
@@ -112,7 +119,7 @@ def sigma_points(x, P, ut: Unscented = Unscented()):
 
 def unscented_transform(f: Callable, x, P, ut: Unscented = Unscented(), angle_mask=None):
     """Mean, covariance and cross-covariance of ``y = f(x)`` for ``x ~ N(x, P)`` by the
-    unscented transform (algorithms.md §2). Components of ``y`` flagged in ``angle_mask``
+    unscented transform (docs/equations.md). Components of ``y`` flagged in ``angle_mask``
     are averaged as angles (residuals wrapped about the central point).
     Returns ``(ȳ, P_yy, P_xy)``."""
     chi, wm, wc = sigma_points(x, P, ut)
@@ -132,13 +139,13 @@ def unscented_transform(f: Callable, x, P, ut: Unscented = Unscented(), angle_ma
 
 
 def ukf_predict(x, P, f: Callable, Q, ut: Unscented = Unscented()):
-    """UKF prediction ``x̄, P̄ = UT(f)(x, P) + (0, Q)`` (algorithms.md §2)."""
+    """UKF prediction ``x̄, P̄ = UT(f)(x, P) + (0, Q)`` (docs/equations.md)."""
     xb, Pb, _ = unscented_transform(f, x, P, ut)
     return xb, symmetrize(Pb + Q)
 
 
 def gaussian_loglik(nu, S):
-    """``log N(ν; 0, S)`` via a Cholesky factor (IMM mode likelihood, algorithms.md §3)."""
+    """``log N(ν; 0, S)`` via a Cholesky factor (IMM mode likelihood, docs/equations.md)."""
     L = jnp.linalg.cholesky(S)
     w = jax.scipy.linalg.solve_triangular(L, nu, lower=True)
     m = nu.shape[-1]
@@ -146,7 +153,7 @@ def gaussian_loglik(nu, S):
 
 
 def ukf_update(x, P, z, h: Callable, R, ut: Unscented = Unscented(), angle_mask=None):
-    """UKF measurement update in moment form (algorithms.md §2).
+    """UKF measurement update in moment form (docs/equations.md).
 
     ``K = P_xz S⁻¹`` with ``S = P_zz + R``; ``x⁺ = x + K ν``, ``P⁺ = P − K S Kᵀ``. A
     measurement with a non-finite component leaves the state unchanged (log-likelihood 0).
@@ -166,7 +173,7 @@ def ukf_update(x, P, z, h: Callable, R, ut: Unscented = Unscented(), angle_mask=
 
 def ekf_update(x, P, z, h: Callable, R, angle_mask=None):
     """EKF measurement update in moment form, returning the mode likelihood an IMM needs
-    (algorithms.md §2–3; the mode-matched filter of seed 003's LOS/NLOS IMM-EKF).
+    (docs/equations.md; the mode-matched filter of Chen & Hao 2022's LOS/NLOS IMM-EKF).
 
     ``H = ∂h/∂x (x̄)`` by autodiff, ``S = H P Hᵀ + R``, ``K = P Hᵀ S⁻¹``, ``x⁺ = x + K ν``,
     ``P⁺ = P − K S Kᵀ``, with the angle components of ``ν`` wrapped. A measurement with a
@@ -189,8 +196,8 @@ def ekf_update(x, P, z, h: Callable, R, angle_mask=None):
 
 def ukf_pseudo_measurement(x_pred, P_pred, z, h: Callable, R_inv, ut: Unscented = Unscented(),
                            angle_mask=None):
-    """Information contribution ``(i, I)`` of one UKF measurement for consensus (algorithms.md §2,
-    seed 001): with ``H̃ = (P̄⁻¹ P_xz)ᵀ``, ``i = H̃ᵀ R⁻¹ (ν + H̃ x̄)`` and ``I = H̃ᵀ R⁻¹ H̃``.
+    """Information contribution ``(i, I)`` of one UKF measurement for consensus (docs/equations.md,
+    Ren & Lv 2017): with ``H̃ = (P̄⁻¹ P_xz)ᵀ``, ``i = H̃ᵀ R⁻¹ (ν + H̃ x̄)`` and ``I = H̃ᵀ R⁻¹ H̃``.
     A non-finite measurement contributes ``(0, 0)``."""
     valid = jnp.all(jnp.isfinite(z))
     zh, _, Pxz = unscented_transform(h, x_pred, P_pred, ut, angle_mask)

@@ -1,6 +1,6 @@
-"""Interacting multiple model filter, generic over the mode-matched filter (algorithms.md §3).
+"""Interacting multiple model filter, generic over the mode-matched filter (docs/equations.md).
 
-Blom & Bar-Shalom 1988, as used by seed 001 (IMM-UKF) and seed 003 (LOS/NLOS IMM-EKF).
+Blom & Bar-Shalom 1988, as used by Ren & Lv 2017 (IMM-UKF) and Chen & Hao 2022 (LOS/NLOS IMM-EKF).
 One IMM cycle is :func:`mix` → each mode's predict + update (any function returning the
 mode's new mean, covariance and measurement log-likelihood) → :func:`mode_probabilities`
 (in log space) → :func:`combine`. Modes sit on a leading axis; the per-mode filter runs
@@ -26,7 +26,7 @@ class IMMState(NamedTuple):
 def mix(state: IMMState, transition):
     """Mixing step: ``c̄_j = Σ_l p_lj μ_l``, ``μ_{l|j} = p_lj μ_l / c̄_j``,
     ``x⁰ʲ = Σ_l μ_{l|j} x_l``, ``P⁰ʲ = Σ_l μ_{l|j} (P_l + (x_l − x⁰ʲ)(x_l − x⁰ʲ)ᵀ)``
-    (algorithms.md §3; ``transition[l, j] = P(mode j | mode l)``, rows sum to 1).
+    (docs/equations.md; ``transition[l, j] = P(mode j | mode l)``, rows sum to 1).
     Returns ``(c̄ (M,), x⁰ (M, d), P⁰ (M, d, d))``."""
     joint = transition * state.mu[:, None]               # p_lj μ_l
     cbar = jnp.sum(joint, axis=0)
@@ -38,7 +38,7 @@ def mix(state: IMMState, transition):
 
 
 def mode_probabilities(cbar, loglik):
-    """``μ_j ∝ Λ_j c̄_j`` computed as ``softmax(log Λ_j + log c̄_j)`` (algorithms.md §3), so a
+    """``μ_j ∝ Λ_j c̄_j`` computed as ``softmax(log Λ_j + log c̄_j)`` (docs/equations.md), so a
     measurement hundreds of σ off never under- or overflows. A non-finite log-likelihood
     counts as −inf (that mode is ruled out); if every mode is ruled out, μ = c̄."""
     loglik = jnp.where(jnp.isnan(loglik), -jnp.inf, loglik)
@@ -56,7 +56,7 @@ def combine(state: IMMState):
 
 
 def imm_step(state: IMMState, transition, mode_filter: Callable, mode_params, *args):
-    """One IMM cycle (algorithms.md §3). ``mode_filter(x⁰, P⁰, params_j, *args) -> (x, P,
+    """One IMM cycle (docs/equations.md). ``mode_filter(x⁰, P⁰, params_j, *args) -> (x, P,
     log Λ)`` is vmapped over the modes with ``mode_params`` stacked on a leading mode axis;
     ``args`` (e.g. the measurement) are shared. Returns ``(new state, (x, P) combined)``."""
     cbar, x0, P0 = mix(state, transition)

@@ -11,7 +11,7 @@ from mcjax.numerics import matvec
 def cv_matrices(dt: jax.Array | float, dtype=None) -> tuple[jax.Array, jax.Array]:
     """Constant-velocity transition ``F`` (4×4) and noise input ``G`` (4×2).
 
-    Sun et al. 2011 (seed 000) eq. 1, state ``[x, ẋ, y, ẏ]``:
+    Sun et al. 2011 eq. 1, state ``[x, ẋ, y, ẏ]``:
     ``F = [[1,T,0,0],[0,1,0,0],[0,0,1,T],[0,0,0,1]]``, ``G = [[T²/2,0],[T,0],[0,T²/2],[0,T]]``.
     """
     dt = jnp.asarray(dt, dtype=dtype)
@@ -39,14 +39,14 @@ def cv_matrices(dt: jax.Array | float, dtype=None) -> tuple[jax.Array, jax.Array
 
 
 def cv_process_noise(dt, sigma_accel, dtype=None) -> jax.Array:
-    """State process-noise covariance ``G diag(σ², σ²) Gᵀ`` of seed 000 eq. 1 (4×4)."""
+    """State process-noise covariance ``G diag(σ², σ²) Gᵀ`` of Sun et al. 2011 eq. 1 (4×4)."""
     _, g = cv_matrices(dt, dtype)
     s2 = jnp.asarray(sigma_accel, dtype=g.dtype) ** 2
     return s2 * jnp.sum(g[..., :, None, :] * g[..., None, :, :], axis=-1)
 
 
 def cv_step(x: jax.Array, key: jax.Array, dt, sigma_accel) -> jax.Array:
-    """One step of the CV target ``x ← F x + G w``, ``w ~ N(0, σ² I₂)`` (seed 000 eq. 1)."""
+    """One step of the CV target ``x ← F x + G w``, ``w ~ N(0, σ² I₂)`` (Sun et al. 2011 eq. 1)."""
     f, g = cv_matrices(dt, x.dtype)
     w = sigma_accel * jax.random.normal(key, (2,), dtype=x.dtype)
     return matvec(f, x) + matvec(g, w)
@@ -55,7 +55,7 @@ def cv_step(x: jax.Array, key: jax.Array, dt, sigma_accel) -> jax.Array:
 def ct_matrix(dt, omega, dtype=None) -> jax.Array:
     """Coordinated-turn transition (4×4) at a known turn rate ω, state ``[x, ẋ, y, ẏ]``.
 
-    Bar-Shalom, Li & Kirubarajan 2001 §11.7; the CT mode of seed 001 (algorithms.md §3):
+    Bar-Shalom, Li & Kirubarajan 2001 §11.7; the CT mode of Ren & Lv 2017 (docs/equations.md):
     ``F = [[1, s/ω, 0, −(1−c)/ω], [0, c, 0, −s], [0, (1−c)/ω, 1, s/ω], [0, s, 0, c]]`` with
     ``s = sin ωT, c = cos ωT``. At ω = 0 the limits ``s/ω → T``, ``(1−c)/ω → 0`` give the
     CV matrix (taken by a Taylor series near 0, so gradients in ω stay finite)."""
@@ -78,7 +78,7 @@ def ct_matrix(dt, omega, dtype=None) -> jax.Array:
 
 def markov_modes(key, transition, first_mode, n_steps: int) -> jax.Array:
     """A mode sequence (n_steps,) of the Markov chain ``P(m_k = j | m_{k−1} = l) = transition[l, j]``
-    starting at ``first_mode`` — the switching CV↔CT target of seed 001 (algorithms.md §3)."""
+    starting at ``first_mode`` — the switching CV↔CT target of Ren & Lv 2017 (docs/equations.md)."""
     logp = jnp.log(jnp.asarray(transition))
 
     def body(m, k):

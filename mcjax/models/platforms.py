@@ -11,7 +11,7 @@ from mcjax.numerics import wrap_angle
 
 
 class UnicycleLimits(NamedTuple):
-    """Limits of seed 000 eq. 4 (SI units: m/s, m/s², rad/s)."""
+    """Limits of Sun et al. 2011 eq. 4 (SI units: m/s, m/s², rad/s)."""
 
     v_min: jax.Array
     v_max: jax.Array
@@ -21,7 +21,7 @@ class UnicycleLimits(NamedTuple):
 
 
 def heading_at(phi0, heading_cmd, alpha_phi, turn_rate_max, t):
-    """Exact heading at time ``t`` of the autopilot of seed 000 eq. 3 with the eq. 4 rate limit.
+    """Exact heading at time ``t`` of the autopilot of Sun et al. 2011 eq. 3 with the eq. 4 rate limit.
 
     ``φ̇ = clip(α_φ (φᶜ − φ), ±φ̇_max)`` with the error wrapped (shortest turn): the heading
     turns at the limit rate until the error falls to ``φ̇_max/α_φ``, then decays as
@@ -45,18 +45,18 @@ def heading_at(phi0, heading_cmd, alpha_phi, turn_rate_max, t):
 
 def speed_at(v0, accel_cmd, limits: UnicycleLimits, t):
     """Exact speed at time ``t``: ``v̇ = a`` with ``a`` clipped to its limits and the speed
-    held at ``[v_min, v_max]`` (seed 000 eqs. 3–4)."""
+    held at ``[v_min, v_max]`` (Sun et al. 2011 eqs. 3–4)."""
     a = jnp.clip(accel_cmd, limits.a_min, limits.a_max)
     return jnp.clip(v0 + a * t, limits.v_min, limits.v_max)
 
 
 def unicycle_step(state, heading_cmd, accel_cmd, alpha_phi, limits: UnicycleLimits, dt, substeps: int = 4):
-    """Advance the UAV ``[x, y, v, φ]`` of seed 000 eq. 3 (eq. 4 limits) by ``dt``.
+    """Advance the UAV ``[x, y, v, φ]`` of Sun et al. 2011 eq. 3 (eq. 4 limits) by ``dt``.
 
     Heading and speed follow their exact solutions (:func:`heading_at`, :func:`speed_at`);
     the position integrates ``v cos φ, v sin φ`` by composite Simpson over ``substeps``
     sub-intervals — the quadrature RK4 reduces to when heading and speed are known functions
-    of time. algorithms.md §4 asks for RK4 over the step; the exact heading replaces it
+    of time. docs/equations.md asks for RK4 over the step; the exact heading replaces it
     because RK4 is unstable on the stiff heading loop (see :func:`heading_at`).
     """
     x, y, v, phi = state[..., 0], state[..., 1], state[..., 2], state[..., 3]

@@ -11,7 +11,7 @@ from mcjax.numerics import safe_norm, wrap_angle
 def range_bearing(x: jax.Array, sensor: jax.Array) -> jax.Array:
     """Range–bearing of a ``[x, ẋ, y, ẏ]`` target from a sensor at ``(sx, sy)``.
 
-    Sun et al. 2011 (seed 000) §1.3: ``h = [√((x−sx)² + (y−sy)²), atan2(y−sy, x−sx)]``
+    Sun et al. 2011 §1.3: ``h = [√((x−sx)² + (y−sy)²), atan2(y−sy, x−sx)]``
     (the paper prints ``arctan``; the four-quadrant form is meant). The norm is the safe
     form and the bearing is guarded, so ``jax.jacfwd`` is finite even when the target sits
     on the sensor.
@@ -25,7 +25,7 @@ def range_bearing(x: jax.Array, sensor: jax.Array) -> jax.Array:
 
 
 def in_range(x: jax.Array, sensor: jax.Array, max_range) -> jax.Array:
-    """True where the target lies within the sensing radius (range gate, seed 000 §5)."""
+    """True where the target lies within the sensing radius (range gate, Sun et al. 2011 §5)."""
     return range_bearing(x, sensor)[..., 0] <= max_range
 
 

@@ -1,4 +1,4 @@
-"""Receding-horizon rollout — Sun et al. 2011 (seed 000) §4.2, algorithms.md §5.
+"""Receding-horizon rollout and cost — Sun et al. 2011 §4.2, docs/equations.md §6.2.
 
 A plan is ``u`` (H, n) with entries in [−1, 1], H = ``Config.max_horizon``: at predicted step
 h UAV i is commanded the heading ``ψᶜ = ψ_i(h−1) + u·φ̇_max/α_φ`` — offsets up to the one
@@ -7,6 +7,8 @@ reaches it as ``tanh`` of free parameters). The UAVs move with the platform mode
 simulation uses (:func:`mcjax.models.platforms.unicycle_step`, eqs. 3–4) and the target's
 mean with the CV model (eq. 1). Steps ``h ≥ t_r`` are masked out of the cost, so the
 horizon ``t_r`` is a per-run number and runs with different horizons share one program.
+:func:`horizon_plan_cost` packs the horizon cost (Sun et al. 2011, eq. 16) as the
+:class:`~mcjax.planning.solvers.PlanCost` the generic planners take.
 """
 
 from __future__ import annotations
@@ -19,11 +21,14 @@ import jax.numpy as jnp
 from mcjax.models.motion import cv_matrices, cv_process_noise
 from mcjax.models.platforms import UnicycleLimits, unicycle_step
 from mcjax.numerics import spd_inverse
-from mcjax.planning.objectives import CostParams, CostTerms, predict_information, step_terms, weighted
+from mcjax.planning.objectives import (
+    ROBUSTNESS_PENALTIES, CostParams, CostTerms, information_after_prediction, step_terms, weighted,
+)
+from mcjax.planning.solvers import PlanCost
 
 
 class Problem(NamedTuple):
-    """What the leader knows when it plans (seed 000 §4: its own ICF estimate, the UAV states)."""
+    """What the leader knows when it plans (Sun et al. 2011 §4: its own ICF estimate, the UAV states)."""
 
     uavs: jax.Array         # (n, 4) [x, y, v, φ] now
     target_mean: jax.Array  # (4,) the leader's estimate [x, ẋ, y, ẏ]
@@ -39,13 +44,15 @@ class Dynamics(NamedTuple):
 
 
 def command_offset_limit(dyn: Dynamics):
-    """Largest useful heading-command offset: the one that saturates the turn rate (eq. 4)."""
+    """Largest useful heading-command offset: the one that saturates the turn rate
+    (Sun et al. 2011, eq. 4)."""
     return dyn.turn_rate_max / dyn.alpha_phi
 
 
 def rollout(problem: Problem, u: jax.Array, dyn: Dynamics):
     """Predicted UAV poses (H, n, 4), the headings before each step (H, n), the commands
-    (H, n) and the target means (H, 4) of the plan ``u`` (H, n)."""
+    (H, n) and the target means (H, 4) of the plan ``u`` (H, n): the UAVs by Sun et al. 2011,
+    eqs. 3–4, the target mean by the CV model, Sun et al. 2011, eq. 1."""
     n = problem.uavs.shape[0]
     v = problem.uavs[:, 2]
     zero = jnp.zeros((), u.dtype)
@@ -66,15 +73,16 @@ def rollout(problem: Problem, u: jax.Array, dyn: Dynamics):
 
 def horizon_terms(problem: Problem, u: jax.Array, dyn: Dynamics, cost: CostParams, *,
                   penalty: str, smooth: bool) -> CostTerms:
-    """The eq. 16–19 terms summed over the first ``t_r`` predicted steps (later ones masked)."""
+    """The terms of Sun et al. 2011, eqs. 16–19 summed over the first ``t_r`` predicted steps
+    (later ones masked)."""
     poses, prev, cmds, targets = rollout(problem, u, dyn)
     F, _ = cv_matrices(dyn.dt, u.dtype)
     Q = cv_process_noise(dyn.dt, dyn.sigma_accel, u.dtype)
 
     def body(P, step):
         pose, h, c, x = step
-        terms, P_post = step_terms(predict_information(P, F, Q), pose, h, c, x[jnp.array([0, 2])], cost,
-                                   penalty=penalty, smooth=smooth)
+        terms, P_post = step_terms(information_after_prediction(P, F, Q), pose, h, c, x[jnp.array([0, 2])],
+                                   cost, penalty=penalty, smooth=smooth)
         return P_post, terms
 
     _, terms = jax.lax.scan(body, spd_inverse(problem.Y), (poses, prev, cmds, targets))
@@ -84,8 +92,25 @@ def horizon_terms(problem: Problem, u: jax.Array, dyn: Dynamics, cost: CostParam
 
 def horizon_cost(problem: Problem, u: jax.Array, dyn: Dynamics, cost: CostParams, *,
                  penalty: str = "barrier", smooth: bool = False) -> jax.Array:
-    """Seed 000 eq. 16 (with eqs. 18–19 as penalties) summed over the horizon t_r."""
+    """Sun et al. 2011, eq. 16 (with eqs. 18–19 as penalties) summed over the horizon t_r."""
     return weighted(horizon_terms(problem, u, dyn, cost, penalty=penalty, smooth=smooth), cost)
+
+
+def horizon_plan_cost(problem: Problem, dyn: Dynamics, cost: CostParams, *, penalty: str) -> PlanCost:
+    """The horizon cost of Sun et al. 2011, eq. 16 (eqs. 18–19 as penalties) as a
+    :class:`~mcjax.planning.solvers.PlanCost` of the plan ``u`` (H, n) in [−1, 1]:
+    ``exact`` is :func:`horizon_cost` with ``smooth=False``, ``smooth`` the same with
+    ``smooth=True`` (the surrogate of :mod:`~mcjax.planning.objectives`).
+
+    ``penalty``: the robustness penalty, ``"barrier"`` or ``"inverse"`` (``Config.robustness_penalty``).
+    Use: ``solve(horizon_plan_cost(problem, dyn, cost, penalty=...), warm, key, options)``."""
+    if penalty not in ROBUSTNESS_PENALTIES:
+        raise ValueError(f"robustness_penalty must be one of {', '.join(ROBUSTNESS_PENALTIES)}; "
+                         f"got {penalty!r}")
+    return PlanCost(
+        exact=lambda u: horizon_cost(problem, u, dyn, cost, penalty=penalty, smooth=False),
+        smooth=lambda u: horizon_cost(problem, u, dyn, cost, penalty=penalty, smooth=True),
+    )
 
 
 def shift_plan(u: jax.Array, by, horizon) -> jax.Array:

@@ -1,4 +1,4 @@
-"""The leader's planning cost — Sun et al. 2011 (seed 000) eqs. 16–19, algorithms.md §5.
+"""The leader's planning cost — Sun et al. 2011, eqs. 16–19, docs/equations.md §6.1.
 
 For one predicted horizon step (UAV poses ``uavs`` (n, 4) = [x, y, v, φ], the commanded
 headings, the predicted target position) the cost is
@@ -15,13 +15,14 @@ along the horizon, so that geometry over the whole horizon counts; our reading),
 ``g_i`` the sensing-range gate, ``h`` the hinge ``max(0, ·)`` and ``pen`` either the
 paper's ``1/|R|`` or (default) the barrier ``softplus(−R/s)``: the paper's ``1/|R|``
 *rewards* a badly broken graph (large negative R), the barrier grows monotonically as R
-falls toward and below 0 (algorithms.md §5).
+falls toward and below 0 (docs/equations.md §6.1).
 
 Every non-smooth piece has a smooth form at the temperature ``T`` (metres): the gate
 becomes ``sigmoid((R_s − r)/T)``, the max/min of R_I become soft max/min
 (:func:`mcjax.graph.smooth_connectivity_robustness`), the hinges become ``T·softplus(·/T)``
 and ``1/|R|`` becomes ``1/√(R² + T²)``. ``smooth=False`` gives the exact cost, which is
-what the planners report and what the sampled planners minimise.
+what the planners report and what the sampled planners minimise
+(:func:`mcjax.planning.horizon.horizon_plan_cost` packs both for :func:`mcjax.planning.solvers.solve`).
 
 Distances inside the cost are ``√(|Δ|² + ε²)`` with ε = 1 m, so gradients stay finite for
 coincident UAVs and for a UAV on top of the target.
@@ -65,7 +66,7 @@ def _dist(d: jax.Array) -> jax.Array:
 
 
 def position_information(sensors: jax.Array, target_xy: jax.Array, sigma_range, sigma_bearing):
-    """Position block of the range–bearing information ``I_i = H_iᵀ R⁻¹ H_i`` (seed 000 eq. 10).
+    """Position block of the range–bearing information ``I_i = H_iᵀ R⁻¹ H_i`` (Sun et al. 2011, eq. 10).
 
     With ``u`` the unit line of sight and ``w`` its normal, ``H`` (position columns) has rows
     ``uᵀ`` (range) and ``wᵀ/r`` (bearing), so ``I = u uᵀ/σ_r² + w wᵀ/(σ_θ² r²)``.
@@ -80,7 +81,7 @@ def position_information(sensors: jax.Array, target_xy: jax.Array, sigma_range, 
 
 
 def a_optimality(Y: jax.Array, info_xy: jax.Array, gates: jax.Array):
-    """``tr((Y + Σ_i g_i I_i)⁻¹)`` — seed 000 eq. 16, first term (A-optimality criterion).
+    """``tr((Y + Σ_i g_i I_i)⁻¹)`` — Sun et al. 2011, eq. 16, first term (A-optimality criterion).
 
     ``Y`` (4, 4) the leader's (predicted) information matrix on ``[x, ẋ, y, ẏ]``;
     ``info_xy`` (n, 2, 2) position blocks of eq. 10; ``gates`` (n,) in [0, 1].
@@ -92,16 +93,19 @@ def a_optimality(Y: jax.Array, info_xy: jax.Array, gates: jax.Array):
     return jnp.trace(P), P
 
 
-def predict_information(P, F, Q):
-    """``(F P Fᵀ + Q)⁻¹``: the information after one CV prediction (seed 000 eq. 1)."""
+def information_after_prediction(P, F, Q):
+    """``(F P Fᵀ + Q)⁻¹``: the information after one prediction through the CV model
+    (Sun et al. 2011, eq. 1) of the covariance ``P``.
+
+    (Not :func:`mcjax.filters.gaussian.predict_information`, which predicts a filter state.)"""
     return spd_inverse(F @ P @ F.T + Q)
 
 
 def robustness_penalty(R: jax.Array, kind: str, scale, temperature, smooth: bool) -> jax.Array:
-    """``pen(R_I)`` of seed 000 eq. 16 (second term), per agent.
+    """``pen(R_I)`` of Sun et al. 2011, eq. 16 (second term; R_I of eqs. 14–15), per agent.
 
     ``"inverse"``: the paper's ``1/|R|`` (smooth: ``1/√(R² + T²)``). ``"barrier"`` (default,
-    algorithms.md §5): ``softplus(−R/s)`` — about ``−R/s`` for a broken graph, ``s log 2``-ish
+    docs/equations.md §6.1): ``softplus(−R/s)`` — about ``−R/s`` for a broken graph, ``s log 2``-ish
     at R = 0, vanishing once R ≫ s. An agent without information neighbours (R = +inf)
     costs 0 either way."""
     finite = jnp.isfinite(R)
@@ -124,7 +128,8 @@ def _hinge(x, temperature, smooth: bool):
 
 
 def safety_penalty(positions, leader_target_range, p: CostParams, smooth: bool) -> jax.Array:
-    """Eqs. 18–19 as penalties: ``Σ_{i<j} h(1 − l_ij/D_safe)² + h(1 − r_LT/D_LT)²`` over alive UAVs.
+    """Sun et al. 2011, eqs. 18–19 as penalties: ``Σ_{i<j} h(1 − l_ij/D_safe)² + h(1 − r_LT/D_LT)²``
+    over alive UAVs.
 
     The smooth hinge's temperature is ``T/D`` (the metre temperature made relative)."""
     n = positions.shape[0]
@@ -145,7 +150,8 @@ class CostTerms(NamedTuple):
 
 def step_terms(Y, uavs, prev_headings, commands, target_xy, p: CostParams, *,
                penalty: str = "barrier", smooth: bool):
-    """The unweighted eq. 16–19 terms of one predicted step (see the module docstring).
+    """The unweighted terms of Sun et al. 2011, eqs. 16–19 of one predicted step (see the
+    module docstring).
 
     ``Y`` the leader's predicted information at this step, ``uavs`` (n, 4) predicted poses
     after the step, ``prev_headings`` (n,) headings before it (ψ_i(k) of eq. 17),
@@ -178,6 +184,6 @@ def step_terms(Y, uavs, prev_headings, commands, target_xy, p: CostParams, *,
 
 
 def weighted(terms: CostTerms, p: CostParams) -> jax.Array:
-    """Seed 000 eq. 16 with eqs. 18–19 as penalties: the weighted sum of :class:`CostTerms`."""
+    """Sun et al. 2011, eq. 16 with eqs. 18–19 as penalties: the weighted sum of :class:`CostTerms`."""
     return (terms.information + p.alpha_I * terms.robustness + p.alpha_C * terms.control
             + p.alpha_L * terms.distance + p.alpha_S * terms.safety)

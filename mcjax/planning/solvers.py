@@ -1,17 +1,32 @@
-"""Planners for the receding-horizon problem: one signature, two families (algorithms.md §5).
+"""Planners generic over a cost: one signature for every kind (docs/equations.md §6.3).
 
-``solve(problem, warm, key, dyn, cost, options) -> Plan`` for every kind:
+``solve(cost, warm, key, options, candidates=None) -> Plan`` for every kind. A plan ``u`` is
+an array of any fixed shape (the warm start's); ``cost`` is a :class:`PlanCost`: the exact
+cost ``u -> scalar`` that every planner reports and the sampled planners minimise, and an
+optional differentiable surrogate that only the gradient planner uses. The horizon cost of
+Sun et al. 2011, eq. 16 is one client:
+:func:`mcjax.planning.horizon.horizon_plan_cost`.
 
-* ``"random"`` — random shooting (the baseline of seed 000's ref. [17]): ``samples`` plans
-  drawn uniformly in [−1, 1]^(H×n), plus the warm start, scored by the exact cost; the best
-  wins.
+* ``"random"`` — random shooting (the baseline of Sun et al. 2011's ref. [17]): ``samples`` plans
+  (the warm start and ``samples − 1`` draws uniform in [−1, 1] per entry) scored by the
+  exact cost; the best wins.
 * ``"cem"`` — cross-entropy method: ``iterations`` rounds of ``samples // iterations``
   Gaussian draws (clipped to [−1, 1]) around a mean started at the warm start; the mean
-  and spread refit to the best ``elite_fraction``; the best plan ever scored wins.
-* ``"gradient"`` — optax Adam on free parameters θ with ``u = tanh θ`` (so every plan
-  respects the turn-rate limit), ``iterations`` steps on the *smooth* cost inside the
-  compiled program, started from the warm start; the result is kept only if its *exact*
-  cost beats the warm start's.
+  and spread refit to the best ``elite_fraction``; the best plan ever scored (the warm
+  start included) wins.
+* ``"gradient"`` — optax Adam on free parameters θ with ``u = tanh θ`` (so every plan stays
+  in [−1, 1]), ``iterations`` steps on the *smooth* cost inside the compiled program,
+  started from the warm start; the result is kept only if its *exact* cost beats the warm
+  start's.
+* ``"grid"`` — exhaustive search over a finite candidate set the caller supplies
+  (``candidates`` of shape (K, *warm.shape), entries unrestricted — not clipped): every
+  candidate and the warm start are scored by the exact cost; the best wins, ties going to
+  the warm start, then to the lower index. ``iterations``, ``samples``, … are unused.
+
+Random, CEM and gradient assume entries in [−1, 1] (the random draws and the tanh map
+produce them; CEM clips). A NaN cost never wins: random, CEM and grid score NaN as +inf
+(so a plan whose cost is NaN is returned only if every plan scored is, with cost +inf) and
+the gradient planner keeps the warm start unless its result is strictly better.
 
 The budget is static (``PlannerOptions``), so one compiled program serves a batch. Every
 solver returns the exact cost of the plan it returns, and never a plan worse than (or a
@@ -21,28 +36,35 @@ cost less finite than) the warm start.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import optax
 
-from mcjax.planning.horizon import Dynamics, Problem, horizon_cost
-from mcjax.planning.objectives import ROBUSTNESS_PENALTIES, CostParams
+PLANNER_KINDS = ("gradient", "random", "cem", "grid")
 
-PLANNER_KINDS = ("gradient", "random", "cem")
+
+class PlanCost(NamedTuple):
+    """What a planner minimises. Both functions map a plan ``u`` (the warm start's shape) to
+    a scalar and must be traceable (they run inside ``jit``/``vmap``/``scan``)."""
+
+    exact: Callable[[jax.Array], jax.Array]
+    """The cost every planner reports and the sampled planners (random, CEM, grid) minimise."""
+    smooth: Callable[[jax.Array], jax.Array] | None = None
+    """A differentiable surrogate of ``exact``; required by the ``"gradient"`` kind only."""
 
 
 @dataclass(frozen=True)
 class PlannerOptions:
-    """Static choices of a planner (changing one recompiles)."""
+    """Static choices of a planner (changing one recompiles). The validation messages name
+    the corresponding ``Config`` fields (``planner``, ``plan_iterations``, …)."""
 
     kind: str = "gradient"
     iterations: int = 10         # gradient: Adam steps; cem: rounds
     samples: int = 256           # random / cem: plans scored (the sample budget)
     learning_rate: float = 0.3   # Adam step in θ (u = tanh θ)
     elite_fraction: float = 0.1  # cem
-    penalty: str = "barrier"     # robustness penalty: "barrier" | "inverse"
 
     def __post_init__(self):
         if self.kind not in PLANNER_KINDS:
@@ -58,18 +80,11 @@ class PlannerOptions:
             raise ValueError(f"plan_learning_rate must be > 0; got {self.learning_rate!r}")
         if not 0 < self.elite_fraction <= 1:
             raise ValueError(f"plan_elite_fraction must be in (0, 1]; got {self.elite_fraction!r}")
-        if self.penalty not in ROBUSTNESS_PENALTIES:
-            raise ValueError(f"robustness_penalty must be one of {', '.join(ROBUSTNESS_PENALTIES)}; "
-                             f"got {self.penalty!r}")
 
 
 class Plan(NamedTuple):
-    u: jax.Array     # (H, n) in [−1, 1]
+    u: jax.Array     # the warm start's shape (random / CEM / gradient: entries in [−1, 1])
     cost: jax.Array  # exact cost of u
-
-
-def _exact(problem, dyn, cost, options):
-    return lambda u: horizon_cost(problem, u, dyn, cost, penalty=options.penalty, smooth=False)
 
 
 def _keep_better(candidate: Plan, fallback: Plan) -> Plan:
@@ -77,18 +92,29 @@ def _keep_better(candidate: Plan, fallback: Plan) -> Plan:
     return Plan(jnp.where(better, candidate.u, fallback.u), jnp.where(better, candidate.cost, fallback.cost))
 
 
-def _random(problem, warm, key, dyn, cost, options) -> Plan:
-    exact = _exact(problem, dyn, cost, options)
-    draws = jax.random.uniform(key, (options.samples - 1,) + warm.shape, warm.dtype, -1.0, 1.0)
-    plans = jnp.concatenate([warm[None], draws])
+def _best_of(exact, plans) -> Plan:
+    """The plan of least exact cost among ``plans`` (P, ...); NaN scores +inf; ties go to the
+    lowest index."""
     costs = jax.vmap(exact)(plans)
     costs = jnp.where(jnp.isnan(costs), jnp.inf, costs)
     best = jnp.argmin(costs)
     return Plan(plans[best], costs[best])
 
 
-def _cem(problem, warm, key, dyn, cost, options) -> Plan:
-    exact = _exact(problem, dyn, cost, options)
+def _random(cost: PlanCost, warm, key, options, candidates) -> Plan:
+    del candidates
+    draws = jax.random.uniform(key, (options.samples - 1,) + warm.shape, warm.dtype, -1.0, 1.0)
+    return _best_of(cost.exact, jnp.concatenate([warm[None], draws]))
+
+
+def _grid(cost: PlanCost, warm, key, options, candidates) -> Plan:
+    del key, options
+    return _best_of(cost.exact, jnp.concatenate([warm[None], jnp.asarray(candidates, warm.dtype)]))
+
+
+def _cem(cost: PlanCost, warm, key, options, candidates) -> Plan:
+    del candidates
+    exact = cost.exact
     m = options.samples // options.iterations
     n_elite = max(1, int(round(options.elite_fraction * m)))
 
@@ -108,12 +134,12 @@ def _cem(problem, warm, key, dyn, cost, options) -> Plan:
     return best
 
 
-def _gradient(problem, warm, key, dyn, cost, options) -> Plan:
-    del key
-    exact = _exact(problem, dyn, cost, options)
+def _gradient(cost: PlanCost, warm, key, options, candidates) -> Plan:
+    del key, candidates
+    exact = cost.exact
 
     def smooth(theta):
-        return horizon_cost(problem, jnp.tanh(theta), dyn, cost, penalty=options.penalty, smooth=True)
+        return cost.smooth(jnp.tanh(theta))
 
     opt = optax.adam(options.learning_rate)
     theta0 = jnp.arctanh(jnp.clip(warm, -0.995, 0.995))
@@ -130,13 +156,33 @@ def _gradient(problem, warm, key, dyn, cost, options) -> Plan:
     return _keep_better(Plan(u, exact(u)), Plan(warm, exact(warm)))
 
 
-_SOLVERS = {"gradient": _gradient, "random": _random, "cem": _cem}
+_SOLVERS = {"gradient": _gradient, "random": _random, "cem": _cem, "grid": _grid}
 
 
-def solve(problem: Problem, warm: jax.Array, key, dyn: Dynamics, cost: CostParams,
-          options: PlannerOptions) -> Plan:
-    """Plan the next ``t_r`` headings of every UAV (seed 000 eq. 20 by receding horizon, §4.2).
+def solve(cost: PlanCost, warm: jax.Array, key, options: PlannerOptions,
+          candidates: jax.Array | None = None) -> Plan:
+    """Minimise ``cost`` from the warm start ``warm`` with the planner ``options.kind``.
 
-    ``warm`` (H, n): the previous plan shifted by τ_r (:func:`mcjax.planning.horizon.shift_plan`).
-    Returns the plan and its exact cost."""
-    return _SOLVERS[options.kind](problem, warm, key, dyn, cost, options)
+    ``warm``: the plan to beat (any fixed shape; for Sun et al. 2011 the previous plan shifted by
+    τ_r, :func:`mcjax.planning.horizon.shift_plan`). ``key``: a PRNG key (used by random and
+    CEM). ``candidates`` (K, *warm.shape): the finite set the ``"grid"`` kind searches
+    (required by it, rejected by the other kinds; cast to ``warm``'s dtype, not clipped).
+    Returns the plan and its exact cost.
+
+    The checks below run at trace time, on shapes only, so ``solve`` may be jitted and
+    vmapped (``cost``, ``options`` closed over; ``warm``, ``key``, ``candidates`` batched)."""
+    if not isinstance(cost, PlanCost):
+        raise TypeError(f"cost must be a PlanCost(exact, smooth=None); got {type(cost).__name__}")
+    if options.kind == "gradient" and cost.smooth is None:
+        raise ValueError("the gradient planner needs a differentiable surrogate: "
+                         "PlanCost(exact, smooth) with smooth not None")
+    if options.kind == "grid":
+        if candidates is None:
+            raise ValueError("the grid planner needs candidates: an array of shape (K, *warm.shape)")
+        shape = tuple(jnp.shape(candidates))
+        if len(shape) != jnp.ndim(warm) + 1 or shape[1:] != tuple(jnp.shape(warm)):
+            want = "".join(f", {d}" for d in jnp.shape(warm))
+            raise ValueError(f"grid candidates must have shape (K, *warm.shape) = (K{want}); got {shape}")
+    elif candidates is not None:
+        raise ValueError(f"candidates are only used by the grid planner; got planner {options.kind!r}")
+    return _SOLVERS[options.kind](cost, warm, key, options, candidates)

@@ -1,24 +1,78 @@
-"""Scenarios: one module per seed system, assembling the layers below.
+"""Scenarios: one module per simulated system, each exporting ``SCENARIO`` (a
+:class:`mcjax.contract.Scenario`), and the registry that finds them by name.
 
-Each module follows the contract of design.md: ``Config`` (frozen dataclass), ``Params``
-(NamedTuple of arrays), ``default_params``, ``init``, ``step``, ``summarize``.
+Three ways to name a scenario (in a config file's ``scenario = "..."``, or :func:`get`):
+
+* a built-in name (``leader_follower``, ``uuv_imm``);
+* the name a plugin registers: another installed package declares, in its
+  ``pyproject.toml``, ``[project.entry-points."mcjax.scenarios"] my_name = "my_pkg.module:SCENARIO"``;
+* a reference ``"path/to/file.py:SCENARIO"`` (relative to the config file's folder) or
+  ``"some.module:SCENARIO"`` (an importable module) — for a scenario you are writing.
 """
 
 from __future__ import annotations
 
-from types import ModuleType
+import importlib
+import importlib.util
+import sys
+from importlib.metadata import entry_points
+from pathlib import Path
 
+from mcjax.contract import Scenario
 from mcjax.scenarios import leader_follower, uuv_imm
 
-SCENARIOS: dict[str, ModuleType] = {
-    leader_follower.NAME: leader_follower,
-    uuv_imm.NAME: uuv_imm,
-}
+#: Entry-point group of third-party scenarios.
+ENTRY_POINT_GROUP = "mcjax.scenarios"
+
+BUILTIN: dict[str, Scenario] = {s.name: s for s in (leader_follower.SCENARIO, uuv_imm.SCENARIO)}
 
 
-def get(name: str) -> ModuleType:
-    """The scenario module called ``name``; ValueError listing the known ones otherwise."""
-    try:
-        return SCENARIOS[name]
-    except KeyError:
-        raise ValueError(f"scenario must be one of {', '.join(sorted(SCENARIOS))}; got {name!r}") from None
+def _plugin_points() -> dict:
+    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name not in BUILTIN}
+
+
+def known() -> list[str]:
+    """Names of every scenario: the built-in ones, then the installed plugins'."""
+    return [*BUILTIN, *sorted(_plugin_points())]
+
+
+def _checked(obj, ref: str) -> Scenario:
+    if not isinstance(obj, Scenario):
+        raise ValueError(f"scenario {ref!r} is a {type(obj).__name__}, not an mcjax.contract.Scenario")
+    return obj
+
+
+def _from_reference(ref: str, base_dir: Path | None) -> Scenario:
+    where, _, attr = ref.rpartition(":")
+    if where.endswith(".py"):
+        path = Path(where)
+        if not path.is_absolute() and base_dir is not None:
+            path = base_dir / path
+        path = path.resolve()
+        if not path.is_file():
+            raise ValueError(f"scenario file not found: {path}")
+        name = f"mcjax_user_scenario_{abs(hash(str(path)))}"
+        module = sys.modules.get(name)
+        if module is None:
+            spec = importlib.util.spec_from_file_location(name, path)
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[name] = module  # before exec: its dataclasses look their module up
+            spec.loader.exec_module(module)
+    else:
+        module = importlib.import_module(where)
+    if not hasattr(module, attr):
+        raise ValueError(f"scenario {ref!r}: {where} has no attribute {attr!r}")
+    return _checked(getattr(module, attr), ref)
+
+
+def get(name: str, base_dir: str | Path | None = None) -> Scenario:
+    """The scenario called ``name`` (see the module docstring); ValueError listing the known
+    ones otherwise. ``base_dir``: the folder a relative ``file.py:ATTR`` reference is read from."""
+    if name in BUILTIN:
+        return BUILTIN[name]
+    plugins = _plugin_points()
+    if name in plugins:
+        return _checked(plugins[name].load(), name)
+    if ":" in name:
+        return _from_reference(name, None if base_dir is None else Path(base_dir))
+    raise ValueError(f"scenario must be one of {', '.join(known())} (or 'file.py:ATTRIBUTE'); got {name!r}")

@@ -1,4 +1,4 @@
-"""Leader–follower UAV team tracking a CV target — Sun et al. 2011 (seed 000).
+"""Leader–follower UAV team tracking a CV target — Sun et al. 2011.
 
 One leader (agent 0) and four followers with range–bearing radars (sensing radius 120 km)
 and a 100 km comm range track a constant-velocity target. Each step records, for every
@@ -6,7 +6,7 @@ filter, each agent's position error and NEES, plus λ2, degrees, connectivity ro
 and how many agents see the target.
 
 ``Config.planner = "none"`` is the open loop: every UAV holds ``Params.heading_cmd``.
-Otherwise the loop is closed as in seed 000 §4: every τ_r steps (``Params.replan_every``)
+Otherwise the loop is closed as in Sun et al. 2011 §4: every τ_r steps (``Params.replan_every``)
 the leader plans the headings of all UAVs over the horizon t_r (``Params.horizon``) from
 its own modified-ICF estimate and the UAV states it knows, minimising eq. 16 with eqs.
 18–19 as penalties (:mod:`mcjax.planning`), and the UAVs fly the first τ_r commands.
@@ -17,7 +17,6 @@ open are our choices, marked in ``configs/sun2011.toml``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import jax
@@ -25,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax import graph, metrics
-from mcjax.numerics import symmetrize
+from mcjax.contract import Output, Param, Scenario, Setting, config_type, params_type
 from mcjax.filters.consensus import (
     CONTRIBUTION_KINDS,
     FILTER_KINDS,
@@ -38,198 +37,129 @@ from mcjax.filters.consensus import (
     init_states,
     per_agent,
 )
+from mcjax.filters.gaussian import first_step_model
 from mcjax.models.motion import cv_matrices, cv_process_noise, cv_step
 from mcjax.models.platforms import UnicycleLimits, unicycle_step
-from mcjax.models.sensors import measure_range_bearing, range_bearing
-from mcjax.planning import CostParams, Dynamics, PlannerOptions, Problem, rollout, shift_plan, solve
+from mcjax.models.sensors import range_bearing
+from mcjax.numerics import symmetrize
+from mcjax.planning import CostParams, Dynamics, PlannerOptions, Problem, horizon_plan_cost, rollout, shift_plan, solve
 from mcjax.planning.objectives import ROBUSTNESS_PENALTIES
-from mcjax.planning.solvers import PLANNER_KINDS
-from mcjax.scenarios.common import DTYPES, agents, cast, check_config, choices, make_params
+from mcjax.scenarios import kit
 
 NAME = "leader_follower"
-PAPER = "Sun, Zhou, Zou, Ding 2011 (seed 000)"
+
+PLANNERS = ("none", "gradient", "random", "cem")
 
 
-@dataclass(frozen=True)
-class Config:
-    """Everything that fixes shapes or the compiled program (changing it recompiles)."""
-
-    n_agents: int = 5
-    n_steps: int = 200
-    filters: tuple[str, ...] = FILTER_KINDS
-    consensus_steps: int = 1
-    consensus_weights: str = "eq11"
-    contribution: str = "component"
-    icf_variant: str = "contributions"
-    kcf_gain: str = "gamma_M"
-    divergence_threshold: float = 1000.0  # m — our choice (the paper gives no rule)
-    warmup_steps: int = 10
-    dtype: str = "float64"
-    planner: str = "none"            # "none" (open loop) | "gradient" | "random" | "cem"
-    max_horizon: int = 8             # steps the rollout runs; Params.horizon (t_r) <= this
-    plan_iterations: int = 10        # gradient: Adam steps; cem: rounds
-    plan_samples: int = 256          # random / cem: plans scored per re-plan
-    plan_learning_rate: float = 0.3  # Adam step on θ, u = tanh θ
-    plan_elite_fraction: float = 0.1 # cem
-    robustness_penalty: str = "barrier"  # "barrier" (ours, algorithms.md §5) | "inverse" (paper's 1/|R|)
-
-    def __post_init__(self):
-        check_config(self, FILTER_KINDS)
-        self.filter_options()  # validates the filter choices
-        if self.planner not in ("none",) + PLANNER_KINDS:
-            raise ValueError(f"planner must be one of none, {', '.join(PLANNER_KINDS)}; got {self.planner!r}")
-        if not isinstance(self.max_horizon, int) or self.max_horizon < 1:
-            raise ValueError(f"max_horizon must be an integer >= 1; got {self.max_horizon!r}")
-        if self.planner != "none":
-            if "modified_icf" not in self.filters:
-                raise ValueError("filters must include 'modified_icf' when a planner is on: "
-                                 "the leader plans from its modified-ICF estimate (seed 000 §4)")
-            self.planner_options()  # validates the planner choices
-
-    def filter_options(self) -> FilterOptions:
-        return FilterOptions(self.consensus_steps, self.consensus_weights, self.contribution,
-                             self.icf_variant, self.kcf_gain)
-
-    def planner_options(self) -> PlannerOptions:
-        return PlannerOptions(self.planner, self.plan_iterations, self.plan_samples,
-                              self.plan_learning_rate, self.plan_elite_fraction, self.robustness_penalty)
+def _check(cfg) -> None:
+    kit.check_common(cfg)
+    if cfg.planner != "none":
+        if "modified_icf" not in cfg.filters:
+            raise ValueError("filters must include 'modified_icf' when a planner is on: "
+                             "the leader plans from its modified-ICF estimate (Sun et al. 2011, sec. 4)")
+        planner_options(cfg)  # validates the planner budget
 
 
-
-#: Allowed values of each Config field, as shown by ``mcjax list``.
-CONFIG_ALLOWED = {
-    "n_agents": "integer >= 1", "n_steps": "integer >= 1",
-    "filters": "non-empty subset of " + ", ".join(FILTER_KINDS),
-    "consensus_steps": "integer >= 0", "consensus_weights": choices(WEIGHT_KINDS),
-    "contribution": choices(CONTRIBUTION_KINDS), "icf_variant": choices(ICF_VARIANTS),
-    "kcf_gain": choices(KCF_GAINS), "divergence_threshold": "> 0 (m)",
-    "warmup_steps": "integer in [0, n_steps)", "dtype": choices(DTYPES),
-    "planner": choices(("none",) + PLANNER_KINDS), "max_horizon": "integer >= 1",
-    "plan_iterations": "integer >= 1", "plan_samples": "integer >= 2 (cem: >= 2 per round)",
-    "plan_learning_rate": "> 0", "plan_elite_fraction": "in (0, 1]",
-    "robustness_penalty": choices(ROBUSTNESS_PENALTIES),
-}
-
-
-class Params(NamedTuple):
-    """Per-run values a sweep may vary without recompiling. Per-agent fields accept a scalar
-    (same for every agent) or one value per agent."""
-
-    dt: jax.Array                 # s, radar sampling = comm interval (paper: 1 s)
-    comm_radius: jax.Array        # m (paper: 100 km), scalar or (n,)
-    sensing_radius: jax.Array     # m (paper: 120 km), scalar or (n,)
-    sigma_range: jax.Array        # m (paper: 10 m)
-    sigma_bearing: jax.Array      # rad (paper: 0.017 rad)
-    sigma_accel: jax.Array        # m/s² the filters' process-noise model (paper: 50)
-    target_sigma_accel: jax.Array # m/s² the true target's acceleration noise (ours: 5, see configs/sun2011.toml)
-    uav_speed: jax.Array          # m/s (paper: 800 m/s), scalar or (n,)
-    alpha_phi: jax.Array          # 1/s autopilot heading gain (ours)
-    turn_rate_max: jax.Array      # rad/s eq. 4 limit (ours)
-    heading_cmd: jax.Array        # rad, held heading command (open loop), scalar or (n,)
-    initial_positions: jax.Array  # (n, 2) m
-    initial_headings: jax.Array   # rad, scalar or (n,)
-    target_x0: jax.Array          # (4,) [x, ẋ, y, ẏ]
-    p0_diag: jax.Array            # (4,) prior variances at the first measurement (ours)
-    kcf_epsilon: jax.Array        # KCF consensus gain ε (ours)
-    alive: jax.Array              # (n,) 1 = alive, 0 = dropped out (masked, never removed)
-    # closed loop (seed 000 §4; used when Config.planner != "none")
-    alpha_I: jax.Array            # weight of the connectivity-robustness penalty (case 1 of Table 1: 0)
-    alpha_C: jax.Array            # 1/rad, weight of the control effort (eq. 17)
-    alpha_L: jax.Array            # 1/m, weight of the distance to the target
-    alpha_S: jax.Array            # weight of the D_safe / D_LT penalties (eqs. 18–19)
-    d_safe: jax.Array             # m, eq. 18
-    d_lt: jax.Array               # m, eq. 19
-    robustness_scale: jax.Array   # m, s of the barrier softplus(−R_I/s)
-    plan_temperature: jax.Array   # m, temperature of the smooth cost (gradient planner)
-    horizon: jax.Array            # t_r, steps (integer, 1 … Config.max_horizon)
-    replan_every: jax.Array       # τ_r, steps (integer, 1 … t_r)
+#: Config: everything that fixes shapes or the compiled program (changing it recompiles).
+Config = config_type("Config", dict(
+    **kit.common_settings(filter_kinds=FILTER_KINDS, n_agents=5, n_steps=200, warmup_steps=10,
+                      divergence_threshold=1000.0),
+    consensus_steps=Setting(1, "consensus iterations L per step (paper: one message per comm interval)",
+                            low=0, integer=True),
+    consensus_weights=Setting("eq11", "consensus weights (eq11 = Sun et al. 2011 eq. 11)", choices=WEIGHT_KINDS),
+    contribution=Setting("component", "weight of an agent's own measurement information (component = "
+                         "by its component's size, ours; one = eq. 9 as printed)", choices=CONTRIBUTION_KINDS),
+    icf_variant=Setting("contributions", "reading of the ICF (docs/equations.md)", choices=ICF_VARIANTS),
+    kcf_gain=Setting("gamma_M", "KCF consensus gain form", choices=KCF_GAINS),
+    planner=Setting("none", "receding-horizon planner; none = open loop (every UAV holds heading_cmd)",
+                    choices=PLANNERS),
+    max_horizon=Setting(8, "steps the planning rollout runs; Params.horizon (t_r) <= this", "steps",
+                        low=1, integer=True),
+    plan_iterations=Setting(10, "gradient: Adam steps; cem: rounds", low=1, integer=True),
+    plan_samples=Setting(256, "random / cem: plans scored per re-plan (cem: >= 2 per round)", low=2,
+                         integer=True),
+    plan_learning_rate=Setting(0.3, "Adam step on theta, u = tanh(theta)", low=0, low_open=True),
+    plan_elite_fraction=Setting(0.1, "cem: fraction of each round refitted", low=0, high=1, low_open=True),
+    robustness_penalty=Setting("barrier", "penalty of the connectivity robustness R_I (barrier = "
+                               "softplus(-R_I/s), ours; inverse = the paper's 1/|R_I|)",
+                               choices=ROBUSTNESS_PENALTIES),
+), __name__, _check)
 
 
-PER_AGENT_FIELDS = ("comm_radius", "sensing_radius", "uav_speed", "heading_cmd",
-                    "initial_headings", "alive")
-
-PARAM_UNITS = {
-    "dt": "s", "comm_radius": "m", "sensing_radius": "m", "sigma_range": "m",
-    "sigma_bearing": "rad", "sigma_accel": "m/s^2", "target_sigma_accel": "m/s^2", "uav_speed": "m/s", "alpha_phi": "1/s",
-    "turn_rate_max": "rad/s", "heading_cmd": "rad", "initial_positions": "m",
-    "initial_headings": "rad", "target_x0": "m, m/s", "p0_diag": "m^2, (m/s)^2",
-    "kcf_epsilon": "-", "alive": "0/1", "alpha_I": "-", "alpha_C": "1/rad", "alpha_L": "1/m",
-    "alpha_S": "-", "d_safe": "m", "d_lt": "m", "robustness_scale": "m", "plan_temperature": "m",
-    "horizon": "steps", "replan_every": "steps",
-}
+def filter_options(cfg) -> FilterOptions:
+    return FilterOptions(cfg.consensus_steps, cfg.consensus_weights, cfg.contribution, cfg.icf_variant,
+                         cfg.kcf_gain)
 
 
-_POS = (1e-300, np.inf, "> 0")
-_NONNEG = (0.0, np.inf, ">= 0")
-#: Allowed values of each Params field: (low, high, text), checked by sweep specs.
-PARAM_RANGES = {
-    "dt": _POS, "comm_radius": _NONNEG, "sensing_radius": _NONNEG, "sigma_range": _POS,
-    "sigma_bearing": _POS, "sigma_accel": _NONNEG, "target_sigma_accel": _NONNEG, "uav_speed": _NONNEG, "alpha_phi": _POS,
-    "turn_rate_max": _NONNEG, "heading_cmd": (-10.0, 10.0, "in [-10, 10] rad"),
-    "initial_headings": (-10.0, 10.0, "in [-10, 10] rad"), "p0_diag": _POS,
-    "kcf_epsilon": _NONNEG, "alive": (0.0, 1.0, "0 or 1"), "alpha_I": _NONNEG, "alpha_C": _NONNEG,
-    "alpha_L": _NONNEG, "alpha_S": _NONNEG, "d_safe": _POS, "d_lt": _POS, "robustness_scale": _POS,
-    "plan_temperature": _POS, "horizon": (1.0, np.inf, "an integer >= 1"),
-    "replan_every": (1.0, np.inf, "an integer >= 1"),
-}
+def planner_options(cfg) -> PlannerOptions:
+    return PlannerOptions(cfg.planner, cfg.plan_iterations, cfg.plan_samples, cfg.plan_learning_rate,
+                          cfg.plan_elite_fraction)
 
 
-def check_params(cfg: Config, values: dict) -> list[tuple[str, str]]:
-    """Checks that depend on the Config: ``[(field, what is allowed), …]`` for the bad ones.
+def _paper_positions(cfg) -> np.ndarray:
+    """The paper's five UAVs (sec. 5); extra followers spread behind the leader on a line (ours)."""
+    n = cfg.n_agents
+    paper = np.array([[20e3, 150e3], [80e3, 150e3], [130e3, 200e3], [130e3, 100e3], [180e3, 150e3]])
+    if n <= 5:
+        return paper[:n]
+    extra = np.stack([np.full(n - 5, 20e3), 150e3 + 20e3 * np.arange(1, n - 4)], -1)
+    return np.concatenate([paper, extra])
+
+
+_POS = dict(low=0.0, low_open=True)
+_NONNEG = dict(low=0.0)
+_ANGLE = dict(low=-10.0, high=10.0)
+#: Params: per-run values a sweep may vary without recompiling. Defaults are the paper's
+#: (sec. 5) where it gives one; the others are ours (configs/sun2011.toml says why).
+Params = params_type("Params", dict(
+    dt=Param(1.0, "s", "radar sampling interval = comm interval (paper: 1 s)", **_POS),
+    comm_radius=Param(100e3, "m", "communication radius (paper: 100 km)", **_NONNEG, per_agent=True),
+    sensing_radius=Param(120e3, "m", "radar range (paper: 120 km)", **_NONNEG, per_agent=True),
+    sigma_range=Param(10.0, "m", "range noise std (paper: 10 m)", **_POS),
+    sigma_bearing=Param(0.017, "rad", "bearing noise std (paper: 0.017 rad)", **_POS),
+    sigma_accel=Param(50.0, "m/s^2", "the filters' process-noise acceleration std (paper: 50)", **_NONNEG),
+    target_sigma_accel=Param(5.0, "m/s^2", "the true target's acceleration noise std (ours)", **_NONNEG),
+    uav_speed=Param(800.0, "m/s", "UAV airspeed (paper: 800 m/s)", **_NONNEG, per_agent=True),
+    alpha_phi=Param(1.0, "1/s", "autopilot heading gain, eq. 3 (ours)", **_POS),
+    turn_rate_max=Param(float(np.deg2rad(10.0)), "rad/s", "turn-rate limit, eq. 4 (ours)", **_NONNEG),
+    heading_cmd=Param(float(np.arctan2(-1000.0, 200.0)), "rad", "held heading command (open loop only)",
+                      **_ANGLE, per_agent=True),
+    initial_positions=Param(_paper_positions, "m", "initial UAV positions (paper, sec. 5)", shape=("n", 2)),
+    initial_headings=Param(0.0, "rad", "initial headings (ours)", **_ANGLE, per_agent=True),
+    target_x0=Param(np.array([200e3, 200.0, 180e3, -1000.0]), "m, m/s", "initial target state [x, vx, y, vy]",
+                    shape=(4,)),
+    p0_diag=Param(np.array([100.0**2, 10.0**2, 100.0**2, 10.0**2]), "m^2, (m/s)^2",
+                  "prior variances at the first measurement (ours)", **_POS, shape=(4,)),
+    kcf_epsilon=Param(0.1, "", "KCF consensus gain epsilon (ours)", **_NONNEG),
+    alive=Param(lambda cfg: np.ones(cfg.n_agents), "", "1 = alive, 0 = dropped out (masked, never removed)",
+                choices=(0, 1), per_agent=True),
+    alpha_I=Param(1000.0, "", "weight of the connectivity-robustness penalty (case 1 of Table 1: 0)", **_NONNEG),
+    alpha_C=Param(1.0, "1/rad", "weight of the control effort, eq. 17", **_NONNEG),
+    alpha_L=Param(1e-4, "1/m", "weight of the distance to the target", **_NONNEG),
+    alpha_S=Param(1e4, "", "weight of the D_safe / D_LT penalties, eqs. 18-19", **_NONNEG),
+    d_safe=Param(1e3, "m", "D_safe, eq. 18", **_POS),
+    d_lt=Param(20e3, "m", "D_LT, eq. 19", **_POS),
+    robustness_scale=Param(5e3, "m", "s of the barrier softplus(-R_I/s)", **_POS),
+    plan_temperature=Param(1e3, "m", "temperature of the smooth cost (gradient planner)", **_POS),
+    horizon=Param(5, "steps", "t_r, the planning horizon (paper: 5; <= max_horizon)", low=1, integer=True),
+    replan_every=Param(3, "steps", "tau_r, steps between re-plans (paper: 3; <= t_r)", low=1, integer=True),
+), __name__)
+
+
+def check_params(cfg, values: dict) -> list[tuple[str, str]]:
+    """Checks across fields: ``[(field, what is allowed), …]`` for the bad ones.
 
     t_r (``horizon``) must be an integer in [1, max_horizon]; τ_r (``replan_every``) an
-    integer in [1, t_r] (seed 000 §4.2: 1 ≤ τ_r ≤ t_r)."""
+    integer in [1, t_r] (Sun et al. 2011, sec. 4.2: 1 ≤ τ_r ≤ t_r)."""
     bad = []
-    tr = np.asarray(values.get("horizon", DEFAULT_HORIZON), np.float64)
-    tau = np.asarray(values.get("replan_every", DEFAULT_REPLAN), np.float64)
+    table = Params.TABLE
+    tr = np.asarray(values.get("horizon", table["horizon"].default), np.float64)
+    tau = np.asarray(values.get("replan_every", table["replan_every"].default), np.float64)
     if np.any(tr != np.round(tr)) or np.any(tr < 1) or np.any(tr > cfg.max_horizon):
         bad.append(("horizon", f"an integer in [1, max_horizon = {cfg.max_horizon}]"))
     if np.any(tau != np.round(tau)) or np.any(tau < 1) or np.any(tau > tr):
         bad.append(("replan_every", "an integer in [1, horizon]"))
     return bad
-
-
-DEFAULT_HORIZON = 5   # t_r (paper: 5)
-DEFAULT_REPLAN = 3    # τ_r (paper: 3)
-#: Closed-loop defaults: t_r and τ_r are the paper's, the weights and distances are ours
-#: (the paper gives none; configs/sun2011.toml says how they were chosen).
-PLANNING_DEFAULTS = dict(
-    alpha_I=1000.0, alpha_C=1.0, alpha_L=1e-4, alpha_S=1e4, d_safe=1e3, d_lt=20e3,
-    robustness_scale=5e3, plan_temperature=1e3, horizon=DEFAULT_HORIZON, replan_every=DEFAULT_REPLAN,
-)
-
-
-def default_params(cfg: Config = Config(), **overrides) -> Params:
-    """The paper's set-up (seed 000 §5) as numpy arrays; ``overrides`` replace fields."""
-    n = cfg.n_agents
-    paper_positions = np.array([[20e3, 150e3], [80e3, 150e3], [130e3, 200e3],
-                                [130e3, 100e3], [180e3, 150e3]])
-    if n <= 5:
-        positions = paper_positions[:n]
-    else:  # extra followers spread behind the leader on a line (our choice)
-        extra = np.stack([np.full(n - 5, 20e3), 150e3 + 20e3 * np.arange(1, n - 4)], -1)
-        positions = np.concatenate([paper_positions, extra])
-    values = dict(
-        dt=1.0,
-        comm_radius=100e3,
-        sensing_radius=120e3,
-        sigma_range=10.0,
-        sigma_bearing=0.017,
-        sigma_accel=50.0,
-        target_sigma_accel=5.0,
-        uav_speed=800.0,
-        alpha_phi=1.0,
-        turn_rate_max=np.deg2rad(10.0),
-        heading_cmd=float(np.arctan2(-1000.0, 200.0)),
-        initial_positions=positions,
-        initial_headings=0.0,
-        target_x0=np.array([200e3, 200.0, 180e3, -1000.0]),
-        p0_diag=np.array([100.0**2, 10.0**2, 100.0**2, 10.0**2]),
-        kcf_epsilon=0.1,
-        alive=np.ones(n),
-        **PLANNING_DEFAULTS,
-    )
-    return make_params(Params, values, overrides)
 
 
 class State(NamedTuple):
@@ -249,7 +179,7 @@ class Record(NamedTuple):
     lambda2: jax.Array         # ()
     degrees: jax.Array         # (n,)
     robustness: jax.Array      # (n,) R_I, m
-    n_seeing: jax.Array        # () agents with a measurement
+    n_seeing: jax.Array        # () kit.agents with a measurement
     positions: jax.Array       # (n, 2)
     target: jax.Array          # (4,)
     measurements: jax.Array    # (n, 2) range–bearing, NaN where none
@@ -258,16 +188,16 @@ class Record(NamedTuple):
 
 
 
-def init(cfg: Config, params: Params, key) -> State:
+def init(cfg, params, key) -> State:
     """State before step 0: true target, UAVs at their initial poses, filters at the prior
-    (the true initial state with covariance ``diag(p0_diag)``, seed 000 §5)."""
+    (the true initial state with covariance ``diag(p0_diag)``, Sun et al. 2011 §5)."""
     del key
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
-    params = cast(params, dtype)
+    params = kit.cast(params, dtype)
     uavs = jnp.concatenate([
         jnp.asarray(params.initial_positions, dtype),
-        agents(params.uav_speed, n, dtype)[:, None],
-        agents(params.initial_headings, n, dtype)[:, None],
+        kit.agents(params.uav_speed, n, dtype)[:, None],
+        kit.agents(params.initial_headings, n, dtype)[:, None],
     ], axis=-1)
     x0 = jnp.asarray(params.target_x0, dtype)
     P0 = jnp.diag(jnp.asarray(params.p0_diag, dtype))
@@ -276,8 +206,8 @@ def init(cfg: Config, params: Params, key) -> State:
                  plan, plan, jnp.asarray(0, jnp.int32), jnp.zeros((), dtype))
 
 
-def _plan(cfg: Config, params: Params, state: State, uavs, filters, age, key):
-    """Re-plan if due (every τ_r steps, and at step 0): seed 000 §4.2 steps ① – ③.
+def _plan(cfg, params, state: State, uavs, filters, age, key):
+    """Re-plan if due (every τ_r steps, and at step 0): Sun et al. 2011 §4.2 steps ① – ③.
 
     The leader (agent 0) plans from its own modified-ICF estimate and the UAV states it
     knows; the plan is computed every step (one program for every τ_r in a batch) and kept
@@ -289,11 +219,12 @@ def _plan(cfg: Config, params: Params, state: State, uavs, filters, age, key):
     dyn = Dynamics(params.dt, params.alpha_phi, params.turn_rate_max, horizon, params.sigma_accel)
     cost = CostParams(
         params.alpha_I, params.alpha_C, params.alpha_L, params.alpha_S, params.d_safe, params.d_lt,
-        params.robustness_scale, params.plan_temperature, agents(params.sensing_radius, n, dtype),
-        agents(params.comm_radius, n, dtype), params.sigma_range, params.sigma_bearing,
-        agents(params.alive, n, dtype))
+        params.robustness_scale, params.plan_temperature, kit.agents(params.sensing_radius, n, dtype),
+        kit.agents(params.comm_radius, n, dtype), params.sigma_range, params.sigma_bearing,
+        kit.agents(params.alive, n, dtype))
     warm = shift_plan(state.plan_u, age, horizon)
-    plan = solve(problem, warm, key, dyn, cost, cfg.planner_options())
+    plan = solve(horizon_plan_cost(problem, dyn, cost, penalty=cfg.robustness_penalty), warm, key,
+                 planner_options(cfg))
     _, _, commands, _ = rollout(problem, plan.u, dyn)
     ok = jnp.all(jnp.isfinite(commands))
     commands = jnp.where(ok, commands, uavs[:, 3])  # a non-finite plan holds the headings
@@ -302,50 +233,45 @@ def _plan(cfg: Config, params: Params, state: State, uavs, filters, age, key):
             jnp.where(due, 0, age), jnp.where(due, plan.cost, state.plan_cost))
 
 
-def step(cfg: Config, params: Params, state: State, key) -> tuple[State, Record]:
+def step(cfg, params, state: State, key) -> tuple[State, Record]:
     """One 1-s step: move target (eq. 1) and UAVs (eqs. 3–4, exact heading), measure (range-gated),
     build the comm graph (eq. 13), run every filter, record errors and graph metrics.
 
     Step 0 is the first measurement time: nothing moves and the filters update their prior
-    without predicting (algorithms.md §2).
+    without predicting (docs/equations.md).
     """
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
-    params = cast(params, dtype)
+    params = kit.cast(params, dtype)
     first = state.t == 0
     k_target, k_meas = jax.random.split(key)
     dt = jnp.asarray(params.dt, dtype)
     dt_move = jnp.where(first, 0.0, dt)
 
     target = jnp.where(first, state.target, cv_step(state.target, k_target, dt, params.target_sigma_accel))
-    speed = agents(params.uav_speed, n, dtype)
+    speed = kit.agents(params.uav_speed, n, dtype)
     limits = UnicycleLimits(speed, speed, jnp.zeros((), dtype), jnp.zeros((), dtype),
                             jnp.asarray(params.turn_rate_max, dtype))
     if cfg.planner == "none":
-        command, age = agents(params.heading_cmd, n, dtype), state.plan_age
+        command, age = kit.agents(params.heading_cmd, n, dtype), state.plan_age
     else:  # the next command of the plan in force (step 0 does not move)
         command = state.plan_cmd[jnp.minimum(state.plan_age, cfg.max_horizon - 1)]
         age = jnp.where(first, state.plan_age, state.plan_age + 1)
     uavs = unicycle_step(state.uavs, command, 0.0, params.alpha_phi, limits, dt_move)
     sensors = uavs[:, :2]
-    alive = agents(params.alive, n, dtype) > 0.5
+    alive = kit.agents(params.alive, n, dtype) > 0.5
 
-    sensing = agents(params.sensing_radius, n, dtype)
-    keys = jax.random.split(k_meas, n)
-    z = jax.vmap(measure_range_bearing, in_axes=(0, None, 0, None, None, 0, 0))(
-        keys, target, sensors, params.sigma_range, params.sigma_bearing, sensing, alive)
-    comm = agents(params.comm_radius, n, dtype)
+    z = kit.team_measurements(k_meas, target, sensors, params.sigma_range, params.sigma_bearing,
+                              kit.agents(params.sensing_radius, n, dtype), alive)
+    comm = kit.agents(params.comm_radius, n, dtype)
     adj = graph.adjacency(sensors, comm, alive)
 
-    F, _ = cv_matrices(dt, dtype)
-    Q = cv_process_noise(dt, params.sigma_accel, dtype)
-    F = jnp.where(first, jnp.eye(4, dtype=dtype), F)
-    Q = jnp.where(first, 0.0, Q)
+    F, Q = first_step_model(first, cv_matrices(dt, dtype)[0], cv_process_noise(dt, params.sigma_accel, dtype))
     # R = diag(σ_r², σ_θ²) is diagonal: its inverse needs no LAPACK call on the hot path
     R_inv = jnp.diag(jnp.stack([1.0 / params.sigma_range**2, 1.0 / params.sigma_bearing**2]))
     R_inv = jnp.broadcast_to(R_inv, (n, 2, 2))
     meas = Measurements(z, sensors, adj, R_inv)
     angle_mask = jnp.array([False, True])
-    filters = filter_step(cfg.filters, cfg.filter_options(), range_bearing, angle_mask,
+    filters = filter_step(cfg.filters, filter_options(cfg), range_bearing, angle_mask,
                           state.filters, meas, F, Q, jnp.asarray(params.kcf_epsilon, dtype))
 
     plan = (state.plan_u, state.plan_cmd, age, state.plan_cost)
@@ -371,69 +297,54 @@ def step(cfg: Config, params: Params, state: State, key) -> tuple[State, Record]
     return State(state.t + 1, target, uavs, filters, *plan), rec
 
 
-#: Per-run summary fields: (name, per_filter, description).
-SUMMARY_FIELDS = (
-    ("rmse", True, "position RMSE over agents and steps after warm-up, m"),
-    ("mean_error", True, "mean position error over agents and steps after warm-up, m"),
-    ("final_error", True, "mean position error over agents at the last step, m"),
-    ("max_error", True, "largest position error of any agent after warm-up, m"),
-    ("leader_rmse", True, "the leader's (agent 0) position RMSE after warm-up, m"),
-    ("anees", True, "mean full-state NEES over agents and steps after warm-up (4 dof)"),
-    ("diverged", True, "error above divergence_threshold after warm-up, or non-finite"),
-    ("nonfinite", True, "some estimate went NaN/inf"),
-    *metrics.GRAPH_SUMMARY_FIELDS,
-    ("robustness_min", False, "smallest R_I of any agent over the run, m"),
-    ("seeing_mean", False, "mean number of agents that see the target"),
-    ("seeing_min", False, "fewest agents that see the target at any step"),
-    ("plan_cost_mean", False, "mean exact eq. 16 cost of the plans in force (0 in open loop)"),
-)
+def outputs(cfg) -> dict[str, Output]:
+    """The per-run summary fields (:func:`reduce`)."""
+    errors = kit.error_outputs("m")
+    return dict(
+        **errors,
+        leader_rmse=Output("m", "the leader's (agent 0) position RMSE after warm-up"),
+        anees=Output("", "mean full-state NEES over alive kit.agents and steps after warm-up (4 dof)"),
+        **kit.GRAPH_OUTPUTS,
+        robustness_min=Output("m", "smallest connectivity robustness R_I of any agent over the run", False),
+        seeing_mean=Output("", "mean number of kit.agents that see the target", False),
+        seeing_min=Output("", "fewest kit.agents that see the target at any step", False),
+        plan_cost_mean=Output("", "mean exact eq. 16 cost of the plans in force (0 in open loop)", False),
+    )
 
 
-def summarize(cfg: Config, records: Record, params: Params | None = None) -> dict:
-    """Reduce one run's records (stacked over time) to scalars (algorithms.md §8)."""
+def reduce(cfg, records: Record, params) -> dict:
+    """Reduce one run's records (stacked over time) to the fields of :func:`outputs`."""
     w = cfg.warmup_steps
-    alive = metrics.alive_weights(None if params is None else params.alive, cfg.n_agents, records.error.dtype)
-    out = {name: [] for name, per_filter, _ in SUMMARY_FIELDS if per_filter}
-    for f in range(len(cfg.filters)):
-        e = records.error[:, f, :]
-        ne = records.nees[:, f, :]
-        out["rmse"].append(metrics.rmse(e, w, alive))
-        out["mean_error"].append(metrics.mean_over(e, w, alive))
-        out["final_error"].append(metrics.mean_over(e[-1:], 0, alive))
-        out["max_error"].append(jnp.max(jnp.where(jnp.arange(e.shape[0])[:, None] >= w, e, 0.0)))
-        out["leader_rmse"].append(metrics.rmse(e[:, :1], w))
-        out["anees"].append(metrics.mean_over(ne, w, alive))
-        out["diverged"].append(metrics.diverged(e, cfg.divergence_threshold, w, alive))
-        out["nonfinite"].append(metrics.nonfinite(e))
-    summary = {k: jnp.stack(v) for k, v in out.items()}
+    alive = metrics.alive_weights(params.alive, cfg.n_agents, records.error.dtype)
+    out = kit.error_summary(records.error, alive, w, cfg.divergence_threshold)
+    F = len(cfg.filters)
+    out["leader_rmse"] = jnp.stack([metrics.rmse(records.error[:, f, :1], w) for f in range(F)])
+    out["anees"] = jnp.stack([metrics.mean_over(records.nees[:, f, :], w, alive) for f in range(F)])
     lam = records.lambda2
-    summary.update(
+    out.update(
         **metrics.graph_summary(lam),
         robustness_min=jnp.min(records.robustness),
         seeing_mean=jnp.mean(records.n_seeing.astype(lam.dtype)),
         seeing_min=jnp.min(records.n_seeing),
         plan_cost_mean=jnp.mean(records.plan_cost),
     )
-    return summary
+    return out
 
 
-#: Per-step series written to ``OUT/timeseries/`` when a sweep spec sets ``timeseries = true``:
-#: (name, per_filter, description).
-TIMESERIES_FIELDS = (
-    ("error_mean", True, "mean position error over alive agents, m"),
-    ("error_max", True, "largest position error of any alive agent, m"),
-    ("leader_error", True, "the leader's (agent 0) position error, m"),
-    ("lambda2", False, "algebraic connectivity of the comm graph"),
-    ("robustness_min", False, "smallest connectivity robustness R_I, m"),
-    ("n_seeing", False, "agents that see the target"),
-    ("plan_cost", False, "exact eq. 16 cost of the plan in force (0 in open loop)"),
-)
+def timeseries_outputs(cfg) -> dict[str, Output]:
+    """The per-step series (:func:`timeseries`), written when a sweep asks for them."""
+    per_run = {"lambda2": ("", "algebraic connectivity of the comm graph"),
+               "robustness_min": ("m", "smallest connectivity robustness R_I"),
+               "n_seeing": ("", "kit.agents that see the target"),
+               "plan_cost": ("", "exact eq. 16 cost of the plan in force (0 in open loop)")}
+    return {**kit.error_series_outputs("m"), "leader_error": Output("m", "the leader's (agent 0) position error"),
+            **{k: Output(unit, text, False) for k, (unit, text) in per_run.items()}}
 
 
-def timeseries(cfg: Config, records: Record, params: Params | None = None) -> dict:
+def timeseries(cfg, records: Record, params) -> dict:
     """A few per-step series of one run: (T, F) per filter, (T,) otherwise."""
     e = records.error  # (T, F, n)
-    alive = metrics.alive_weights(None if params is None else params.alive, cfg.n_agents, e.dtype)
+    alive = metrics.alive_weights(params.alive, cfg.n_agents, e.dtype)
     return dict(
         **metrics.error_series(e, alive),
         leader_error=e[..., 0],
@@ -442,3 +353,10 @@ def timeseries(cfg: Config, records: Record, params: Params | None = None) -> di
         n_seeing=records.n_seeing,
         plan_cost=records.plan_cost,
     )
+
+
+SCENARIO = Scenario(
+    name=NAME, title="Sun, Zhou, Zou & Ding 2011: leader-follower UAVs, consensus information filters, "
+    "receding-horizon planning", Config=Config, Params=Params, init=init, step=step, reduce=reduce,
+    outputs=outputs, timeseries=timeseries, timeseries_outputs=timeseries_outputs, check_params=check_params)
+default_params = SCENARIO.default_params

@@ -1,11 +1,11 @@
-"""Six UUVs tracking a manoeuvring (CV ↔ CT) target by consensus IMM-UKF — Ren & Lv 2017 (seed 001).
+"""Six UUVs tracking a manoeuvring (CV ↔ CT) target by consensus IMM-UKF — Ren & Lv 2017.
 
 Six stationary UUVs with range–bearing sonars track a target that switches between
 constant velocity (CV) and a coordinated turn (CT) at turn rate ω, either on a fixed
 schedule (CV, then CT over ``[ct_start, ct_stop)``, then CV — as in the paper's figures) or
 as a Markov chain drawn per run (``Config.schedule = "markov"``). Each UUV runs, per filter:
 
-* ``"imm"`` — the consensus IMM-UKF of seed 001 (CV and CT modes,
+* ``"imm"`` — the consensus IMM-UKF of Ren & Lv 2017 (CV and CT modes,
   :func:`mcjax.filters.consensus_imm.consensus_imm_ukf_step`);
 * ``"cv"`` / ``"ct"`` — the single-model baselines: consensus UKF with the CV model only, or
   the CT model only (the same step with one mode, whose IMM cycle reduces to a UKF).
@@ -21,7 +21,6 @@ listed in ``configs/ren2017.toml``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import jax
@@ -29,16 +28,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax import graph, metrics
+from mcjax.contract import Output, Param, Scenario, Setting, config_type, params_type
 from mcjax.filters.consensus_imm import LIKELIHOODS, consensus_imm_ukf_step
-from mcjax.filters.gaussian import Unscented
+from mcjax.filters.gaussian import Unscented, first_step_model
 from mcjax.filters.imm import IMMState
 from mcjax.models.motion import ct_matrix, cv_matrices, cv_process_noise
-from mcjax.models.sensors import measure_range_bearing, range_bearing
+from mcjax.models.sensors import range_bearing
 from mcjax.numerics import matvec, spd_inverse
-from mcjax.scenarios.common import DTYPES, agents, cast, check_config, choices, make_params
+from mcjax.scenarios import kit
 
 NAME = "uuv_imm"
-PAPER = "Ren, Lv 2017 (seed 001)"
 
 #: Filters: name → the target modes it models (0 = CV, 1 = CT).
 FILTER_MODES = {"imm": (0, 1), "cv": (0,), "ct": (1,)}
@@ -47,157 +46,89 @@ SCHEDULES = ("fixed", "markov")
 WEIGHT_KINDS = ("metropolis", "max_degree")
 CV, CT = 0, 1
 
-
-@dataclass(frozen=True)
-class Config:
-    """Everything that fixes shapes or the compiled program (changing it recompiles)."""
-
-    n_agents: int = 6
-    n_steps: int = 100
-    filters: tuple[str, ...] = FILTER_KINDS
-    consensus_steps: int = 3             # L, consensus iterations per step and mode (ours)
-    consensus_weights: str = "metropolis"  # paper: Metropolis; "max_degree" offered
-    likelihood: str = "fused"            # "fused" (ours) | "local" (Li & Jia): see consensus_imm
-    schedule: str = "fixed"              # "fixed": CV, CT on [ct_start, ct_stop), CV | "markov"
-    divergence_threshold: float = 100.0  # m — our choice
-    warmup_steps: int = 5
-    dtype: str = "float64"
-    ut_alpha: float = 1.0                # unscented transform (α, β, κ) — ours
-    ut_beta: float = 2.0
-    ut_kappa: float = 0.0
-
-    def __post_init__(self):
-        check_config(self, FILTER_KINDS, min_steps=2)
-        if not isinstance(self.consensus_steps, int) or self.consensus_steps < 0:
-            raise ValueError(f"consensus_steps must be an integer >= 0; got {self.consensus_steps!r}")
-        for name, value, allowed in (("consensus_weights", self.consensus_weights, WEIGHT_KINDS),
-                                     ("likelihood", self.likelihood, LIKELIHOODS),
-                                     ("schedule", self.schedule, SCHEDULES)):
-            if value not in allowed:
-                raise ValueError(f"{name} must be {choices(allowed)}; got {value!r}")
-        if not self.ut_alpha > 0 or not self.ut_beta >= 0 or not self.ut_kappa > -4:
-            raise ValueError("ut_alpha must be > 0, ut_beta >= 0 and ut_kappa > -4 (the state has 4 components); "
-                             f"got ({self.ut_alpha}, {self.ut_beta}, {self.ut_kappa})")
-
-    def unscented(self) -> Unscented:
-        return Unscented(self.ut_alpha, self.ut_beta, self.ut_kappa)
+#: Config: everything that fixes shapes or the compiled program (changing it recompiles).
+Config = config_type("Config", dict(
+    **kit.common_settings(filter_kinds=FILTER_KINDS, n_agents=6, n_steps=100, min_steps=2, warmup_steps=5,
+                      divergence_threshold=100.0),
+    consensus_steps=Setting(3, "consensus iterations L per step and mode (ours)", low=0, integer=True),
+    consensus_weights=Setting("metropolis", "consensus weights (paper: Metropolis)", choices=WEIGHT_KINDS),
+    likelihood=Setting("fused", "mode likelihoods: fused by consensus (ours) or local (Li & Jia)",
+                       choices=LIKELIHOODS),
+    schedule=Setting("fixed", "target modes: fixed = CV, CT on [ct_start, ct_stop), CV; markov = drawn "
+                     "per run from target_transition", choices=SCHEDULES),
+    ut_alpha=Setting(1.0, "unscented transform alpha (ours)", low=0, low_open=True),
+    ut_beta=Setting(2.0, "unscented transform beta (ours)", low=0),
+    ut_kappa=Setting(0.0, "unscented transform kappa (ours; > -4, the state has 4 components)", low=-4,
+                     low_open=True),
+), __name__, kit.check_common)
 
 
-
-#: Allowed values of each Config field, as shown by ``mcjax list``.
-CONFIG_ALLOWED = {
-    "n_agents": "integer >= 1", "n_steps": "integer >= 2",
-    "filters": "non-empty subset of " + ", ".join(FILTER_KINDS),
-    "consensus_steps": "integer >= 0", "consensus_weights": choices(WEIGHT_KINDS),
-    "likelihood": choices(LIKELIHOODS), "schedule": choices(SCHEDULES),
-    "divergence_threshold": "> 0 (m)", "warmup_steps": "integer in [0, n_steps)",
-    "dtype": choices(DTYPES), "ut_alpha": "> 0", "ut_beta": ">= 0",
-    "ut_kappa": "> -4",
-}
+def unscented(cfg) -> Unscented:
+    return Unscented(cfg.ut_alpha, cfg.ut_beta, cfg.ut_kappa)
 
 
-class Params(NamedTuple):
-    """Per-run values a sweep may vary without recompiling. Per-agent fields accept a scalar
-    (same for every UUV) or one value per UUV."""
-
-    dt: jax.Array                  # s, sampling = consensus interval (ours: 1 s)
-    comm_radius: jax.Array         # m, scalar or (n,) (ours: 450 m → a ring)
-    sensing_radius: jax.Array      # m, scalar or (n,) (ours: 10 km — every UUV always measures)
-    sigma_range: jax.Array         # m (paper: R = diag[5, 0.5]; ours: 5 = σ_r² in m²)
-    sigma_bearing: jax.Array       # rad (ours: 0.5 = σ_θ² in deg²)
-    turn_rate: jax.Array           # rad/s, ω of the CT mode (ours: 3°/s)
-    model_turn_rate_error: jax.Array  # rad/s, the filters' CT model uses ω + this (0: known ω)
-    sigma_accel: jax.Array         # m/s², the filters' process noise (both modes)
-    target_sigma_accel: jax.Array  # m/s², the true target's acceleration noise
-    ct_start: jax.Array            # step the CT manoeuvre starts (schedule "fixed")
-    ct_stop: jax.Array             # step it ends (exclusive)
-    target_transition: jax.Array   # (2, 2) true mode chain P(j | l) (schedule "markov")
-    imm_transition: jax.Array      # (2, 2) the IMM's mode transition matrix
-    mu0: jax.Array                 # (2,) IMM's initial mode probabilities [CV, CT]
-    uuv_positions: jax.Array       # (n, 2) m, the stationary UUVs
-    target_x0: jax.Array           # (4,) [x, ẋ, y, ẏ] (paper: [0 m, 5 m/s, 0 m, 5 m/s])
-    p0_diag: jax.Array             # (4,) prior variances at the first measurement (ours)
-    alive: jax.Array               # (n,) 1 = alive, 0 = dropped out (masked, never removed)
-
-
-PER_AGENT_FIELDS = ("comm_radius", "sensing_radius", "alive")
-
-PARAM_UNITS = {
-    "dt": "s", "comm_radius": "m", "sensing_radius": "m", "sigma_range": "m", "sigma_bearing": "rad",
-    "turn_rate": "rad/s", "model_turn_rate_error": "rad/s", "sigma_accel": "m/s^2",
-    "target_sigma_accel": "m/s^2", "ct_start": "steps", "ct_stop": "steps", "target_transition": "-",
-    "imm_transition": "-", "mu0": "-", "uuv_positions": "m", "target_x0": "m, m/s",
-    "p0_diag": "m^2, (m/s)^2", "alive": "0/1",
-}
-
-_POS = (1e-300, np.inf, "> 0")
-_NONNEG = (0.0, np.inf, ">= 0")
-_PROB = (0.0, 1.0, "in [0, 1]")
-#: Allowed values of each Params field: (low, high, text), checked by sweep specs.
-PARAM_RANGES = {
-    "dt": _POS, "comm_radius": _NONNEG, "sensing_radius": _NONNEG, "sigma_range": _POS,
-    "sigma_bearing": _POS, "turn_rate": (-1.0, 1.0, "in [-1, 1] rad/s"),
-    "model_turn_rate_error": (-1.0, 1.0, "in [-1, 1] rad/s"), "sigma_accel": _POS,
-    "target_sigma_accel": _NONNEG, "ct_start": _NONNEG, "ct_stop": _NONNEG,
-    "target_transition": _PROB, "imm_transition": _PROB, "mu0": _PROB, "p0_diag": _POS,
-    "alive": (0.0, 1.0, "0 or 1"),
-}
-
-
-def check_params(cfg: Config, values: dict) -> list[tuple[str, str]]:
-    """Checks across fields: ``[(field, what is allowed), …]`` for the bad ones."""
-    bad = []
-    d = default_params(cfg)
-    for name in ("target_transition", "imm_transition"):
-        m = np.asarray(values.get(name, getattr(d, name)), np.float64)
-        if m.shape[-2:] != (2, 2) or np.any(np.abs(m.sum(-1) - 1.0) > 1e-9):
-            bad.append((name, "a 2x2 matrix [[P(CV|CV), P(CT|CV)], [P(CV|CT), P(CT|CT)]] whose rows sum to 1"))
-    mu0 = np.asarray(values.get("mu0", d.mu0), np.float64)
-    if mu0.shape[-1:] != (2,) or np.any(np.abs(mu0.sum(-1) - 1.0) > 1e-9):
-        bad.append(("mu0", "two probabilities [CV, CT] that sum to 1"))
-    start = np.asarray(values.get("ct_start", d.ct_start), np.float64)
-    stop = np.asarray(values.get("ct_stop", d.ct_stop), np.float64)
-    if np.any(stop < start):
-        bad.append(("ct_stop", "a step >= ct_start"))
-    pos = np.asarray(values.get("uuv_positions", d.uuv_positions), np.float64)
-    if pos.shape[-2:] != (cfg.n_agents, 2):
-        bad.append(("uuv_positions", f"an (n_agents = {cfg.n_agents}) x 2 list of [x, y] in m"))
-    return bad
-
-
-def default_positions(n: int) -> np.ndarray:
+def default_positions(cfg) -> np.ndarray:
     """Our UUV layout (the paper gives none): ``n`` UUVs on a circle of radius 400 m about
     (100 m, 200 m), the middle of the default target path, so neighbours on the circle are
     400 m apart for n = 6 and the default 450 m comm radius links each UUV to its two ring
     neighbours only (a ring: consensus needs several hops to spread information)."""
+    n = cfg.n_agents
     angles = 2 * np.pi * np.arange(n) / max(n, 1)
     return np.stack([100.0 + 400.0 * np.cos(angles), 200.0 + 400.0 * np.sin(angles)], -1)
 
 
-def default_params(cfg: Config = Config(), **overrides) -> Params:
-    """The paper's set-up (seed 001 §4) with our choices for what it leaves open, as numpy arrays."""
-    n = cfg.n_agents
-    values = dict(
-        dt=1.0,
-        comm_radius=450.0,
-        sensing_radius=10e3,
-        sigma_range=float(np.sqrt(5.0)),
-        sigma_bearing=float(np.deg2rad(np.sqrt(0.5))),
-        turn_rate=float(np.deg2rad(3.0)),
-        model_turn_rate_error=0.0,
-        sigma_accel=0.05,
-        target_sigma_accel=0.01,
-        ct_start=float(cfg.n_steps // 3),
-        ct_stop=float(2 * cfg.n_steps // 3),
-        target_transition=np.array([[0.95, 0.05], [0.05, 0.95]]),
-        imm_transition=np.array([[0.95, 0.05], [0.05, 0.95]]),
-        mu0=np.array([0.5, 0.5]),
-        uuv_positions=default_positions(n),
-        target_x0=np.array([0.0, 5.0, 0.0, 5.0]),
-        p0_diag=np.array([10.0**2, 1.0, 10.0**2, 1.0]),
-        alive=np.ones(n),
-    )
-    return make_params(Params, values, overrides)
+_POS = dict(low=0.0, low_open=True)
+_NONNEG = dict(low=0.0)
+_PROB = dict(low=0.0, high=1.0)
+_CHAIN = np.array([[0.95, 0.05], [0.05, 0.95]])
+#: Params: per-run values a sweep may vary without recompiling (Ren & Lv 2017, sec. 4, and
+#: our choices where it is silent: configs/ren2017.toml says which).
+Params = params_type("Params", dict(
+    dt=Param(1.0, "s", "sampling = consensus interval (ours)", **_POS),
+    comm_radius=Param(450.0, "m", "communication radius (ours: 450 m makes a ring)", **_NONNEG, per_agent=True),
+    sensing_radius=Param(10e3, "m", "sonar range (ours: every UUV always measures)", **_NONNEG, per_agent=True),
+    sigma_range=Param(float(np.sqrt(5.0)), "m", "range noise std (paper R = diag[5, 0.5] read as variances)",
+                      **_POS),
+    sigma_bearing=Param(float(np.deg2rad(np.sqrt(0.5))), "rad", "bearing noise std (0.5 deg^2 variance)", **_POS),
+    turn_rate=Param(float(np.deg2rad(3.0)), "rad/s", "omega of the CT mode (ours: 3 deg/s)", low=-1.0, high=1.0),
+    model_turn_rate_error=Param(0.0, "rad/s", "the filters' CT model uses omega + this (0: known omega)",
+                                low=-1.0, high=1.0),
+    sigma_accel=Param(0.05, "m/s^2", "the filters' process-noise acceleration std (both modes)", **_POS),
+    target_sigma_accel=Param(0.01, "m/s^2", "the true target's acceleration noise std", **_NONNEG),
+    ct_start=Param(lambda cfg: float(cfg.n_steps // 3), "steps", "step the CT manoeuvre starts (schedule fixed)",
+                   **_NONNEG),
+    ct_stop=Param(lambda cfg: float(2 * cfg.n_steps // 3), "steps", "step it ends, exclusive (schedule fixed)",
+                  **_NONNEG),
+    target_transition=Param(_CHAIN, "", "the true mode chain P(j | l), rows from CV, CT (schedule markov)",
+                            **_PROB, shape=(2, 2)),
+    imm_transition=Param(_CHAIN, "", "the IMM's mode transition matrix", **_PROB, shape=(2, 2)),
+    mu0=Param(np.array([0.5, 0.5]), "", "the IMM's initial mode probabilities [CV, CT]", **_PROB, shape=(2,)),
+    uuv_positions=Param(default_positions, "m", "the stationary UUVs (ours: a hexagon)", shape=("n", 2)),
+    target_x0=Param(np.array([0.0, 5.0, 0.0, 5.0]), "m, m/s", "initial target state [x, vx, y, vy] (paper)",
+                    shape=(4,)),
+    p0_diag=Param(np.array([10.0**2, 1.0, 10.0**2, 1.0]), "m^2, (m/s)^2",
+                  "prior variances at the first measurement (ours)", **_POS, shape=(4,)),
+    alive=Param(lambda cfg: np.ones(cfg.n_agents), "", "1 = alive, 0 = dropped out (masked, never removed)",
+                choices=(0, 1), per_agent=True),
+), __name__)
+
+
+def check_params(cfg, values: dict) -> list[tuple[str, str]]:
+    """Checks across fields: ``[(field, what is allowed), …]`` for the bad ones."""
+    bad = []
+    table = Params.TABLE
+    for name in ("target_transition", "imm_transition"):
+        m = np.asarray(values.get(name, table[name].default), np.float64)
+        if np.any(np.abs(m.sum(-1) - 1.0) > 1e-9):
+            bad.append((name, "a 2x2 matrix [[P(CV|CV), P(CT|CV)], [P(CV|CT), P(CT|CT)]] whose rows sum to 1"))
+    mu0 = np.asarray(values.get("mu0", table["mu0"].default), np.float64)
+    if np.any(np.abs(mu0.sum(-1) - 1.0) > 1e-9):
+        bad.append(("mu0", "two probabilities [CV, CT] that sum to 1"))
+    start = np.asarray(values.get("ct_start", table["ct_start"].default_value(cfg)), np.float64)
+    stop = np.asarray(values.get("ct_stop", table["ct_stop"].default_value(cfg)), np.float64)
+    if np.any(stop < start):
+        bad.append(("ct_stop", "a step >= ct_start"))
+    return bad
 
 
 class State(NamedTuple):
@@ -219,12 +150,12 @@ class Record(NamedTuple):
 
 
 
-def init(cfg: Config, params: Params, key) -> State:
+def init(cfg, params, key) -> State:
     """State before step 0: the target at ``target_x0`` in CV, and every UUV's filters at the
     prior (the true initial state, covariance ``diag(p0_diag)``; IMM mode probabilities ``mu0``)."""
     del key
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
-    params = cast(params, dtype)
+    params = kit.cast(params, dtype)
     x0 = params.target_x0
     P0 = jnp.diag(params.p0_diag)
     states = []
@@ -236,9 +167,9 @@ def init(cfg: Config, params: Params, key) -> State:
     return State(jnp.asarray(0, jnp.int32), x0, jnp.asarray(CV, jnp.int32), tuple(states))
 
 
-def _true_mode(cfg: Config, params: Params, state: State, key):
+def _true_mode(cfg, params, state: State, key):
     """The mode of the target's transition into step t: the fixed schedule (CT on
-    ``[ct_start, ct_stop)``) or one draw of the Markov chain ``target_transition`` (seed 001)."""
+    ``[ct_start, ct_stop)``) or one draw of the Markov chain ``target_transition`` (Ren & Lv 2017)."""
     if cfg.schedule == "fixed":
         t = state.t.astype(params.ct_start.dtype)
         return ((t >= params.ct_start) & (t < params.ct_stop)).astype(jnp.int32)
@@ -246,15 +177,15 @@ def _true_mode(cfg: Config, params: Params, state: State, key):
     return jax.random.categorical(key, logp).astype(jnp.int32)
 
 
-def step(cfg: Config, params: Params, state: State, key) -> tuple[State, Record]:
-    """One step: move the target (CV or CT, algorithms.md §4), measure range and bearing at
-    every UUV, build the comm graph, run every filter's consensus IMM-UKF step (seed 001,
-    algorithms.md §3), record errors.
+def step(cfg, params, state: State, key) -> tuple[State, Record]:
+    """One step: move the target (CV or CT, docs/equations.md), measure range and bearing at
+    every UUV, build the comm graph, run every filter's consensus IMM-UKF step (Ren & Lv 2017,
+    docs/equations.md), record errors.
 
     Step 0 is the first measurement time: nothing moves and the filters update their prior
-    without predicting or mixing (algorithms.md §2)."""
+    without predicting or mixing (docs/equations.md)."""
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
-    params = cast(params, dtype)
+    params = kit.cast(params, dtype)
     first = state.t == 0
     k_mode, k_target, k_meas = jax.random.split(key, 3)
     dt = params.dt
@@ -266,16 +197,15 @@ def step(cfg: Config, params: Params, state: State, key) -> tuple[State, Record]
     target = jnp.where(first, state.target, matvec(F_true, state.target) + matvec(G, w))
 
     sensors = jnp.asarray(params.uuv_positions, dtype)
-    alive = agents(params.alive, n, dtype) > 0.5
-    z = jax.vmap(measure_range_bearing, in_axes=(0, None, 0, None, None, 0, 0))(
-        jax.random.split(k_meas, n), target, sensors, params.sigma_range, params.sigma_bearing,
-        agents(params.sensing_radius, n, dtype), alive)
-    adj = graph.adjacency(sensors, agents(params.comm_radius, n, dtype), alive)
+    alive = kit.agents(params.alive, n, dtype) > 0.5
+    z = kit.team_measurements(k_meas, target, sensors, params.sigma_range, params.sigma_bearing,
+                              kit.agents(params.sensing_radius, n, dtype), alive)
+    adj = graph.adjacency(sensors, kit.agents(params.comm_radius, n, dtype), alive)
 
     Q = cv_process_noise(dt, params.sigma_accel, dtype)
-    F_model = jnp.stack([F_cv, ct_matrix(dt, params.turn_rate + params.model_turn_rate_error, dtype)])
-    F_model = jnp.where(first, jnp.eye(4, dtype=dtype), F_model)
-    Q_model = jnp.where(first, 0.0, jnp.stack([Q, Q]))
+    F_model, Q_model = first_step_model(
+        first, jnp.stack([F_cv, ct_matrix(dt, params.turn_rate + params.model_turn_rate_error, dtype)]),
+        jnp.stack([Q, Q]))
     R = jnp.diag(jnp.stack([params.sigma_range**2, params.sigma_bearing**2]))
     angle_mask = jnp.array([False, True])
 
@@ -289,7 +219,7 @@ def step(cfg: Config, params: Params, state: State, key) -> tuple[State, Record]
         fnew, (x, P) = consensus_imm_ukf_step(
             fstate, transition, F_model[modes], Q_model[modes], z, sensors, range_bearing, R, adj,
             steps=cfg.consensus_steps, weights=cfg.consensus_weights, likelihood=cfg.likelihood,
-            ut=cfg.unscented(), angle_mask=angle_mask)
+            ut=unscented(cfg), angle_mask=angle_mask)
         new_filters.append(fnew)
         err.append(metrics.position_error(x, target))
         ne.append(metrics.nees(x, spd_inverse(P), target))
@@ -308,25 +238,26 @@ def step(cfg: Config, params: Params, state: State, key) -> tuple[State, Record]
     return State(state.t + 1, target, mode, tuple(new_filters)), rec
 
 
-#: Per-run summary fields: (name, per_filter, description). Besides these, per UUV i
-#: (numbered from 1, as in the paper's Table 1): ``uuv{i}_max_error``, ``uuv{i}_min_error``,
-#: ``uuv{i}_mean_error`` per filter — the max / min / mean over the steps after warm-up of
-#: that UUV's position error.
-SUMMARY_FIELDS = (
-    ("rmse", True, "position RMSE over UUVs and steps after warm-up, m"),
-    ("mean_error", True, "mean position error over UUVs and steps after warm-up, m"),
-    ("max_error", True, "largest position error of any UUV after warm-up, m"),
-    ("final_error", True, "mean position error over UUVs at the last step, m"),
-    ("error_cv", True, "mean position error over UUVs and steps (after warm-up) while the target is in CV, m"),
-    ("error_ct", True, "the same while the target turns (CT), m (NaN if it never does)"),
-    ("anees", True, "mean full-state NEES over UUVs and steps after warm-up (4 dof)"),
-    ("diverged", True, "error above divergence_threshold after warm-up, or non-finite"),
-    ("nonfinite", True, "some estimate went NaN/inf"),
-    *metrics.GRAPH_SUMMARY_FIELDS,
-    ("ct_steps", False, "steps the target spent turning (CT)"),
-    ("mode_accuracy", False, "fraction of (UUV, step) after warm-up where the IMM's likelier mode is the true one"),
-    ("mu_ct_during_ct", False, "the IMM's mean CT probability while the target turns"),
-)
+def outputs(cfg) -> dict[str, Output]:
+    """The per-run summary fields (:func:`reduce`): the common error summary, the errors
+    while the target flies straight and while it turns, and per UUV i (numbered from 1, as
+    in the paper's Table 1) the max / min / mean over the steps after warm-up of its own
+    position error."""
+    per_uuv = {f"uuv{i + 1}_{s}_error": Output("m", f"{s} over the steps after warm-up of UUV {i + 1}'s "
+                                               "position error (Table 1)")
+               for i in range(cfg.n_agents) for s in ("max", "min", "mean")}
+    return dict(
+        **kit.error_outputs("m"),
+        error_cv=Output("m", "mean position error over alive UUVs and steps after warm-up while the target is in CV"),
+        error_ct=Output("m", "the same while the target turns (CT); NaN if it never does"),
+        anees=Output("", "mean full-state NEES over alive UUVs and steps after warm-up (4 dof)"),
+        **per_uuv,
+        **kit.GRAPH_OUTPUTS,
+        ct_steps=Output("steps", "steps the target spent turning (CT)", False),
+        mode_accuracy=Output("", "fraction of (UUV, step) after warm-up where the IMM's likelier mode is the "
+                             "true one", False),
+        mu_ct_during_ct=Output("", "the IMM's mean CT probability while the target turns", False),
+    )
 
 
 def _masked_mean(values, mask):
@@ -334,62 +265,63 @@ def _masked_mean(values, mask):
     return jnp.sum(mask * values) / jnp.sum(mask)
 
 
-def summarize(cfg: Config, records: Record, params: Params | None = None) -> dict:
-    """Reduce one run's records (stacked over time) to scalars (algorithms.md §8; seed 001 Table 1)."""
+def reduce(cfg, records: Record, params) -> dict:
+    """Reduce one run's records (stacked over time) to the fields of :func:`outputs`."""
     w = cfg.warmup_steps
     T, n = records.error.shape[0], cfg.n_agents
     dtype = records.error.dtype
-    alive = metrics.alive_weights(None if params is None else params.alive, n, dtype)
+    alive = metrics.alive_weights(params.alive, n, dtype)
     after = jnp.arange(T) >= w
     in_ct = records.mode == CT
-    out = {name: [] for name, per_filter, _ in SUMMARY_FIELDS if per_filter}
+    out = kit.error_summary(records.error, alive, w, cfg.divergence_threshold)
+    extra = {k: [] for k in ("error_cv", "error_ct", "anees")}
     per_uuv = {f"uuv{i + 1}_{s}_error": [] for i in range(n) for s in ("max", "min", "mean")}
     for f in range(len(cfg.filters)):
         e = records.error[:, f, :]
-        out["rmse"].append(metrics.rmse(e, w, alive))
-        out["mean_error"].append(metrics.mean_over(e, w, alive))
-        out["max_error"].append(jnp.max(jnp.where(after[:, None] & (alive > 0), e, -jnp.inf)))
-        out["final_error"].append(metrics.mean_over(e[-1:], 0, alive))
-        out["error_cv"].append(_masked_mean(e, (after & ~in_ct)[:, None] * alive))
-        out["error_ct"].append(_masked_mean(e, (after & in_ct)[:, None] * alive))
-        out["anees"].append(metrics.mean_over(records.nees[:, f, :], w, alive))
-        out["diverged"].append(metrics.diverged(e, cfg.divergence_threshold, w, alive))
-        out["nonfinite"].append(metrics.nonfinite(e))
+        extra["error_cv"].append(_masked_mean(e, (after & ~in_ct)[:, None] * alive))
+        extra["error_ct"].append(_masked_mean(e, (after & in_ct)[:, None] * alive))
+        extra["anees"].append(metrics.mean_over(records.nees[:, f, :], w, alive))
         for i in range(n):
             ei = e[:, i]
             per_uuv[f"uuv{i + 1}_max_error"].append(jnp.max(jnp.where(after, ei, -jnp.inf)))
             per_uuv[f"uuv{i + 1}_min_error"].append(jnp.min(jnp.where(after, ei, jnp.inf)))
             per_uuv[f"uuv{i + 1}_mean_error"].append(jnp.sum(jnp.where(after, ei, 0.0)) / jnp.sum(after))
-    summary = {k: jnp.stack(v) for k, v in {**out, **per_uuv}.items()}
-    lam = records.lambda2
+    out.update({k: jnp.stack(v) for k, v in {**extra, **per_uuv}.items()})
     likelier_ct = records.mu_ct > 0.5
-    summary.update(
-        **metrics.graph_summary(lam),
+    out.update(
+        **metrics.graph_summary(records.lambda2),
         ct_steps=jnp.sum(in_ct),
         mode_accuracy=jnp.where(jnp.any(jnp.isnan(records.mu_ct)), jnp.nan,
                                 _masked_mean((likelier_ct == in_ct[:, None]).astype(dtype), after[:, None] * alive)),
         mu_ct_during_ct=_masked_mean(records.mu_ct, (after & in_ct)[:, None] * alive),
     )
-    return summary
+    return out
 
 
-#: Per-step series written to ``OUT/timeseries/`` when a sweep spec sets ``timeseries = true``.
-TIMESERIES_FIELDS = (
-    ("error_mean", True, "mean position error over alive UUVs, m"),
-    ("error_max", True, "largest position error of any alive UUV, m"),
-    ("mode", False, "the target's true mode (0 = CV, 1 = CT)"),
-    ("mu_ct", False, "the IMM's CT probability, mean over alive UUVs (NaN without 'imm')"),
-    ("lambda2", False, "algebraic connectivity of the comm graph"),
-)
+def timeseries_outputs(cfg) -> dict[str, Output]:
+    """The per-step series (:func:`timeseries`), written when a sweep asks for them."""
+    return dict(
+        **kit.error_series_outputs("m"),
+        mode=Output("", "the target's true mode (0 = CV, 1 = CT)", False),
+        mu_ct=Output("", "the IMM's CT probability, mean over alive UUVs (NaN without 'imm')", False),
+        lambda2=Output("", "algebraic connectivity of the comm graph", False),
+    )
 
 
-def timeseries(cfg: Config, records: Record, params: Params | None = None) -> dict:
+def timeseries(cfg, records: Record, params) -> dict:
     """A few per-step series of one run: (T, F) per filter, (T,) otherwise."""
     e = records.error
-    alive = metrics.alive_weights(None if params is None else params.alive, cfg.n_agents, e.dtype)
+    alive = metrics.alive_weights(params.alive, cfg.n_agents, e.dtype)
     return dict(
         **metrics.error_series(e, alive),
         mode=records.mode,
         mu_ct=jnp.sum(records.mu_ct * alive, -1) / jnp.maximum(jnp.sum(alive), 1.0),
         lambda2=records.lambda2,
     )
+
+
+SCENARIO = Scenario(
+    name=NAME, title="Ren & Lv 2017: six UUVs track a manoeuvring target by consensus IMM-UKF",
+    Config=Config, Params=Params, init=init, step=step, reduce=reduce, outputs=outputs,
+    timeseries=timeseries, timeseries_outputs=timeseries_outputs, check_params=check_params)
+default_params = SCENARIO.default_params

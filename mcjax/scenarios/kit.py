@@ -1,0 +1,121 @@
+"""The scenario kit: pieces every scenario shares, so a scenario holds only its own system.
+
+* :func:`common_settings` — the Config fields every tracking scenario has (agents, steps,
+  filters, warm-up, divergence threshold, dtype) as :class:`~mcjax.contract.Setting` s;
+* :func:`error_outputs` / :func:`error_summary` — the per-filter error summary of a run;
+* :func:`error_series_outputs` — declarations of :func:`mcjax.metrics.error_series`;
+* :data:`GRAPH_OUTPUTS` — the comm-graph statistics of :func:`mcjax.metrics.graph_summary`;
+* :func:`team_measurements` — every agent's range–bearing measurement of the target;
+* :func:`cast`, :func:`agents` — Params as arrays of the Config's dtype.
+
+**Dropped-out agents** (``alive = 0``) count in no team statistic: RMSE, mean, final and
+largest error and the divergence rule run over the alive agents only (a run with no alive
+agent gets NaN). Per-agent columns (a named agent's own error) report that agent regardless.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from mcjax import metrics
+from mcjax.contract import Output, Setting
+from mcjax.models.sensors import measure_range_bearing
+
+DTYPES = ("float64", "float32")
+
+
+def common_settings(*, filter_kinds: tuple[str, ...], filters: tuple[str, ...] | None = None, n_agents: int,
+                    n_steps: int, min_steps: int = 1, warmup_steps: int, divergence_threshold: float,
+                    error_unit: str = "m") -> dict[str, Setting]:
+    """The Config fields every scenario shares, with this scenario's defaults: ``n_agents``,
+    ``n_steps`` (≥ ``min_steps``), ``filters`` (from ``filter_kinds``; default all of them),
+    ``divergence_threshold`` (in ``error_unit``), ``warmup_steps`` and ``dtype``. Check
+    ``warmup_steps < n_steps`` with :func:`check_common`."""
+    return dict(
+        n_agents=Setting(n_agents, "number of agents", low=1, integer=True),
+        n_steps=Setting(n_steps, "simulated steps", "steps", low=min_steps, integer=True),
+        filters=Setting(tuple(filters or filter_kinds), "filters run side by side, in display order",
+                        choices=tuple(filter_kinds), many=True),
+        divergence_threshold=Setting(divergence_threshold, "a run diverged if an alive agent's error "
+                                     "exceeds this after warm-up (or went non-finite)", error_unit,
+                                     low=0, low_open=True),
+        warmup_steps=Setting(warmup_steps, "first steps left out of the error statistics", "steps",
+                             low=0, integer=True),
+        dtype=Setting("float64", "float type of the simulation", choices=DTYPES),
+    )
+
+
+def check_common(cfg) -> None:
+    """The check across the common fields: ``warmup_steps < n_steps``."""
+    if cfg.warmup_steps >= cfg.n_steps:
+        raise ValueError(f"warmup_steps must be an integer in [0, n_steps = {cfg.n_steps}); got {cfg.warmup_steps}")
+
+
+def cast(params, dtype):
+    """Every Params field as a JAX array of ``dtype`` (the Config's float type)."""
+    return jax.tree.map(lambda a: jnp.asarray(a, dtype), params)
+
+
+def agents(p, n: int, dtype):
+    """A scalar-or-per-agent Params value as an (n,) array."""
+    return jnp.broadcast_to(jnp.asarray(p, dtype), (n,))
+
+
+def team_measurements(key, target, sensors, sigma_range, sigma_bearing, sensing_radius, alive):
+    """Every agent's noisy range–bearing measurement of ``target`` (n, 2), NaN where the
+    target is out of the agent's ``sensing_radius`` (n,) or the agent is not ``alive`` (n,)
+    — :func:`mcjax.models.sensors.measure_range_bearing` with one key per agent."""
+    keys = jax.random.split(key, sensors.shape[0])
+    return jax.vmap(measure_range_bearing, in_axes=(0, None, 0, None, None, 0, 0))(
+        keys, target, sensors, sigma_range, sigma_bearing, sensing_radius, alive)
+
+
+def error_outputs(unit: str = "m", what: str = "position error") -> dict[str, Output]:
+    """Declarations of :func:`error_summary`'s fields (``what`` in ``unit``, over the alive agents)."""
+    return dict(
+        rmse=Output(unit, f"RMS {what} over alive agents and steps after warm-up", True, "error"),
+        mean_error=Output(unit, f"mean {what} over alive agents and steps after warm-up"),
+        final_error=Output(unit, f"mean {what} over alive agents at the last step"),
+        max_error=Output(unit, f"largest {what} of any alive agent after warm-up"),
+        diverged=Output("", f"{what} above divergence_threshold after warm-up, or non-finite", True, "divergence"),
+        nonfinite=Output("", "some estimate went NaN or infinite", True, "nonfinite"),
+    )
+
+
+def error_summary(errors, alive, warmup: int, threshold) -> dict:
+    """Per-filter error statistics of one run: ``errors`` (T, F, n) for F filters and n
+    agents, ``alive`` (n,) 0/1 weights. Returns each field of :func:`error_outputs` as (F,)."""
+    T = errors.shape[0]
+    after = (jnp.arange(T) >= warmup)[:, None] & (alive > 0)
+    any_alive = jnp.any(alive > 0)
+    out = {k: [] for k in error_outputs()}
+    for f in range(errors.shape[1]):
+        e = errors[:, f, :]
+        out["rmse"].append(metrics.rmse(e, warmup, alive))
+        out["mean_error"].append(metrics.mean_over(e, warmup, alive))
+        out["final_error"].append(metrics.mean_over(e[-1:], 0, alive))
+        out["max_error"].append(jnp.max(jnp.where(after, e, -jnp.inf)))
+        out["diverged"].append(metrics.diverged(e, threshold, warmup, alive))
+        out["nonfinite"].append(metrics.nonfinite(e))
+    stats = {k: jnp.stack(v) for k, v in out.items()}
+    for k in ("rmse", "mean_error", "final_error", "max_error"):
+        stats[k] = jnp.where(any_alive, stats[k], jnp.nan)
+    return stats
+
+
+#: Declarations of :func:`mcjax.metrics.graph_summary`'s fields.
+GRAPH_OUTPUTS = dict(
+    lambda2_min=Output("", "smallest algebraic connectivity of the comm graph over the run", False,
+                       "connectivity_min"),
+    lambda2_mean=Output("", "mean algebraic connectivity of the comm graph", False, "connectivity_mean"),
+    disconnected_steps=Output("steps", "steps with lambda2 <= 1e-9 (comm graph disconnected)", False,
+                              "disconnected_steps"),
+)
+
+
+def error_series_outputs(unit: str = "m", what: str = "position error") -> dict[str, Output]:
+    """Declarations of the per-step series of :func:`mcjax.metrics.error_series`."""
+    return dict(error_mean=Output(unit, f"mean {what} over alive agents"),
+                error_max=Output(unit, f"largest {what} of any alive agent"))
+

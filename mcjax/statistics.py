@@ -1,0 +1,103 @@
+"""Confidence intervals used by the report: a mean with its Student-t interval and a
+binomial proportion with its Wilson score interval.
+
+* :func:`t_critical` -- two-sided Student-t critical value ``t((1 + c)/2, dof)``
+  (``scipy.stats.t.ppf``).
+* :func:`mean_ci` -- ``(mean, low, high)``: mean of the finite values and the interval
+  ``mean ± t·sd/√n`` (``sd`` with ``ddof=1``); NaN interval for fewer than two values.
+* :func:`wilson_interval` -- ``(low, high)``: Wilson score interval of ``k/n`` without
+  continuity correction (the closed form with ``scipy.stats.norm.ppf``; the same numbers as
+  ``scipy.stats.binomtest(k, n).proportion_ci(method="wilson")``).
+
+Both return :class:`typing.NamedTuple` records, which compare equal to plain tuples.
+Pure functions of numbers; no pandas, no JAX.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Iterable, NamedTuple
+
+import numpy as np
+from scipy import stats
+
+__all__ = ["CONFIDENCE", "MeanCI", "Interval", "t_critical", "mean_ci", "wilson_interval"]
+
+#: Confidence level of every interval in the report.
+CONFIDENCE = 0.95
+
+
+class MeanCI(NamedTuple):
+    """A mean and its confidence interval (NaN where undefined)."""
+
+    mean: float
+    low: float
+    high: float
+
+
+class Interval(NamedTuple):
+    """A confidence interval of a proportion (NaN where undefined)."""
+
+    low: float
+    high: float
+
+
+def _check_confidence(confidence: float) -> float:
+    if not 0 < confidence < 1:
+        raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
+    return float(confidence)
+
+
+def t_critical(dof: float, confidence: float = CONFIDENCE) -> float:
+    """Two-sided Student-t critical value ``t((1 + confidence)/2, dof)``; NaN for ``dof < 1``
+    (or NaN), the normal quantile for ``dof = inf``."""
+    confidence = _check_confidence(confidence)
+    dof = float(dof)
+    if not dof >= 1:  # also NaN
+        return math.nan
+    return float(stats.t.ppf(0.5 + confidence / 2, dof))
+
+
+def mean_ci(values: Iterable[float], confidence: float = CONFIDENCE) -> MeanCI:
+    """Mean of the finite ``values`` and its Student-t confidence interval.
+
+    Non-finite values (NaN, ±inf) are left out.  No finite value: all NaN; one finite
+    value: the mean with a NaN interval.  Equal values give a zero-width interval.
+    """
+    confidence = _check_confidence(confidence)
+    x = np.asarray(values if hasattr(values, "__len__") else list(values), dtype=float).ravel()
+    x = x[np.isfinite(x)]
+    n = x.size
+    if n == 0:
+        return MeanCI(math.nan, math.nan, math.nan)
+    mean = float(x.mean())
+    if n == 1:
+        return MeanCI(mean, math.nan, math.nan)
+    half = t_critical(n - 1, confidence) * float(x.std(ddof=1)) / math.sqrt(n)
+    return MeanCI(mean, mean - half, mean + half)
+
+
+def wilson_interval(k: int, n: int, confidence: float = CONFIDENCE) -> Interval:
+    """Wilson score interval of the proportion ``k/n`` (no continuity correction).
+
+    ``low = 0`` exactly when ``k = 0`` and ``high = 1`` exactly when ``k = n``;
+    ``n = 0`` gives ``(nan, nan)``.
+
+    Raises:
+        ValueError: unless ``0 <= k <= n``, or ``confidence`` is not in (0, 1).
+    """
+    confidence = _check_confidence(confidence)
+    k, n = int(k), int(n)
+    if n < 0 or k < 0 or k > n:
+        raise ValueError(f"wilson_interval needs 0 <= k <= n, got k={k}, n={n}")
+    if n == 0:
+        return Interval(math.nan, math.nan)
+    z = float(stats.norm.ppf(0.5 + confidence / 2))
+    p = k / n
+    z2n = z * z / n
+    denom = 1 + z2n
+    center = (p + z2n / 2) / denom
+    half = z / denom * math.sqrt(p * (1 - p) / n + z2n / (4 * n))
+    low = 0.0 if k == 0 else max(0.0, center - half)
+    high = 1.0 if k == n else min(1.0, center + half)
+    return Interval(low, high)

@@ -1,0 +1,450 @@
+"""The report's summary table: what a dataset's metadata says about its columns, runs grouped
+by swept axes × filter into statistics, and the table as text, CSV or Markdown.
+
+Everything here is read from the dataset's metadata (the scenario's declarations, see
+:mod:`mcjax.contract`); nothing names a scenario, a filter or a unit.
+
+* :func:`schema` -- the :class:`Schema` of a metadata dict: which column holds the error
+  metric, the divergence flag, the graph statistics (by their declared *role*), the filter
+  display order, the output and parameter declarations.  A dataset without output
+  declarations (written by an older mcjax) is a ValueError.
+* :func:`swept_axes` -- the swept parameter columns (keys of the spec's ``grid`` then
+  ``zip`` tables that are columns).
+* :func:`unit`, :func:`label` -- a column's declared unit and its ``"name [unit]"`` label.
+* :func:`ordered_filters` -- filter values in display order.
+* :func:`summary_columns`, :func:`summarize` -- one row per (swept axes..., filter) with the
+  statistics of :mod:`mcjax.statistics`.
+* :func:`legend_lines` -- one line per metric and axis: its unit and description.
+* :func:`format_table`, :func:`format_number` -- rendering.
+
+Summary columns, with ``<err>`` the error column's name (e.g. ``rmse``), in this order:
+
+* ``n`` -- runs in the group;
+* ``<err>_mean``, ``<err>_ci_low``, ``<err>_ci_high`` -- mean over the runs with a finite
+  error and its 95 % Student-t interval;
+* with a divergence flag: ``n_ok`` (runs not flagged), ``<err>_ok_mean``,
+  ``<err>_ok_ci_low``, ``<err>_ok_ci_high`` (the same over those runs), ``diverged``
+  (flagged runs);
+* ``nonfinite`` -- runs with a non-finite error (the ``nonfinite`` role's column when
+  declared, else counted from the error column);
+* with a divergence flag: ``div_rate`` (``diverged / n``), ``div_ci_low``, ``div_ci_high``
+  (95 % Wilson interval);
+* with graph statistics, named after their columns: ``<connectivity_mean column>`` (mean
+  over runs), ``<connectivity_min column>`` (minimum over runs),
+  ``<disconnected_steps column>_mean`` (mean over runs).
+
+This module imports neither JAX nor matplotlib.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Iterable, Mapping, NamedTuple, Sequence
+
+import numpy as np
+import pandas as pd
+
+from mcjax.statistics import CONFIDENCE, mean_ci, wilson_interval
+
+__all__ = [
+    "FORMATS",
+    "KEY_COLUMNS",
+    "Schema",
+    "schema",
+    "swept_axes",
+    "unit",
+    "label",
+    "ordered_filters",
+    "prepare",
+    "resolve_axes",
+    "summary_columns",
+    "summarize",
+    "legend_lines",
+    "check_format",
+    "format_number",
+    "format_table",
+]
+
+#: Output formats accepted by :func:`format_table`.
+FORMATS = ("text", "csv", "markdown")
+#: Key columns of a runs table (besides the swept axes).
+KEY_COLUMNS = ("scenario", "point_id", "seed_index", "filter")
+
+_OPTIONAL_ROLES = ("divergence", "nonfinite", "connectivity_mean", "connectivity_min",
+                   "disconnected_steps")
+
+NO_OUTPUTS = ("the dataset's metadata declares no outputs (no 'outputs' entry): it was written "
+              "by an older mcjax, before scenarios declared their outputs. Re-run the sweep with "
+              "this mcjax (`mcjax sweep SPEC --out OUT --force`) to write a dataset the report "
+              "can read")
+
+
+class Schema(NamedTuple):
+    """What a dataset's metadata says about its runs table (see :func:`schema`)."""
+
+    scenario: str
+    title: str
+    error: str                       # column of the error metric (role "error")
+    divergence: str | None           # column of the divergence flag, if declared
+    nonfinite: str | None            # column of the non-finite flag, if declared
+    connectivity_mean: str | None    # per-run mean graph connectivity, if declared
+    connectivity_min: str | None     # per-run minimum graph connectivity, if declared
+    disconnected_steps: str | None   # per-run count of disconnected steps, if declared
+    filters: tuple[str, ...]         # display order of the filter column's values
+    outputs: Mapping[str, Mapping[str, Any]]
+    params: Mapping[str, Mapping[str, Any]]
+    spec: Mapping[str, Any]          # the sweep spec (its grid and zip tables)
+
+    @property
+    def connectivity(self) -> tuple[str, ...]:
+        """The declared graph-statistics columns (empty without a graph)."""
+        return tuple(c for c in (self.connectivity_mean, self.connectivity_min,
+                                 self.disconnected_steps) if c is not None)
+
+
+def schema(metadata: Mapping[str, Any] | Schema, columns: Iterable[str] | None = None) -> Schema:
+    """The :class:`Schema` of a dataset's metadata (as :func:`mcjax.results.read_metadata`
+    returns it); a :class:`Schema` is returned unchanged.
+
+    With ``columns``, every column named by a role must be one of them.
+
+    Raises:
+        ValueError: no ``outputs`` in the metadata (an older dataset; the message says what
+            to do), not exactly one output with role ``"error"``, a role declared twice, or
+            a role's column missing from ``columns``.
+        TypeError: ``metadata`` is not a dict.
+    """
+    if isinstance(metadata, Schema):
+        sch = metadata
+    else:
+        if not isinstance(metadata, Mapping):
+            raise TypeError(f"metadata must be a dict, got {type(metadata).__name__}")
+        outputs = metadata.get("outputs")
+        if not outputs:
+            raise ValueError(NO_OUTPUTS)
+        if not isinstance(outputs, Mapping):
+            raise ValueError(f"metadata 'outputs' must be a table of declarations, got {outputs!r}")
+        roles: dict[str, str] = {}
+        for name, decl in outputs.items():
+            role = decl.get("role") if isinstance(decl, Mapping) else None
+            if role is None:
+                continue
+            if role in roles:
+                raise ValueError(f"outputs {roles[role]!r} and {name!r} both declare role {role!r}; "
+                                 "a role names one column")
+            roles[role] = str(name)
+        if "error" not in roles:
+            raise ValueError("no output declares role 'error' (the metric the report leads with); "
+                             f"declared outputs: {', '.join(map(str, outputs))}")
+        params = metadata.get("params") or {}
+        spec = metadata.get("spec") or {}
+        sch = Schema(
+            scenario=str(metadata.get("scenario") or ""),
+            title=str(metadata.get("title") or ""),
+            error=roles["error"],
+            **{r: roles.get(r) for r in _OPTIONAL_ROLES},
+            filters=tuple(str(f) for f in (metadata.get("filters") or ())),
+            outputs=dict(outputs),
+            params=dict(params) if isinstance(params, Mapping) else {},
+            spec=spec if isinstance(spec, Mapping) else {},
+        )
+    if columns is not None:
+        cols = set(columns)
+        missing = [c for c in (sch.error, *(getattr(sch, r) for r in _OPTIONAL_ROLES))
+                   if c is not None and c not in cols]
+        if missing:
+            raise ValueError(f"declared output column(s) {missing} are not in the runs table; "
+                             f"it has {sorted(map(str, cols))}")
+    return sch
+
+
+def swept_axes(metadata: Mapping[str, Any] | Schema | None, columns: Iterable[str]) -> list[str]:
+    """Swept axes of a sweep: keys of ``metadata["spec"]["grid"]`` then of ``["zip"]``
+    (a table, or a list of tables), in spec order, restricted to ``columns``."""
+    spec = metadata.spec if isinstance(metadata, Schema) else ((metadata or {}).get("spec") or {})
+    if not isinstance(spec, Mapping):
+        return []
+    names: list[str] = []
+    tables: list[Any] = [spec.get("grid") or {}]
+    zipped = spec.get("zip") or {}
+    tables.extend(zipped if isinstance(zipped, list) else [zipped])
+    for table in tables:
+        if isinstance(table, Mapping):
+            names.extend(k for k in table if k not in names)
+    cols = set(columns)
+    return [n for n in names if n in cols]
+
+
+def _declarations(metadata: Mapping[str, Any] | Schema) -> tuple[Mapping, Mapping]:
+    if isinstance(metadata, Schema):
+        return metadata.outputs, metadata.params
+    return (metadata.get("outputs") or {}), (metadata.get("params") or {})
+
+
+def _declaration(name: str, metadata: Mapping[str, Any] | Schema) -> Mapping[str, Any]:
+    outputs, params = _declarations(metadata)
+    decl = outputs.get(name) if name in outputs else params.get(name)
+    return decl if isinstance(decl, Mapping) else {}
+
+
+def unit(name: str, metadata: Mapping[str, Any] | Schema) -> str:
+    """Declared unit of an output or parameter column (``""`` if none or undeclared)."""
+    return str(_declaration(name, metadata).get("unit") or "")
+
+
+def label(name: str, metadata: Mapping[str, Any] | Schema) -> str:
+    """``"name [unit]"`` for an output or parameter column; just ``name`` without a unit."""
+    u = unit(name, metadata)
+    return f"{name} [{u}]" if u else name
+
+
+def _filter_rank(order: Sequence[str]):
+    def rank(value: Any) -> tuple[int, str]:
+        s = str(value)
+        return (order.index(s), "") if s in order else (len(order), s)
+    return rank
+
+
+def ordered_filters(values: Iterable[Any], order: Sequence[str]) -> list[Any]:
+    """The distinct ``values`` of a filter column: those in ``order`` (the metadata's
+    ``filters``) in that order, then the others alphabetically."""
+    return sorted(pd.unique(pd.Series(list(values), dtype=object)), key=_filter_rank(list(order)))
+
+
+def resolve_axes(metadata: Mapping[str, Any] | Schema, columns: Iterable[str],
+                 axes: str | Sequence[str] | None = None) -> list[str]:
+    """The columns to group by: the metadata's swept axes when ``axes`` is None, else
+    ``axes`` (a name or a list of distinct names), each checked to be in ``columns``."""
+    columns = list(columns)
+    if axes is None:
+        return swept_axes(metadata, columns)
+    out = [axes] if isinstance(axes, str) else list(axes)
+    for a in out:
+        if not isinstance(a, str):
+            raise TypeError(f"axes must be column names (str), got {a!r}")
+    if len(set(out)) != len(out):
+        raise ValueError(f"axes contain duplicates: {out}")
+    missing = [a for a in out if a not in columns]
+    if missing:
+        raise ValueError(f"axis column(s) {missing} not in the runs table; it has {columns}")
+    return out
+
+
+def _hashable(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if isinstance(value, (list, tuple)):
+        return tuple(_hashable(v) for v in value)
+    return value
+
+
+def prepare(df: pd.DataFrame, axes: Sequence[str]) -> pd.DataFrame:
+    """``df`` with list/array-valued axis cells (per-agent parameters) as hashable tuples
+    (the same object when there are none)."""
+    data = df
+    for a in axes:
+        col = df[a]
+        if col.dtype == object and col.map(lambda v: isinstance(v, (list, tuple, np.ndarray))).any():
+            if data is df:
+                data = df.copy()
+            data[a] = col.map(_hashable)
+    return data
+
+
+def _as_bool(s: pd.Series) -> np.ndarray:
+    return pd.array(s, dtype="boolean").fillna(False).to_numpy(dtype=bool)
+
+
+def _finite_stat(fn, values: pd.Series) -> float:
+    x = values.to_numpy(dtype=float)
+    x = x[np.isfinite(x)]
+    return float(fn(x)) if x.size else math.nan
+
+
+def summary_columns(metadata: Mapping[str, Any] | Schema) -> list[str]:
+    """Statistics columns of :func:`summarize` (after the axes and ``filter``), in order."""
+    sch = schema(metadata)
+    e = sch.error
+    cols = ["n", f"{e}_mean", f"{e}_ci_low", f"{e}_ci_high"]
+    if sch.divergence:
+        cols += ["n_ok", f"{e}_ok_mean", f"{e}_ok_ci_low", f"{e}_ok_ci_high", "diverged"]
+    cols.append("nonfinite")
+    if sch.divergence:
+        cols += ["div_rate", "div_ci_low", "div_ci_high"]
+    if sch.connectivity_mean:
+        cols.append(sch.connectivity_mean)
+    if sch.connectivity_min:
+        cols.append(sch.connectivity_min)
+    if sch.disconnected_steps:
+        cols.append(f"{sch.disconnected_steps}_mean")
+    return cols
+
+
+def _group_stats(g: pd.DataFrame, sch: Schema) -> list[Any]:
+    err = g[sch.error].to_numpy(dtype=float)
+    n = len(g)
+    row: list[Any] = [n, *mean_ci(err)]
+    if sch.divergence:
+        div = _as_bool(g[sch.divergence])
+        k = int(div.sum())
+        row += [n - k, *mean_ci(err[~div]), k]
+    nonfinite = (int(_as_bool(g[sch.nonfinite]).sum()) if sch.nonfinite
+                 else int((~np.isfinite(err)).sum()))
+    row.append(nonfinite)
+    if sch.divergence:
+        row += [k / n, *wilson_interval(k, n)]
+    if sch.connectivity_mean:
+        row.append(_finite_stat(np.mean, g[sch.connectivity_mean]))
+    if sch.connectivity_min:
+        row.append(_finite_stat(np.min, g[sch.connectivity_min]))
+    if sch.disconnected_steps:
+        row.append(_finite_stat(np.mean, g[sch.disconnected_steps]))
+    return row
+
+
+def summarize(df: pd.DataFrame, metadata: Mapping[str, Any] | Schema,
+              axes: str | Sequence[str] | None = None) -> pd.DataFrame:
+    """Summary of a runs table: one row per combination of ``axes`` and ``filter``.
+
+    Args:
+        df: runs table (one row per run and filter) with ``filter``, the axes and the
+            columns named by the metadata's roles.
+        metadata: the dataset's metadata (or its :class:`Schema`).
+        axes: columns to group by; ``None`` (default): the swept axes of the metadata's spec
+            (:func:`swept_axes`); ``[]`` pools every run of a filter.  List-valued cells
+            (per-agent values) are grouped as tuples.  Runs at values of axes not listed
+            are pooled.
+
+    Returns:
+        DataFrame with columns ``[*axes, "filter", *summary_columns(metadata)]`` (see the
+        module docstring), sorted by the axes and then by filter (the metadata's order
+        first), with a fresh index.
+    """
+    if not isinstance(df, pd.DataFrame):
+        raise TypeError(f"summarize: df must be a pandas DataFrame, got {type(df).__name__}")
+    sch = schema(metadata)
+    if df.empty:
+        axes = swept_axes(sch, df.columns) if axes is None else ([axes] if isinstance(axes, str) else list(axes))
+        return pd.DataFrame(columns=[*axes, "filter", *summary_columns(sch)])
+    schema(sch, df.columns)
+    axes = resolve_axes(sch, df.columns, axes)
+    if "filter" not in df.columns:
+        raise ValueError(f"summarize: no 'filter' column in the runs table; it has {list(df.columns)}")
+    keys = [*axes, "filter"]
+    columns = [*keys, *summary_columns(sch)]
+    data = prepare(df, axes)
+    rows = []
+    for key, g in data.groupby(keys, sort=False, dropna=False):
+        key = key if isinstance(key, tuple) else (key,)
+        rows.append([*key, *_group_stats(g, sch)])
+    out = pd.DataFrame(rows, columns=columns)
+    out["_rank"] = out["filter"].map(_filter_rank(list(sch.filters)))
+    out = out.sort_values([*axes, "_rank"], kind="stable").drop(columns="_rank")
+    return out.reset_index(drop=True)
+
+
+def _unit_text(u: str) -> str:
+    return u if u else "no unit"
+
+
+def legend_lines(metadata: Mapping[str, Any] | Schema, axes: Sequence[str] = ()) -> list[str]:
+    """Lines to print above a summary table: the scenario, then one line per metric
+    (``"rmse: <unit> — <description>"``) and per axis, then how the statistics columns are
+    computed."""
+    sch = schema(metadata)
+    lines = []
+    if sch.scenario:
+        lines.append(f"scenario: {sch.scenario}" + (f" — {sch.title}" if sch.title else ""))
+    metrics = [sch.error, *(getattr(sch, r) for r in _OPTIONAL_ROLES)]
+    for name in [m for m in metrics if m is not None] + list(axes):
+        decl = _declaration(name, sch)
+        desc = str(decl.get("description") or "").strip()
+        lines.append(f"{name}: {_unit_text(unit(name, sch))}" + (f" — {desc}" if desc else ""))
+    pct = f"{100 * CONFIDENCE:g} %"
+    e = sch.error
+    text = (f"statistics: n runs per row; {e}_mean over the runs with a finite {e}, "
+            f"{e}_ci_low/high its {pct} Student-t interval")
+    if sch.divergence:
+        text += (f"; {e}_ok_*: the same over the runs with {sch.divergence} false; "
+                 f"div_rate = diverged / n, div_ci_low/high its {pct} Wilson interval")
+    lines.append(text)
+    return lines
+
+
+def check_format(fmt: Any) -> str:
+    """``fmt`` if it is one of :data:`FORMATS`, else a ValueError naming it and the allowed values."""
+    if not isinstance(fmt, str) or fmt not in FORMATS:
+        raise ValueError(f"fmt={fmt!r} is not a supported format; allowed values: "
+                         + ", ".join(repr(f) for f in FORMATS))
+    return fmt
+
+
+def format_number(value: Any, digits: int = 4) -> str:
+    """A cell as text: integers as such, floats to ``digits`` significant digits
+    (positional in [1e-4, 10^max(digits, 7)), else scientific), tuples element-wise."""
+    if value is None or value is pd.NA:
+        return "nan"
+    if isinstance(value, (bool, np.bool_)):
+        return str(bool(value))
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        v = float(value)
+        if not math.isfinite(v):
+            return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf")
+        if v == 0:
+            return "0"
+        if 1e-4 <= abs(v) < 10.0 ** max(digits, 7):
+            return np.format_float_positional(v, precision=digits, unique=False,
+                                              fractional=False, trim="-")
+        return f"{v:.{digits - 1}e}"
+    if isinstance(value, (tuple, list, np.ndarray)):
+        return "(" + ", ".join(format_number(v, digits) for v in value) + ")"
+    return str(value)
+
+
+def format_table(summary: pd.DataFrame, fmt: str = "text", header: Sequence[str] = ()) -> str:
+    """Render a :func:`summarize` table (any DataFrame works) as a string.
+
+    ``fmt``:
+
+    * ``"text"``: the ``header`` lines, a blank line, then aligned plain-text columns
+      (numbers right-aligned; 6 significant digits up to the ``filter`` column, 4 after);
+    * ``"csv"``: ``DataFrame.to_csv`` without index, full precision, no header lines;
+    * ``"markdown"``: the ``header`` lines as a bullet list, a blank line, then a GitHub
+      pipe table with the same number formatting as ``"text"``.
+
+    Raises:
+        ValueError: ``fmt`` is not one of :data:`FORMATS` (the message names ``fmt`` and
+            the allowed values).
+        TypeError: ``summary`` is not a DataFrame.
+    """
+    check_format(fmt)
+    if not isinstance(summary, pd.DataFrame):
+        raise TypeError(f"summary must be a pandas DataFrame, got {type(summary).__name__}")
+    if fmt == "csv":
+        return summary.to_csv(index=False)
+    columns = list(summary.columns)
+    n_keys = columns.index("filter") + 1 if "filter" in columns else 0
+    headers = [str(c) for c in columns]
+    rows = [[format_number(v, 6 if i < n_keys else 4) for i, v in enumerate(row)]
+            for row in summary.itertuples(index=False, name=None)]
+    numeric = [pd.api.types.is_numeric_dtype(summary[c]) and not pd.api.types.is_bool_dtype(summary[c])
+               for c in columns]
+    if fmt == "markdown":
+        def esc(s: str) -> str:
+            return s.replace("|", "\\|")
+
+        lines = [f"- {h}" for h in header] + ([""] if header else [])
+        lines += ["| " + " | ".join(esc(h) for h in headers) + " |",
+                  "|" + "|".join("---:" if num else ":---" for num in numeric) + "|"]
+        lines += ["| " + " | ".join(esc(c) for c in row) + " |" for row in rows]
+        return "\n".join(lines) + "\n"
+    widths = [max([len(h), *(len(r[i]) for r in rows)]) for i, h in enumerate(headers)]
+
+    def line(cells: list[str]) -> str:
+        return "  ".join(c.rjust(w) if num else c.ljust(w)
+                         for c, w, num in zip(cells, widths, numeric)).rstrip()
+
+    lines = list(header) + ([""] if header else [])
+    return "\n".join([*lines, line(headers), *(line(r) for r in rows)]) + "\n"

@@ -1,0 +1,373 @@
+"""The scenario contract: declarations, validation derived from them, the registry and plugins,
+the README's "Writing a scenario" example and two more example scenarios run through
+`mcjax sweep` and `mcjax report`, and the layering of the package."""
+
+import ast
+import re
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from mcjax import scenarios
+from mcjax.cli import main
+from mcjax.contract import Output, Param, Scenario, Setting, config_type, params_type
+from mcjax.results import read_metadata, read_table
+from mcjax.scenarios import leader_follower, uuv_imm
+
+ROOT = Path(__file__).parents[1]
+
+
+# ----------------------------------------------------------------------------- declarations
+
+
+def test_setting_and_param_checks_name_the_allowed_values():
+    s = Setting(3, "iterations", low=1, integer=True)
+    assert s.problem(3) is None
+    assert s.problem(0) == "must be an integer >= 1; got 0"
+    assert s.problem(2.5) == "must be an integer >= 1; got 2.5"
+    c = Setting("a", "kind", choices=("a", "b"))
+    assert c.problem("c") == "must be one of a, b; got 'c'"
+    m = Setting(("a",), "kinds", choices=("a", "b"), many=True)
+    assert m.problem(("a", "b")) is None
+    assert m.problem(("a", "a")).startswith("must be a non-empty list of distinct values from a, b")
+    assert m.problem(()) is not None
+    p = Param(1.0, "m", "radius", low=0.0, low_open=True, per_agent=True)
+    assert p.problem(2.0, 3) is None and p.problem([1.0, 2.0, 3.0], 3) is None
+    assert p.problem(0.0, 3) == "must be > 0 m; got 0.0"
+    assert p.problem([1.0, 2.0], 3) == "must be a number or a list of n_agents = 3 numbers; got [1.0, 2.0]"
+    assert p.problem(float("nan")) == "must be finite; got nan"
+    assert p.problem("x") == "must be a number or a list of numbers; got 'x'"
+    shaped = Param(np.zeros((2, 2)), "m", "positions", shape=("n", 2))
+    assert shaped.problem(np.zeros((3, 2)), 3) is None
+    assert "of shape n_agentsx2 (3x2)" in shaped.problem(np.zeros((2, 2)), 3)
+    flag = Param(1.0, "", "alive", choices=(0, 1))
+    assert flag.problem([1, 0], None) is None and flag.problem(0.5) == "must be 0 or 1; got 0.5"
+
+
+def test_config_type_validates_every_field_and_is_hashable():
+    Cfg = config_type("Cfg", dict(n_agents=Setting(2, "agents", low=1, integer=True),
+                                  n_steps=Setting(5, "steps", low=1, integer=True),
+                                  filters=Setting(("a",), "filters", choices=("a", "b"), many=True)),
+                      __name__, lambda c: None)
+    c = Cfg(filters=["b", "a"])
+    assert c.filters == ("b", "a") and hash(c) == hash(Cfg(filters=("b", "a")))
+    with pytest.raises(ValueError, match=r"^n_agents must be an integer >= 1; got 0$"):
+        Cfg(n_agents=0)
+    with pytest.raises(ValueError, match="filters must be a non-empty list"):
+        Cfg(filters=("c",))
+
+
+def test_both_scenarios_declare_every_field_and_output():
+    for sc in (leader_follower.SCENARIO, uuv_imm.SCENARIO):
+        cfg = sc.Config()
+        assert list(sc.Params._fields) == list(sc.params_table)
+        for name, p in sc.params_table.items():  # every default passes its own declaration
+            assert p.unit is not None and p.description, (sc.name, name)
+            assert p.problem(p.default_value(cfg), cfg.n_agents) is None, (sc.name, name)
+        outs = sc.outputs(cfg)
+        assert [k for k, o in outs.items() if o.role == "error"] == ["rmse"]
+        assert all(o.role is None or o.role in ("error", "divergence", "nonfinite", "connectivity_mean",
+                                                  "connectivity_min", "disconnected_steps") for o in outs.values())
+        meta = sc.metadata(cfg)
+        assert meta["filters"] == list(cfg.filters) and set(meta["params"]) == set(sc.params_table)
+
+
+def test_default_params_rejects_unknown_fields():
+    with pytest.raises(ValueError, match=r"unknown Params field\(s\) \['nope'\]; allowed: dt, "):
+        leader_follower.SCENARIO.default_params(nope=1.0)
+
+
+def test_undeclared_outputs_are_named():
+    from mcjax.sweep import run_rows
+
+    sc = uuv_imm.SCENARIO
+    cfg = sc.Config(n_agents=2, filters=("cv",))
+    with pytest.raises(ValueError, match=r"undeclared: \['extra'\], declared but missing: \['rmse'"):
+        run_rows(sc, cfg, {"extra": np.zeros(3)}, {"seed_index": np.arange(3)})
+
+
+def test_dropped_out_agents_count_in_no_team_statistic():
+    """kit.error_summary over 2 alive + 1 dropped agent equals plain numpy over the 2 alive."""
+    from mcjax.scenarios.kit import error_summary
+
+    rng = np.random.default_rng(0)
+    e = rng.uniform(0, 10, size=(20, 2, 3))
+    e[:, :, 2] = 1e6  # the dropped agent's (meaningless) error
+    out = error_summary(e, np.array([1.0, 1.0, 0.0]), 4, 9.5)
+    alive = e[4:, :, :2]
+    np.testing.assert_allclose(out["rmse"], np.sqrt((alive**2).mean(axis=(0, 2))), rtol=1e-12)
+    np.testing.assert_allclose(out["mean_error"], alive.mean(axis=(0, 2)), rtol=1e-12)
+    np.testing.assert_allclose(out["max_error"], alive.max(axis=(0, 2)), rtol=1e-12)
+    np.testing.assert_allclose(out["final_error"], e[-1, :, :2].mean(-1), rtol=1e-12)
+    np.testing.assert_array_equal(out["diverged"], (alive > 9.5).any(axis=(0, 2)))
+    none = error_summary(e, np.zeros(3), 4, 9.5)
+    assert np.all(np.isnan(none["rmse"])) and not np.any(none["diverged"])
+
+
+# ----------------------------------------------------------------------------- README example
+
+
+def _readme_example(tmp_path):
+    """Write the README's "Writing a scenario" files (scenario, config, sweep) into tmp_path."""
+    text = (ROOT / "README.md").read_text()
+    section = text.split("## Writing a scenario", 1)[1].split("\n## ", 1)[0]
+    files = re.findall(r"`([\w.]+)`:\n\n```(?:python|toml)\n(.*?)```", section, flags=re.S)
+    assert [f for f, _ in files] == ["static_sensors.py", "static_sensors.toml", "static_sweep.toml"]
+    for name, body in files:
+        (tmp_path / name).write_text(body)
+    return section
+
+
+def test_readme_example_scenario_runs_through_sweep_and_report(tmp_path):
+    section = _readme_example(tmp_path)
+    assert len((tmp_path / "static_sensors.py").read_text().splitlines()) <= 80  # a few dozen lines
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["sweep", str(tmp_path / "static_sweep.toml"), "--out", str(out),
+                                  "--seeds", "20"])
+    assert r.exit_code == 0, r.output
+    df = read_table(out)
+    assert len(df) == 3 * 20 * 2 and set(df["filter"]) == {"local", "pooled"}
+    assert not any(c.startswith("lambda2") for c in df.columns)  # no comm graph, no graph columns
+    # the physics: pooling every sensor's fixes beats one's own, most when ranges are short
+    m = df.groupby(["sensing_radius", "filter"])["rmse"].mean().unstack()
+    assert (m["pooled"] < m["local"]).all()
+    # a random-walk KF's steady error is of the order of the measurement noise (2 m), not 0 or 100
+    assert 0.5 < m.loc[40.0, "pooled"] < 2.0 and m.loc[40.0, "local"] < 3.0
+    meta = read_metadata(out)
+    assert meta["outputs"]["rmse"]["unit"] == "m" and meta["filters"] == ["local", "pooled"]
+    rep = CliRunner().invoke(main, ["report", str(out)])
+    assert rep.exit_code == 0, rep.output
+    assert "rmse" in rep.output and "lambda2" not in rep.output
+    assert (out / "report").is_dir() and list((out / "report").glob("*.png"))
+    assert "mcjax sweep static_sweep.toml" in section and "mcjax report" in section
+
+
+# ----------------------------------------------------------------------------- two more examples
+
+SINGLE_AGENT = '''
+"""One agent, no comm graph: a 1-D random walk tracked by one Kalman filter (error in m)."""
+import jax, jax.numpy as jnp
+from mcjax.contract import Output, Param, Scenario, config_type, params_type
+from mcjax.scenarios.kit import check_common, common_settings, error_outputs, error_summary
+
+Config = config_type("Config", common_settings(filter_kinds=("kf",), n_agents=1, n_steps=40, warmup_steps=2,
+                                               divergence_threshold=100.0), __name__, check_common)
+Params = params_type("Params", dict(q=Param(1.0, "m", "walk std", low=0), r=Param(1.0, "m", "noise std",
+                                    low=0, low_open=True)), __name__)
+
+def init(cfg, p, key):
+    return (jnp.zeros(()), jnp.zeros(()), jnp.ones(()))
+
+def step(cfg, p, s, key):
+    t, x, P = s
+    k1, k2 = jax.random.split(key)
+    t = t + p.q * jax.random.normal(k1)
+    z = t + p.r * jax.random.normal(k2)
+    P = P + p.q**2
+    K = P / (P + p.r**2)
+    x, P = x + K * (z - x), (1 - K) * P
+    return (t, x, P), jnp.abs(x - t).reshape(1, 1)
+
+SCENARIO = Scenario(name="single_agent", title="one agent, no graph", Config=Config, Params=Params, init=init,
+                    step=step, reduce=lambda cfg, e, p: error_summary(e, jnp.ones(1), cfg.warmup_steps,
+                                                                      cfg.divergence_threshold),
+                    outputs=lambda cfg: error_outputs("m"))
+'''
+
+WIND = '''
+"""Three agents averaging noisy wind measurements over a ring (error in m/s, with graph statistics)."""
+import jax, jax.numpy as jnp
+from mcjax import graph, metrics
+from mcjax.contract import Output, Param, Scenario, config_type, params_type
+from mcjax.scenarios.kit import GRAPH_OUTPUTS, check_common, common_settings, error_outputs, error_summary
+
+Config = config_type("Config", common_settings(filter_kinds=("mean", "consensus"), n_agents=3, n_steps=30,
+                                               warmup_steps=2, divergence_threshold=50.0, error_unit="m/s"),
+                     __name__, check_common)
+Params = params_type("Params", dict(
+    noise=Param(2.0, "m/s", "wind sensor noise std", low=0, low_open=True),
+    comm_radius=Param(1.5, "m", "comm radius (agents sit 1 m apart on a line)", low=0)), __name__)
+
+def init(cfg, p, key):
+    return (jnp.zeros(()), jnp.zeros((2, cfg.n_agents)))
+
+def step(cfg, p, s, key):
+    k, est = s
+    wind = 10.0
+    z = wind + p.noise * jax.random.normal(key, (cfg.n_agents,))
+    adj = graph.adjacency(jnp.stack([jnp.arange(3.0), jnp.zeros(3)], -1), p.comm_radius)
+    W = graph.consensus_weights(adj, "metropolis")
+    k = k + 1
+    own = est[0] + (z - est[0]) / k
+    mixed = W @ (est[1] + (z - est[1]) / k)
+    est = jnp.stack([own, mixed])
+    return (k, est), (jnp.abs(est - wind), graph.algebraic_connectivity(adj))
+
+def reduce(cfg, rec, p):
+    err, lam = rec
+    return {**error_summary(err, jnp.ones(cfg.n_agents), cfg.warmup_steps, cfg.divergence_threshold),
+            **metrics.graph_summary(lam)}
+
+SCENARIO = Scenario(name="wind_demo", title="wind averaging demo", Config=Config, Params=Params, init=init,
+                    step=step, reduce=reduce,
+                    outputs=lambda cfg: {**error_outputs("m/s", "wind error"), **GRAPH_OUTPUTS})
+'''
+
+
+def _example(tmp_path, name, source, grid):
+    (tmp_path / f"{name}.py").write_text(textwrap.dedent(source))
+    (tmp_path / f"{name}.toml").write_text(f'scenario = "{name}.py:SCENARIO"\nseeds = 8\n')
+    (tmp_path / f"{name}_sweep.toml").write_text(f'base = "{name}.toml"\n[grid]\n{grid}\n')
+    out = tmp_path / f"out_{name}"
+    r = CliRunner().invoke(main, ["sweep", str(tmp_path / f"{name}_sweep.toml"), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    rep = CliRunner().invoke(main, ["report", str(out), "--format", "markdown"])
+    assert rep.exit_code == 0, rep.output
+    return out, r.output, rep.output
+
+
+def test_single_agent_scenario_without_graph_reports(tmp_path):
+    out, sweep_out, report_out = _example(tmp_path, "single_agent", SINGLE_AGENT, "r = [0.5, 2.0]")
+    df = read_table(out)
+    assert not any(c.startswith("lambda2") or c == "disconnected_steps" for c in df.columns)
+    m = df.groupby("r")["rmse"].mean()
+    assert m[0.5] < m[2.0]  # noisier sensor, larger error
+    for text in (sweep_out, report_out):
+        assert "m/s" not in text and "lambda2" not in text
+    assert re.search(r"rmse.*\bm\b", report_out)
+    names = {p.name for p in (out / "report").glob("*.png")}
+    assert names and not any("lambda2" in n or "connectivity" in n for n in names)
+
+
+def test_error_metric_in_m_per_s_is_labelled_so(tmp_path):
+    out, sweep_out, report_out = _example(tmp_path, "wind_demo", WIND, "noise = [1.0, 4.0]")
+    meta = read_metadata(out)
+    assert meta["outputs"]["rmse"]["unit"] == "m/s" and meta["params"]["noise"]["unit"] == "m/s"
+    assert "m/s" in report_out and "[m]" not in report_out
+    df = read_table(out)
+    m = df.groupby(["noise", "filter"])["rmse"].mean().unstack()
+    assert (m["consensus"] < m["mean"]).all()  # averaging over neighbours beats one's own average
+    assert (df["lambda2_min"] > 0).all()  # a connected line of three
+
+
+# ----------------------------------------------------------------------------- registry and plugins
+
+
+def test_unknown_scenario_lists_the_known_ones(tmp_path):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('scenario = "nope"\n')
+    spec = tmp_path / "s.toml"
+    spec.write_text('base = "c.toml"\n')
+    r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2
+    assert "scenario must be one of leader_follower, uuv_imm" in r.output and "'nope'" in r.output
+    r = CliRunner().invoke(main, ["list", "nope"])
+    assert r.exit_code == 2 and "leader_follower" in r.output
+
+
+def _plugin(tmp_path) -> Path:
+    """An installed distribution in a folder: a package plus a .dist-info with the entry point."""
+    site = tmp_path / "site"
+    pkg = site / "mcjax_demo_plugin"
+    pkg.mkdir(parents=True)
+    (pkg / "__init__.py").write_text(textwrap.dedent(SINGLE_AGENT).replace('name="single_agent"',
+                                                                           'name="demo_plugin"'))
+    info = site / "mcjax_demo_plugin-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: mcjax-demo-plugin\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text("[mcjax.scenarios]\ndemo_plugin = mcjax_demo_plugin:SCENARIO\n")
+    return site
+
+
+def test_plugin_scenario_registers_through_entry_points(tmp_path, monkeypatch):
+    site = _plugin(tmp_path)
+    monkeypatch.syspath_prepend(str(site))
+    assert "demo_plugin" in scenarios.known()
+    r = CliRunner().invoke(main, ["list"])
+    assert r.exit_code == 0 and "demo_plugin" in r.output and "one agent, no graph" in r.output
+    (tmp_path / "p.toml").write_text('scenario = "demo_plugin"\nseeds = 4\n')
+    (tmp_path / "s.toml").write_text('base = "p.toml"\n[grid]\nq = [0.5, 1.0]\n')
+    r = CliRunner().invoke(main, ["sweep", str(tmp_path / "s.toml"), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    assert len(read_table(tmp_path / "o")) == 8 and read_metadata(tmp_path / "o")["scenario"] == "demo_plugin"
+
+
+def test_plugin_is_seen_by_a_real_process(tmp_path):
+    import os
+
+    site = _plugin(tmp_path)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(site), os.environ.get("PYTHONPATH", "")])}
+    r = subprocess.run([sys.executable, "-m", "mcjax.cli", "list", "demo_plugin"], capture_output=True, text=True,
+                       env=env, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "demo_plugin: one agent, no graph" in r.stdout and "walk std" in r.stdout
+
+
+# ----------------------------------------------------------------------------- architecture
+
+#: Layers from the bottom: a module may import its own layer or lower ones only.
+LAYERS = [
+    {"contract", "numerics", "results"},
+    {"models"},
+    {"graph"},
+    {"metrics"},
+    {"filters"},
+    {"planning"},
+    {"scenarios"},
+    {"engine", "statistics"},
+    {"sweep", "tables", "plots"},
+    {"report"},
+    {"cli"},
+]
+
+
+def _layer(module: str) -> int:
+    top = module.split(".")[1] if module.startswith("mcjax.") else module
+    if top.startswith("__"):
+        return -1  # a package attribute such as mcjax.__version__
+    return next(i for i, names in enumerate(LAYERS) if top in names)
+
+
+def test_no_module_imports_from_a_layer_above():
+    bad = []
+    for path in sorted((ROOT / "mcjax").rglob("*.py")):
+        rel = path.relative_to(ROOT).with_suffix("")
+        parts = rel.parts if rel.name != "__init__" else rel.parts[:-1]
+        if len(parts) == 1:
+            continue  # mcjax/__init__.py
+        me = _layer(".".join(parts))
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = []
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("mcjax"):
+                names = [node.module] if node.module != "mcjax" else [f"mcjax.{a.name}" for a in node.names]
+            elif isinstance(node, ast.Import):
+                names = [a.name for a in node.names if a.name.startswith("mcjax.")]
+            for name in names:
+                if name.count(".") >= 1 and _layer(name) > me:
+                    bad.append(f"{rel} imports {name}")
+    assert not bad, bad
+
+
+def test_no_scenario_filter_or_unit_names_above_the_scenarios():
+    words = re.compile(r"\b(leader_follower|uuv_imm|modified_icf|cif|icf|kcf|imm|lambda2_min|mean_error)\b")
+    for name in ("engine.py", "sweep.py", "results.py", "report.py", "tables.py", "plots.py", "statistics.py",
+                 "cli.py"):
+        code = (ROOT / "mcjax" / name).read_text()
+        assert not words.search(code), (name, words.search(code).group(0))
+        assert '"[m]"' not in code and "[m]" not in code, name
+
+
+def test_graph_functions_give_float64_for_float64_input_in_a_fresh_process():
+    code = ("import numpy as np\nfrom mcjax.graph import algebraic_connectivity, laplacian\n"
+            "a = np.ones((4, 4)) - np.eye(4)\n"
+            "print(algebraic_connectivity(a).dtype, laplacian(a).dtype,"
+            " algebraic_connectivity(a.astype(np.float32)).dtype)")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["float64", "float64", "float32"]
