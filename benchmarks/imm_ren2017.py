@@ -1,4 +1,4 @@
-"""Seed 001 (Ren & Lv 2017) Table 1 and Figs. 2–5: consensus IMM-UKF vs single-model CV / CT.
+"""Ren & Lv 2017 Table 1 and Figs. 2–5: consensus IMM-UKF vs single-model CV / CT.
 
 Runs N seeds (default 1,000; the paper ran 50) of ``configs/ren2017.toml``: six UUVs, a target
 that flies CV, turns (CT) over ``[ct_start, ct_stop)``, then flies CV again (``--schedule

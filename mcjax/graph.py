@@ -181,7 +181,7 @@ def component_sizes(adj) -> jax.Array:
 
 
 def laplacian_step_weights(adj) -> jax.Array:
-    """Seed 000 eq. 11 as a matrix: ``x_i ← x_i − (1/(1+d_i)) Σ_j a_ij (x_i − x_j) = Σ_j W_ij x_j``.
+    """Sun et al. 2011 eq. 11 as a matrix: ``x_i ← x_i − (1/(1+d_i)) Σ_j a_ij (x_i − x_j) = Σ_j W_ij x_j``.
 
     Sun et al. 2011 eq. 11: ``W_ij = a_ij/(1+d_i)`` for j ≠ i and
     ``W_ii = 1/(1+d_i)``. Row-stochastic but in general NOT doubly stochastic (the fixed

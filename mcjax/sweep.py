@@ -216,6 +216,8 @@ def build_spec(data: dict, base_dir: str | Path, *, seeds: int | None = None, ch
     spec_params = data.get("params", {})
     _check_params(scenario, cfg, spec_params, "params.")
     params.update(spec_params)
+    if cfg_over:  # the base file's values again, against the final Config (e.g. a new n_agents)
+        _check_params(scenario, cfg, params, f"{base.path.name}: params.")
     axes = {}
     for table in ("grid", "zip"):
         raw = data.get(table, {})

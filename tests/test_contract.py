@@ -371,3 +371,12 @@ def test_graph_functions_give_float64_for_float64_input_in_a_fresh_process():
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     assert r.stdout.split() == ["float64", "float64", "float32"]
+
+
+def test_base_values_are_rechecked_against_the_specs_config(tmp_path):
+    """The base config's per-agent values must fit a spec that changes n_agents."""
+    spec = tmp_path / "s.toml"
+    spec.write_text(f'base = "{ROOT / "configs" / "sun2011.toml"}"\n[config]\nn_agents = 3\n')
+    r = CliRunner().invoke(main, ["sweep", str(spec), "--dry-run"])
+    assert r.exit_code == 2
+    assert "sun2011.toml: params.initial_positions: must be of shape n_agentsx2 (3x2)" in r.output

@@ -26,7 +26,7 @@ _cv_samples = jax.jit(jax.vmap(cv_step, in_axes=(None, 0, None, None)))
 
 
 def _textbook_fg(t):
-    """Seed 000 eq. 1, written out independently."""
+    """Sun et al. 2011 eq. 1, written out independently."""
     f = np.array([[1, t, 0, 0], [0, 1, 0, 0], [0, 0, 1, t], [0, 0, 0, 1]], float)
     g = np.array([[t * t / 2, 0], [t, 0], [0, t * t / 2], [0, t]], float)
     return f, g
@@ -401,7 +401,7 @@ def test_step_matches_solve_ivp(dt):
 
 
 def _clipped_rhs(alpha, cmd, accel, turn):
-    """Seed 000 eq. 3 with the eq. 4 turn-rate limit and the shortest-turn heading error."""
+    """Sun et al. 2011 eq. 3 with the eq. 4 turn-rate limit and the shortest-turn heading error."""
 
     def rhs(_, s):
         rate = min(max(alpha * math.remainder(cmd - s[3], 2 * math.pi), -turn), turn)

@@ -200,7 +200,7 @@ def test_moment_prediction_matches_ukf_prediction_for_linear_f():
 
 
 def test_consensus_imm_ukf_approaches_the_centralised_imm_ukf():
-    """Seed 001's consensus IMM-UKF on a complete graph with many iterations tracks the
+    """Ren & Lv 2017's consensus IMM-UKF on a complete graph with many iterations tracks the
     centralised IMM-UKF that stacks every node's range-bearing measurement; with no links
     it does not (the test can fail)."""
     from mcjax.filters.consensus_imm import consensus_imm_ukf_step

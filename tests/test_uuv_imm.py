@@ -156,7 +156,7 @@ def test_consensus_agrees_on_a_complete_graph():
 
 
 def test_imm_beats_both_single_models_and_mismatch_costs_during_the_manoeuvre():
-    """Seed 001's qualitative claims over 30 runs (the benchmark shows them over 1,000)."""
+    """Ren & Lv 2017's qualitative claims over 30 runs (the benchmark shows them over 1,000)."""
     scenario, cfg, params = load_config_file(CONFIG)
     cfg = dataclasses.replace(cfg, n_steps=75)
     p = engine.stack_points([scenario.default_params(cfg, **{**params, "ct_start": 25, "ct_stop": 50})])

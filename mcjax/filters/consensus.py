@@ -111,7 +111,7 @@ def _scale(opts: FilterOptions, adjacency):
 def cif_step(h, angle_mask, post: Gaussian, meas: Measurements, F, Q) -> Gaussian:
     """Centralised information filter: one filter adds every agent's contribution.
 
-    Seed 000 §2.2 (CIF, the bound of Table 1): ``Y = Ȳ + Σ_i I_i``, ``y = ȳ + Σ_i i_i``, all
+    Sun et al. 2011 §2.2 (CIF, the bound of Table 1): ``Y = Ȳ + Σ_i I_i``, ``y = ȳ + Σ_i i_i``, all
     linearised at the one central prior. ``post`` holds a single (unbatched) Gaussian.
     """
     xb, _, yb, Yb = predict_information(post.x, post.P, F, Q)
