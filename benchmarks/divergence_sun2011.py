@@ -13,9 +13,10 @@ CIF over all runs and over non-divergent runs, min λ2, disconnected steps and w
     python benchmarks/divergence_sun2011.py --runs 20 --planners gradient
 
 Both readings of the ICF run side by side (the config's, "priors" — the ICF as the paper ran
-it —, then "contributions"): the closed loop does not depend on the reading (checked: every
-run's modified-ICF error agrees to a relative 1e-4; the two compiled programs round differently in
-the last bits), so only the ICF columns differ.
+it —, then "contributions"). The leader plans from the modified ICF, so the closed loop does not
+depend on the reading; the two compiled programs round differently in the last bits, which the
+closed loop amplifies in single runs, so what is checked is that the modified ICF's divergence
+count and mean error agree; the table's modified-ICF and CIF columns are the first reading's.
 
 A run *diverges* (our rule; the paper gives none) when the filter's position error of some
 UAV exceeds ``divergence_threshold`` (1 km) after the 10-step warm-up. The headline count is
@@ -221,13 +222,21 @@ def main(argv=None) -> int:
                     print(f"figure: {path}")
     df = pd.concat(frames, ignore_index=True)
     mod = df[df["filter"] == "modified_icf"].set_index(["case", "planner", "seed_index", "icf_variant"])["rmse"]
-    # the readings compile to different programs, which round differently in the last bits;
-    # the closed loop then drifts apart by a relative ~1e-6 (measured), not more
-    gap = max((np.nanmax(np.abs(mod.xs(v, level="icf_variant").to_numpy() / mod.xs(variants[0], level="icf_variant")
-                                .to_numpy() - 1.0)) for v in variants[1:]), default=0.0)
-    same = bool(gap < 1e-4)
-    print(f"the closed loop (modified ICF RMSE of every run) under every ICF reading: largest relative difference "
-          f"{gap:.1e}")
+    # The readings compile to different programs, which round differently in the last bits, and
+    # the closed loop amplifies that: single runs drift apart (up to 5.5 % in RMSE over 1,000
+    # runs, measured 2026-12-01), while the statistics agree: same divergence count, mean error
+    # within 0.1 %.
+    base = df[(df["filter"] == "modified_icf") & (df["icf_variant"] == variants[0])]
+    stats0 = base.groupby(["case", "planner"]).agg(div=("diverged", "sum"), err=("mean_error", "mean"))
+    gap, same = 0.0, True
+    for v in variants[1:]:
+        other = df[(df["filter"] == "modified_icf") & (df["icf_variant"] == v)]
+        stats = other.groupby(["case", "planner"]).agg(div=("diverged", "sum"), err=("mean_error", "mean"))
+        same &= bool((stats["div"] == stats0["div"]).all() and np.allclose(stats["err"], stats0["err"], rtol=1e-3))
+        gap = max(gap, float(np.nanmax(np.abs(mod.xs(v, level="icf_variant").to_numpy()
+                                              / mod.xs(variants[0], level="icf_variant").to_numpy() - 1.0))))
+    print(f"modified ICF under every ICF reading: same divergence counts and mean errors within 0.1 %: {same}; "
+          f"largest per-run relative RMSE difference {gap:.1e}")
     meta = {**scenario.metadata(first_cfg), "benchmark": "divergence_sun2011", "config": str(args.config), "runs": args.runs,
             "walls_s": {"/".join(k): w for k, w in walls.items()}, **environment_metadata()}
     path = write_part(args.out, "runs", df, "part-000000", meta)
@@ -235,7 +244,7 @@ def main(argv=None) -> int:
     print(table(df, walls, variants))
     print()
     failed = 0
-    for text, ok in [*checks(df, variants[0]), ("the closed loop does not depend on the ICF's reading (to a relative 1e-4)", same)]:
+    for text, ok in [*checks(df, variants[0]), ("the closed loop's statistics do not depend on the ICF's reading", same)]:
         print(("holds   " if ok else "FAILS   ") + text)
         failed += not ok
     return 1 if failed else 0

@@ -178,7 +178,7 @@ def list_scenarios(scenario):
         return
     try:
         sc = scenarios.get(scenario, base_dir=Path.cwd())
-    except ValueError as exc:
+    except (ValueError, ImportError) as exc:
         _fail(str(exc))
     cfg = sc.Config()
     defaults = sc.default_params(cfg)

@@ -168,8 +168,8 @@ def read_config_file(path: str | Path) -> ConfigFile:
         raise SpecError(f"{path.name}: scenario: missing; allowed: {', '.join(scenarios.known())}")
     try:
         scenario = scenarios.get(data["scenario"], base_dir=path.parent)
-    except Exception as exc:  # a user's scenario file may fail in any way: name it
-        raise SpecError(f"{path.name}: scenario: {exc}") from None
+    except (ValueError, ImportError) as exc:  # unknown name, missing file or module; a bug inside a
+        raise SpecError(f"{path.name}: scenario: {exc}") from None  # scenario keeps its traceback
     cfg = _build_config(scenario, data.get("config", {}), f"{path.name}: config.")
     params = dict(data.get("params", {}))
     _check_params(scenario, cfg, params, f"{path.name}: params.")
