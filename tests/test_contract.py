@@ -380,3 +380,15 @@ def test_base_values_are_rechecked_against_the_specs_config(tmp_path):
     r = CliRunner().invoke(main, ["sweep", str(spec), "--dry-run"])
     assert r.exit_code == 2
     assert "sun2011.toml: params.initial_positions: must be of shape n_agentsx2 (3x2)" in r.output
+
+
+def test_configs_and_params_pickle():
+    """Config and Params built from declarations survive pickling (worker processes need it)."""
+    import pickle
+
+    for sc in (leader_follower.SCENARIO, uuv_imm.SCENARIO):
+        cfg = sc.Config(n_agents=3)
+        again = pickle.loads(pickle.dumps(cfg))
+        assert again == cfg and hash(again) == hash(cfg) and type(again) is sc.Config
+        p = pickle.loads(pickle.dumps(sc.default_params(cfg)))
+        assert type(p) is sc.Params and p.alive.shape == (3,)
