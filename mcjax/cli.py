@@ -38,9 +38,9 @@ def _fail(message: str) -> None:
 def _print_summary(df, spec) -> None:
     """The report's table of a sweep's rows (per point and filter), from the declarations."""
     from mcjax.report import summary_text
-    from mcjax.sweep import part_metadata
 
-    click.echo(summary_text(df, part_metadata(spec, spec.chunk_size)))
+    # the declarations and the spec are all the table needs (no provenance, no git call)
+    click.echo(summary_text(df, {**spec.scenario.metadata(spec.config), "spec": spec.source}))
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
