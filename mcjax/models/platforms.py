@@ -73,3 +73,55 @@ def unicycle_step(state, heading_cmd, accel_cmd, alpha_phi, limits: UnicycleLimi
     return jnp.stack([x + vx * h / 3.0, y + vy * h / 3.0,
                       speed_at(v, accel_cmd, limits, dt),
                       heading_at(phi, heading_cmd, alpha_phi, limits.turn_rate_max, dt)], axis=-1)
+
+
+# --------------------------------------------------------------------------- 3-D fixed wing
+
+
+class FixedWingLimits(NamedTuple):
+    """Limits of the 3-D UAV of Chen & Hao 2022, eqs. 1 and 4 (SI: rad, rad/s, rad/s², m).
+
+    ``|θ| ≤ theta_max``, ``|θ̇| ≤ theta_rate_max``, ``|ω| ≤ omega_max``,
+    ``|ω̇| ≤ omega_rate_max``, ``h_min ≤ z ≤ h_max``. The rates bound the change of a
+    command between two steps: ``|θ_k − θ_{k−1}| ≤ theta_rate_max · Δt`` (Alg. 1, line 3).
+    """
+
+    theta_max: jax.Array
+    theta_rate_max: jax.Array
+    omega_max: jax.Array
+    omega_rate_max: jax.Array
+    h_min: jax.Array
+    h_max: jax.Array
+
+
+def fixed_wing_step(state, theta, omega, speed, dt):
+    """One step of the UAV of Chen & Hao 2022, eq. 1: state ``[x, y, z, ψ]`` (..., 4), flight
+    path angle ``θ`` and turn rate ``ω`` held over the step, speed ``V``:
+    ``x += V Δt cos ψ cos θ``, ``y += V Δt sin ψ cos θ``, ``z += V Δt sin θ``, ``ψ += Δt ω``
+    (the paper's forward-Euler discretisation, kept as printed; ψ is not wrapped)."""
+    x, y, z, psi = state[..., 0], state[..., 1], state[..., 2], state[..., 3]
+    d = speed * dt
+    return jnp.stack([x + d * jnp.cos(psi) * jnp.cos(theta), y + d * jnp.sin(psi) * jnp.cos(theta),
+                      z + d * jnp.sin(theta), psi + dt * omega], axis=-1)
+
+
+def command_box(previous, limits: FixedWingLimits, dt):
+    """The commands reachable from the previous one ``previous = (θ, ω)``: the box
+    ``[max(−θ_max, θ − θ̇_max Δt), min(θ_max, θ + θ̇_max Δt)] × [same for ω]`` of Chen & Hao
+    2022, Alg. 1, line 3 (whose ``V_min`` in the first line is a slip for ``θ_min``).
+    Returns ``(lo (2,), hi (2,))``."""
+    prev = jnp.asarray(previous)
+    bound = jnp.stack([limits.theta_max, limits.omega_max])
+    step = jnp.stack([limits.theta_rate_max, limits.omega_rate_max]) * dt
+    return jnp.maximum(-bound, prev - step), jnp.minimum(bound, prev + step)
+
+
+def braking_climb(theta, speed, dt, theta_step, n_terms: int):
+    """Height the UAV still gains after a step flown at ``θ`` if it then levels off as fast
+    as the rate limit allows (``θ − δ, θ − 2δ, …`` down to 0 with ``δ = theta_step``, the
+    largest change per step): ``V Δt Σ_{j≥1} sin(max(θ − j δ, 0))``. For ``θ < 0`` it is the
+    (negative) height still lost, by symmetry. ``n_terms`` (static) bounds the sum; take it
+    ≥ θ_max / δ. Used to keep the altitude limits of eq. 4 reachable (ours)."""
+    j = jnp.arange(1, n_terms + 1, dtype=jnp.result_type(theta, float))
+    mag = jnp.maximum(jnp.abs(theta)[..., None] - j * theta_step, 0.0)
+    return jnp.sign(theta) * speed * dt * jnp.sum(jnp.sin(mag), axis=-1)

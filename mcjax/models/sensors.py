@@ -1,4 +1,4 @@
-"""Sensors: range–bearing radar with a maximum sensing range."""
+"""Sensors: range–bearing radar with a maximum sensing range; the azimuth-only direction finder."""
 
 from __future__ import annotations
 
@@ -39,3 +39,14 @@ def measure_range_bearing(key, x, sensor, sigma_range, sigma_bearing, max_range,
     z = z.at[..., 1].set(wrap_angle(z[..., 1]))
     ok = jnp.logical_and(clean[..., 0] <= max_range, valid)
     return jnp.where(ok[..., None], z, jnp.nan)
+
+
+def azimuth(target_xy: jax.Array, uav: jax.Array) -> jax.Array:
+    """Azimuth of a ground target ``[x_T, y_T]`` (..., 2) seen from a UAV at ``[x, y, …]``:
+    ``η = atan2(y_T − y_U, x_T − x_U)`` (Chen & Hao 2022, eq. 2 without its noise; the paper
+    prints ``arctan``, the four-quadrant form is meant). Guarded like :func:`range_bearing`:
+    0 with a zero derivative when the UAV is straight above the target."""
+    dx = target_xy[..., 0] - uav[..., 0]
+    dy = target_xy[..., 1] - uav[..., 1]
+    above = (dx == 0.0) & (dy == 0.0)
+    return jnp.where(above, 0.0, jnp.arctan2(dy, jnp.where(above, 1.0, dx)))
