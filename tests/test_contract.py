@@ -63,8 +63,11 @@ def test_config_type_validates_every_field_and_is_hashable():
         Cfg(filters=("c",))
 
 
-def test_both_scenarios_declare_every_field_and_output():
-    for sc in (leader_follower.SCENARIO, uuv_imm.SCENARIO):
+def test_every_builtin_scenario_declares_every_field_and_output():
+    from mcjax.scenarios import BUILTIN
+
+    assert set(BUILTIN) == {"leader_follower", "uuv_imm", "urban_bearing"}
+    for sc in BUILTIN.values():
         cfg = sc.Config()
         assert list(sc.Params._fields) == list(sc.params_table)
         for name, p in sc.params_table.items():  # every default passes its own declaration
@@ -386,9 +389,11 @@ def test_configs_and_params_pickle():
     """Config and Params built from declarations survive pickling (worker processes need it)."""
     import pickle
 
-    for sc in (leader_follower.SCENARIO, uuv_imm.SCENARIO):
-        cfg = sc.Config(n_agents=3)
+    from mcjax.scenarios import BUILTIN
+
+    for sc in BUILTIN.values():
+        cfg = sc.Config(n_steps=30)
         again = pickle.loads(pickle.dumps(cfg))
         assert again == cfg and hash(again) == hash(cfg) and type(again) is sc.Config
         p = pickle.loads(pickle.dumps(sc.default_params(cfg)))
-        assert type(p) is sc.Params and p.alive.shape == (3,)
+        assert type(p) is sc.Params and all(np.array_equal(a, b) for a, b in zip(p, sc.default_params(cfg)))

@@ -365,6 +365,68 @@ def test_reflections_vs_path_length_minimisation():
     assert n_min > 200 and n_valid > 30 and n_invalid_faces > 200 and n_ambiguous <= 2
 
 
+def test_reflections_vs_vectorised_minimisation_10000_boxes():
+    """The same criterion as above on more than 10,000 random boxes (one emitter and one UAV each, all
+    four walls): the shortest emitter→plane→UAV path found by a damped Newton iteration in
+    numpy (analytic gradient and Hessian of the two distances — no mirror image) is a valid
+    reflection exactly when its minimiser lies on the wall rectangle."""
+    rng = np.random.default_rng(22)
+    n = 14_000
+    lo = rng.uniform(-5, 5, (n, 2))
+    hi = lo + rng.uniform(2, 12, (n, 2))
+    h = rng.uniform(5, 30, n)
+    emitter = np.c_[rng.uniform(-30, 40, (n, 2)), np.zeros(n)]
+    uav = np.c_[rng.uniform(-30, 40, (n, 2)), rng.uniform(1, 40, n)]
+    keep = ~(np.all((emitter[:, :2] >= lo - 0.5) & (emitter[:, :2] <= hi + 0.5), 1)
+             | np.all((uav[:, :2] >= lo - 0.5) & (uav[:, :2] <= hi + 0.5), 1))
+    lo, hi, h, emitter, uav = lo[keep], hi[keep], h[keep], emitter[keep], uav[keep]
+    m = len(lo)
+    bld = Buildings(jnp.asarray(lo[:, None]), jnp.asarray(hi[:, None]), jnp.asarray(h[:, None]))
+    valid = np.asarray(_refl_cases(bld, emitter, uav).valid)[:, 0]   # (m, 4)
+    checked = ambiguous = n_valid = 0
+    for s in range(4):
+        axis, sign, tang = [(0, -1, 1), (0, 1, 1), (1, -1, 0), (1, 1, 0)][s]
+        c = np.where(sign < 0, lo[:, axis], hi[:, axis])
+        t_lo, t_hi = lo[:, tang], hi[:, tang]
+        faces = (sign * (emitter[:, axis] - c) > 0) & (sign * (uav[:, axis] - c) > 0)
+        assert not np.any(valid[~faces, s])
+        # an end within 0.5 of the wall's plane makes the length kinked at the minimiser
+        faces &= (np.abs(emitter[:, axis] - c) > 0.5) & (np.abs(uav[:, axis] - c) > 0.5)
+        e, u, cc = emitter[faces], uav[faces], c[faces]
+        # in-plane coordinates (t, z) of e and u and their distances to the plane
+        e2, u2 = np.c_[e[:, tang], e[:, 2]], np.c_[u[:, tang], u[:, 2]]
+        de, du = np.abs(e[:, axis] - cc), np.abs(u[:, axis] - cc)
+
+        def length(v):
+            return (np.sqrt(np.sum((v - e2) ** 2, 1) + de**2) + np.sqrt(np.sum((v - u2) ** 2, 1) + du**2))
+
+        v = (e2 + u2) / 2
+        for _ in range(100):
+            grad = np.zeros_like(v)
+            hess = np.zeros((len(v), 2, 2))
+            for p2, d in ((e2, de), (u2, du)):
+                r = v - p2
+                norm = np.sqrt(np.sum(r**2, 1) + d**2)
+                grad += r / norm[:, None]
+                hess += (np.eye(2) - r[:, :, None] * r[:, None, :] / norm[:, None, None] ** 2) / norm[:, None, None]
+            step = np.linalg.solve(hess, grad[..., None])[..., 0]
+            f0, t = length(v), np.ones(len(v))
+            for _ in range(30):  # backtracking: never increase the length
+                worse = length(v - t[:, None] * step) > f0 * (1 + 1e-14)  # (rounding of f)
+                if not worse.any():
+                    break
+                t = np.where(worse, t / 2, t)
+            v = v - t[:, None] * step
+        assert np.max(np.abs(grad)) < 1e-10
+        margin = np.minimum.reduce([v[:, 0] - t_lo[faces], t_hi[faces] - v[:, 0], v[:, 1], h[faces] - v[:, 1]])
+        clear = np.abs(margin) > 1e-6
+        np.testing.assert_array_equal(valid[faces, s][clear], margin[clear] > 0)
+        checked += clear.sum()
+        ambiguous += (~clear).sum()
+        n_valid += valid[faces, s].sum()
+    assert m > 10_000 and checked > 10_000 and n_valid > 1000 and ambiguous <= 5
+
+
 def test_reflection_legs_blocked_by_other_building():
     # wall x = 10 of box 0 reflects towards the UAV; box 1 stands on the first leg
     b = check_buildings([[0.0, 0.0], [14.0, 3.0]], [[10.0, 20.0], [16.0, 7.0]], [30.0, 50.0])
