@@ -1,0 +1,149 @@
+"""Connectivity-preserving flocking of double integrators — Lou, Cui & Li 2013.
+
+Nodes ``i = 1 … N`` are double integrators ``q̇_i = p_i, ṗ_i = u_i`` (eq. 1) in the plane. The
+first ``M`` (type I, ``h_i = 1``) sense the target and steer by their own estimate of it
+(eq. 10); the others (type II, ``h_i = 0``) align their velocity with their neighbours'
+through adaptive gains ``b_ij`` (eq. 11). Both use the pairwise potential of eq. 12 over the
+links of the hysteresis graph:
+
+    ψ(r) = 1/r² + r²/(R − r),   r ∈ (0, R)
+
+which grows without bound as two linked nodes approach each other (no collision) or the
+communication radius R (no link breaks). Eq. 13 writes both controllers as one:
+
+    u_i = −Σ_{j∈N_i} ∇_{q_i} ψ(‖q_i − q_j‖) − (1 − h_i) Σ_{j∈N_i} b_ij (p_i − p_j)
+          − h_i [c1 (q_i − q̂_i) + c2 (p_i − p̂_i)],      ḃ_ij = k_ij ‖p_i − p_j‖²  (type II rows)
+
+and eqs. 14–15 define the energy whose decrease the paper's Theorem 2 proves (its flocking
+part φ is :func:`energy`; the estimation term ``k/(2μ) V(η)`` belongs to the continuous-time
+KCF of eq. 6 and is not computed: it is 0 when the controller is fed the true target).
+
+Everything is pure and vmappable; positions are (N, 2), the adjacency (N, N) 0/1.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+
+class FlockState(NamedTuple):
+    q: jax.Array  # (N, 2) positions
+    p: jax.Array  # (N, 2) velocities
+    b: jax.Array  # (N, N) adaptive gains b_ij (used on type-II rows)
+
+
+class Gains(NamedTuple):
+    """Controller constants: ``c1, c2`` (eq. 10), ``k`` the adaptation rate k_ij (eq. 11, one
+    value for every pair), ``R`` the communication radius of eq. 12."""
+
+    c1: jax.Array
+    c2: jax.Array
+    k: jax.Array
+    R: jax.Array
+
+
+def potential(r, R):
+    """ψ(r) = 1/r² + r²/(R − r) on (0, R) (Lou et al. 2013, eq. 12); +∞ outside."""
+    inside = (r > 0) & (r < R)
+    rs = jnp.where(inside, r, R / 2)
+    return jnp.where(inside, 1.0 / rs**2 + rs**2 / (R - rs), jnp.inf)
+
+
+def potential_slope(r, R):
+    """ψ′(r) = −2/r³ + r (2R − r)/(R − r)² (exact derivative of eq. 12) on (0, R); NaN
+    outside (a link at or beyond R, or two nodes on top of each other, is a broken run)."""
+    inside = (r > 0) & (r < R)
+    rs = jnp.where(inside, r, R / 2)
+    return jnp.where(inside, -2.0 / rs**3 + rs * (2.0 * R - rs) / (R - rs) ** 2, jnp.nan)
+
+
+def _pair_vectors(q):
+    d = q[:, None, :] - q[None, :, :]                  # q_i − q_j
+    n = q.shape[0]
+    eye = jnp.eye(n, dtype=bool)
+    r2 = jnp.sum(d * d, -1)
+    r = jnp.sqrt(jnp.where(eye, 1.0, r2))
+    return d, jnp.where(eye, 0.0, r), eye
+
+
+def potential_forces(q, adj, R):
+    """``−Σ_{j∈N_i} ∇_{q_i} ψ(‖q_i − q_j‖) = −Σ_j a_ij ψ′(r_ij) (q_i − q_j)/r_ij`` (eqs. 10–12),
+    (N, 2). Non-linked pairs contribute nothing (whatever their distance)."""
+    d, r, eye = _pair_vectors(q)
+    linked = (adj > 0.5) & ~eye
+    slope = potential_slope(jnp.where(linked, r, R / 2), R)
+    coef = jnp.where(linked, slope / jnp.where(linked, r, 1.0), 0.0)
+    return -jnp.sum(coef[..., None] * d, axis=1)
+
+
+def controls(state: FlockState, adj, sensing, ref_q, ref_p, g: Gains):
+    """Eq. 13 (eqs. 10 and 11 in one): ``sensing`` (N,) is h_i ∈ {0, 1}; ``ref_q``, ``ref_p``
+    (N, 2) are each type-I node's target position and velocity (its estimate). Returns u (N, 2)."""
+    h = sensing[:, None]
+    linked = adj * (1.0 - jnp.eye(adj.shape[0], dtype=adj.dtype))
+    dp = state.p[:, None, :] - state.p[None, :, :]
+    align = jnp.sum((state.b * linked)[..., None] * dp, axis=1)
+    track = g.c1 * (state.q - ref_q) + g.c2 * (state.p - ref_p)
+    return potential_forces(state.q, adj, g.R) - (1.0 - h) * align - h * track
+
+
+def derivative(state: FlockState, adj, sensing, ref_q, ref_p, g: Gains) -> FlockState:
+    """Time derivative of the flock (eqs. 1, 11, 13): ``(p, u, ḃ)`` with
+    ``ḃ_ij = k ‖p_i − p_j‖²`` on the links of type-II rows (0 elsewhere)."""
+    u = controls(state, adj, sensing, ref_q, ref_p, g)
+    dp = state.p[:, None, :] - state.p[None, :, :]
+    linked = adj * (1.0 - jnp.eye(adj.shape[0], dtype=adj.dtype))
+    bdot = g.k * jnp.sum(dp * dp, -1) * linked * (1.0 - sensing)[:, None]
+    return FlockState(state.p, u, bdot)
+
+
+def rk4_step(state: FlockState, adj, sensing, reference, g: Gains, dt, substeps: int):
+    """Integrate the flock over ``dt`` with ``substeps`` classical RK4 steps at a fixed
+    topology ``adj``. ``reference(τ) -> (ref_q, ref_p)`` gives the type-I nodes' target
+    reference at time τ ∈ [0, dt] into the step. Returns ``(state, min_link_margin,
+    min_distance)`` where ``min_link_margin`` is the smallest ``R − r_ij`` over links and
+    ``min_distance`` the smallest pairwise distance, both over the sub-step ends."""
+    h = dt / substeps
+
+    def f(s, tau):
+        rq, rp = reference(tau)
+        return derivative(s, adj, sensing, rq, rp, g)
+
+    def add(s, ds, c):
+        return jax.tree.map(lambda a, b: a + c * b, s, ds)
+
+    def body(carry, i):
+        s, margin, dmin = carry
+        t = i * h
+        k1 = f(s, t)
+        k2 = f(add(s, k1, h / 2), t + h / 2)
+        k3 = f(add(s, k2, h / 2), t + h / 2)
+        k4 = f(add(s, k3, h), t + h)
+        s = jax.tree.map(lambda a, b1, b2, b3, b4: a + h / 6 * (b1 + 2 * b2 + 2 * b3 + b4), s, k1, k2, k3, k4)
+        _, r, eye = _pair_vectors(s.q)
+        linked = (adj > 0.5) & ~eye
+        margin = jnp.minimum(margin, jnp.min(jnp.where(linked, g.R - r, jnp.inf)))
+        dmin = jnp.minimum(dmin, jnp.min(jnp.where(eye, jnp.inf, r)))
+        return (s, margin, dmin), None
+
+    inf = jnp.asarray(jnp.inf, state.q.dtype)
+    (state, margin, dmin), _ = jax.lax.scan(body, (state, inf, inf), jnp.arange(substeps, dtype=state.q.dtype))
+    return state, margin, dmin
+
+
+def energy(state: FlockState, adj, sensing, target_q, target_p, g: Gains, l):
+    """The flocking energy φ of Lou et al. 2013, eq. 15:
+    ``½ Σ_i [Σ_{j∈N_i} ψ(‖q_i − q_j‖) + h_i c1 ‖q_i − q_γ‖² + ‖p_i − p_γ‖²
+    + Σ_{j∈N_i} (1 − h_i)(b_ij − l)²/(2 k_ij)]`` for the true target ``(q_γ, p_γ)`` (2,) each.
+    Eq. 16 takes ``l = c2``. +∞ if a link is at or beyond R."""
+    _, r, eye = _pair_vectors(state.q)
+    linked = (adj > 0.5) & ~eye
+    psi = jnp.where(linked, potential(jnp.where(linked, r, g.R / 2), g.R), 0.0)
+    h = sensing
+    U = jnp.sum(psi, axis=1) + h * g.c1 * jnp.sum((state.q - target_q) ** 2, -1)
+    kin = jnp.sum((state.p - target_p) ** 2, -1)
+    gains = jnp.sum(jnp.where(linked, (state.b - l) ** 2, 0.0), axis=1) * (1.0 - h) / (2.0 * g.k)
+    return 0.5 * jnp.sum(U + kin + gains)

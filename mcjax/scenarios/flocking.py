@@ -1,0 +1,312 @@
+"""A flocking mobile sensor network tracks a target with the Kalman-consensus filter — Lou,
+Cui & Li 2013.
+
+``N`` double-integrator nodes (eq. 1) in the plane follow a target moving along ``y = sin x``.
+Only the first ``M`` (type I) measure the target's position; they estimate it with the
+Kalman-consensus filter of Alg. 1 (``kcf``, the ``μ P`` gain form) and steer by their own
+estimate (eq. 10). Type-II nodes run no filter and align their velocities through adaptive
+gains (eq. 11). Every node feels the potential of eq. 12 from its neighbours in the
+hysteresis graph (links form below ``R − ε`` and break only at ``R``), which should keep
+every link and prevent collisions (Theorem 2). Each step of ``dt``:
+
+1. the type-I nodes measure the target and run the filters over the graph of the nodes
+   that run one (``Config.filter_nodes``);
+2. the flock is integrated over ``dt`` with ``Config.substeps`` RK4 sub-steps at the
+   current topology (:func:`mcjax.models.flocking.rk4_step`), each type-I node steering to
+   its estimate extrapolated at constant velocity within the step;
+3. the hysteresis graph is updated; links that broke (never expected) and sub-steps where
+   a link reached ``R`` are counted and flag the run.
+
+The initial flock is drawn inside the compiled program: positions U[0, box]², velocities
+U[0, v0]² (the paper: box 8, v0 0.1), redrawn up to ``Config.start_attempts`` times until
+the initial graph is connected, no pair sits within ``start_margin`` below R (the potential
+is stiff there) and no two nodes are closer than ``start_min_distance``. A run whose draws
+all fail is flagged (``start_failed``) and runs from its last draw.
+
+Filters (``Config.filters``): ``kcf`` and ``local`` (each type-I node's standalone Kalman
+filter: the paper's Fig. 2–3 baseline). Errors are the position errors of the type-I
+nodes' estimates. Units: the paper's (m, s). Our choices where it is silent are marked in
+``configs/lou2013.toml``.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mcjax import graph, metrics
+from mcjax.contract import Output, Param, Scenario, Setting, config_type, params_type
+from mcjax.filters.consensus import KCF_GAINS, FilterOptions, Measurements, filter_step
+from mcjax.filters.gaussian import Gaussian, first_step_model
+from mcjax.models import flocking as fl
+from mcjax.models.motion import cv_matrices, cv_process_noise
+from mcjax.numerics import spd_inverse, symmetrize
+from mcjax.scenarios import kit
+
+NAME = "flocking"
+FILTER_KINDS = ("kcf", "local")
+FILTER_NODES = ("sensing", "all")
+CONTROL_REFERENCES = ("estimate", "truth")
+TARGET_PATHS = ("sine", "line")
+
+
+def _check(cfg) -> None:
+    kit.check_common(cfg)
+
+
+Config = config_type("Config", dict(
+    **kit.common_settings(filter_kinds=FILTER_KINDS, n_agents=20, n_steps=300, min_steps=2, warmup_steps=20,
+                          divergence_threshold=5.0),
+    substeps=Setting(50, "RK4 sub-steps per step (ours; the potential is stiff near R and near 0)", low=1,
+                     integer=True),
+    filter_nodes=Setting("sensing", "nodes that run a filter and join its consensus: sensing = type I only "
+                         "(paper), all = type II too (with no measurement)", choices=FILTER_NODES),
+    control_reference=Setting("estimate", "what type-I nodes steer to: their KCF estimate (paper) or the true "
+                              "target (the ideal case of Theorem 2)", choices=CONTROL_REFERENCES),
+    target_path=Setting("sine", "sine = along y = sin x (paper); line = straight along x at constant speed",
+                        choices=TARGET_PATHS),
+    kcf_gain=Setting("mu_P", "KCF consensus gain: mu_P = Lou et al. 2013 Alg. 1; gamma_M = Olfati-Saber 2009",
+                     choices=KCF_GAINS),
+    start_attempts=Setting(64, "initial draws tried per run before the run is flagged", low=1, integer=True),
+), __name__, _check)
+
+
+def _default_m(cfg):
+    return float(max(1, cfg.n_agents // 2))
+
+
+_POS = dict(low=0.0, low_open=True)
+Params = params_type("Params", dict(
+    dt=Param(0.1, "s", "sampling step of the filters and the controllers (ours)", **_POS),
+    R=Param(8.4, "m", "communication radius (paper)", **_POS),
+    epsilon=Param(0.4, "m", "hysteresis: a new link forms below R - epsilon (ours)", **_POS),
+    n_sensing=Param(_default_m, "", "M, the number of type-I (sensing) nodes (paper: 10 of 20)", low=1.0,
+                    integer=True),
+    c1=Param(1.0, "1/s^2", "position gain of eq. 10 (ours)", **_POS),
+    c2=Param(2.0, "1/s", "velocity gain of eq. 10; also l of eqs. 15-16 (ours)", **_POS),
+    k=Param(1.0, "", "adaptation rate k_ij of eq. 11 (ours, every pair)", **_POS),
+    target_speed=Param(1.0, "m/s", "the target's speed along x (ours)", **_POS),
+    sigma_meas=Param(0.1, "m", "position measurement noise std per axis (ours)", **_POS),
+    sigma_accel=Param(1.0, "m/s^2", "the filters' CV process noise std (ours)", **_POS),
+    kcf_epsilon=Param(0.1, "", "KCF consensus step epsilon of Alg. 1 (ours)", **_POS),
+    p0_diag=Param(np.array([0.1, 0.1, 0.1, 0.1]), "m^2, (m/s)^2", "prior variances; the filters start at the "
+                  "true state (paper: x(0))", **_POS, shape=(4,)),
+    box=Param(8.0, "m", "initial positions U[0, box]^2 (paper: 8)", **_POS),
+    v0=Param(0.1, "m/s", "initial velocities U[0, v0]^2 (paper: 0.1)", low=0.0),
+    start_margin=Param(0.2, "m", "no pair may start in [R - start_margin, R) (ours)", low=0.0),
+    start_min_distance=Param(0.3, "m", "no two nodes may start closer than this (ours; the paper's Fig. 6 starts near 0.3)",
+                             low=0.0),
+), __name__)
+
+
+def check_params(cfg, values: dict) -> list[tuple[str, str]]:
+    table = Params.TABLE
+
+    def get(name):
+        return np.asarray(values.get(name, table[name].default_value(cfg)), np.float64)
+
+    bad = []
+    if np.any(get("n_sensing") > cfg.n_agents):
+        bad.append(("n_sensing", f"an integer in [1, n_agents = {cfg.n_agents}]"))
+    if np.any(get("epsilon") >= get("R")):
+        bad.append(("epsilon", "in (0, R): new links form below R - epsilon"))
+    if np.any(get("start_margin") >= get("R")):
+        bad.append(("start_margin", "in [0, R)"))
+    return bad
+
+
+class State(NamedTuple):
+    t: jax.Array
+    flock: fl.FlockState
+    adj: jax.Array          # (N, N) hysteresis graph
+    filters: tuple          # one Gaussian per filter, node axis first
+    start_failed: jax.Array
+    attempts: jax.Array
+
+
+class Record(NamedTuple):
+    error: jax.Array        # (F, N) position error of each node's estimate (type-II rows: 0, weight 0)
+    lambda2: jax.Array
+    edges: jax.Array
+    added: jax.Array
+    removed: jax.Array
+    min_distance: jax.Array      # smallest pairwise distance over the step's sub-steps
+    min_link_margin: jax.Array   # smallest R - r over links and sub-steps (<= 0: a link reached R)
+    energy: jax.Array            # φ of eq. 15 at the step's end (true target)
+    speed_mismatch: jax.Array    # Σ_i |p_i - p_target|² at the step's end
+    target: jax.Array            # (4,) [x, vx, y, vy]
+    start_failed: jax.Array      # () no valid initial draw (the same at every step)
+    attempts: jax.Array          # () initial draws used (the same at every step)
+
+
+def target_state(cfg, params, t):
+    """The true target ``[x, ẋ, y, ẏ]`` at time t: along ``y = sin x`` at ẋ = ``target_speed``
+    (Lou et al. 2013, Section 3; ours: the speed), or a straight line along x."""
+    v = params.target_speed
+    x = v * t
+    if cfg.target_path == "sine":
+        return jnp.stack([x, v, jnp.sin(x), v * jnp.cos(x)])
+    return jnp.stack([x, v, jnp.zeros_like(x), jnp.zeros_like(x)])
+
+
+def sensing_mask(cfg, params, dtype):
+    return (jnp.arange(cfg.n_agents) < params.n_sensing).astype(dtype)
+
+
+def _draw_start(cfg, p, key):
+    n = cfg.n_agents
+    kq, kp = jax.random.split(key)
+    q = p.box * jax.random.uniform(kq, (n, 2), p.box.dtype)
+    v = p.v0 * jax.random.uniform(kp, (n, 2), p.box.dtype)
+    d = graph.pairwise_distances(q) + jnp.eye(n, dtype=q.dtype) * 1e9
+    adj = ((d < p.R) & ~jnp.eye(n, dtype=bool)).astype(q.dtype)
+    ok = ((graph.algebraic_connectivity(adj) > 1e-9) | (n == 1)) \
+        & ~jnp.any((d >= p.R - p.start_margin) & (d < p.R)) & (jnp.min(d) >= p.start_min_distance)
+    return q, v, adj, ok
+
+
+def init(cfg, params, key) -> State:
+    """The first valid draw of the initial flock (module docstring), every filter at the true
+    target state with covariance ``diag(p0_diag)``, the adaptive gains at 0."""
+    dtype = jnp.dtype(cfg.dtype)
+    p = kit.cast(params, dtype)
+    n = cfg.n_agents
+    q, v, adj, ok = jax.vmap(lambda k: _draw_start(cfg, p, k))(jax.random.split(key, cfg.start_attempts))
+    first = jnp.argmax(ok)
+    found = jnp.any(ok)
+    pick = jnp.where(found, first, cfg.start_attempts - 1)
+    flock = fl.FlockState(q[pick], v[pick], jnp.zeros((n, n), dtype))
+    x0 = target_state(cfg, p, jnp.asarray(0.0, dtype))
+    P0 = jnp.diag(p.p0_diag)
+    g = Gaussian(x0, P0, symmetrize(spd_inverse(P0)))
+    filters = tuple(jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), g) for _ in cfg.filters)
+    return State(jnp.asarray(0, jnp.int32), flock, adj[pick], filters, ~found, pick + 1)
+
+
+def _position(x, sensor):
+    del sensor
+    return jnp.stack([x[0], x[2]])
+
+
+def step(cfg, params, state: State, key) -> tuple[State, Record]:
+    """One sampling step (module docstring): measure, filter (Lou et al. 2013 Alg. 1), fly
+    (eqs. 1, 10–13), update the hysteresis graph (Section 1.1, rules 2–3)."""
+    dtype = jnp.dtype(cfg.dtype)
+    p = kit.cast(params, dtype)
+    n = cfg.n_agents
+    t = state.t.astype(dtype) * p.dt
+    h = sensing_mask(cfg, p, dtype)
+    target = target_state(cfg, p, t)
+    gains = fl.Gains(p.c1, p.c2, p.k, p.R)
+
+    # 1. measurements of the type-I nodes; the filters (step 0 updates the prior without predicting)
+    noise = p.sigma_meas * jax.random.normal(key, (n, 2), dtype)
+    z = jnp.where(h[:, None] > 0.5, _position(target, None)[None, :] + noise, jnp.nan)
+    runs_filter = h if cfg.filter_nodes == "sensing" else jnp.ones(n, dtype)
+    adj_f = state.adj * runs_filter[:, None] * runs_filter[None, :]
+    R_inv = jnp.broadcast_to(jnp.eye(2, dtype=dtype) / p.sigma_meas**2, (n, 2, 2))
+    meas = Measurements(z, state.flock.q, adj_f, R_inv)
+    F, _ = cv_matrices(p.dt, dtype)
+    F, Q = first_step_model(state.t == 0, F, cv_process_noise(p.dt, p.sigma_accel, dtype))
+    opts = FilterOptions(kcf_gain=cfg.kcf_gain)
+    filters = filter_step(cfg.filters, opts, _position, jnp.array([False, False]), state.filters, meas, F, Q,
+                          p.kcf_epsilon)
+    errors = jnp.stack([metrics.position_error(f.x, target) * h for f in filters])
+
+    # 2. fly: type-I nodes steer to their first filter's estimate (or the truth), CV-extrapolated
+    if cfg.control_reference == "estimate":
+        est = filters[0].x
+        ref_q0, ref_p0 = est[:, jnp.array([0, 2])], est[:, jnp.array([1, 3])]
+
+        def reference(tau):
+            return ref_q0 + tau * ref_p0, ref_p0
+    else:
+        def reference(tau):
+            x = target_state(cfg, p, t + tau)
+            rq = jnp.broadcast_to(x[jnp.array([0, 2])], (n, 2))
+            return rq, jnp.broadcast_to(x[jnp.array([1, 3])], (n, 2))
+
+    flock, margin, dmin = fl.rk4_step(state.flock, state.adj, h, reference, gains, p.dt, cfg.substeps)
+
+    # 3. the hysteresis graph at the step's end
+    adj = graph.hysteresis_adjacency(state.adj, flock.q, p.R, p.epsilon)
+    added = jnp.sum((adj > 0.5) & (state.adj < 0.5)) // 2
+    removed = jnp.sum((adj < 0.5) & (state.adj > 0.5)) // 2
+    target_end = target_state(cfg, p, t + p.dt)
+    tq, tp = target_end[jnp.array([0, 2])], target_end[jnp.array([1, 3])]
+    rec = Record(
+        error=errors, lambda2=graph.algebraic_connectivity(adj), edges=jnp.sum(adj) / 2, added=added,
+        removed=removed, min_distance=dmin, min_link_margin=margin,
+        energy=fl.energy(flock, adj, h, tq, tp, gains, p.c2),
+        speed_mismatch=jnp.sum((flock.p - tp) ** 2), target=target, start_failed=state.start_failed,
+        attempts=state.attempts)
+    return State(state.t + 1, flock, adj, filters, state.start_failed, state.attempts), rec
+
+
+def outputs(cfg) -> dict[str, Output]:
+    return dict(
+        **kit.error_outputs("m", "position error of the type-I nodes' estimates"),
+        **kit.GRAPH_OUTPUTS,
+        edges_added=Output("", "links formed over the run", False),
+        edges_removed=Output("", "links broken over the run (Theorem 2: none)", False),
+        last_change_time=Output("s", "time of the last topology change (0 if none)", False),
+        final_edges=Output("", "links at the end", False),
+        min_distance=Output("m", "smallest distance between two nodes over the run (sub-steps included)", False),
+        final_min_distance=Output("m", "smallest distance between two nodes at the end", False),
+        link_reached_R=Output("", "some link reached the radius R inside a step (a broken run)", False),
+        energy_start=Output("", "flocking energy (eq. 15) after the first step", False),
+        energy_end=Output("", "flocking energy at the end", False),
+        energy_max_rise=Output("", "largest rise of the energy between two steps (0 if monotone)", False),
+        final_speed_mismatch=Output("m^2/s^2", "sum over nodes of |p_i - p_target|^2 at the end", False),
+        start_failed=Output("", "no valid initial draw within start_attempts", False),
+        start_attempts_used=Output("", "initial draws until a valid one", False),
+    )
+
+
+def reduce(cfg, records: Record, params) -> dict:
+    dtype = records.error.dtype
+    h = sensing_mask(cfg, kit.cast(params, dtype), dtype)
+    out = kit.error_summary(records.error, h, cfg.warmup_steps, cfg.divergence_threshold)
+    T = records.edges.shape[0]
+    steps = jnp.arange(T)
+    changed = (records.added + records.removed) > 0
+    dt = jnp.asarray(params.dt, dtype)
+    e = records.energy
+    out.update(
+        **metrics.graph_summary(records.lambda2),
+        edges_added=jnp.sum(records.added), edges_removed=jnp.sum(records.removed),
+        last_change_time=jnp.max(jnp.where(changed, (steps + 1).astype(dtype) * dt, 0.0)),
+        final_edges=records.edges[-1], min_distance=jnp.min(records.min_distance),
+        final_min_distance=records.min_distance[-1], link_reached_R=jnp.any(~(records.min_link_margin > 0)),
+        energy_start=e[0], energy_end=e[-1], energy_max_rise=jnp.maximum(jnp.max(e[1:] - e[:-1]), 0.0),
+        final_speed_mismatch=records.speed_mismatch[-1], start_failed=records.start_failed[0],
+        start_attempts_used=records.attempts[0],
+    )
+    return out
+
+
+def timeseries_outputs(cfg) -> dict[str, Output]:
+    return dict(
+        **kit.error_series_outputs("m", "position error of the type-I nodes' estimates"),
+        energy=Output("", "flocking energy (eq. 15)", False),
+        lambda2=Output("", "algebraic connectivity of the graph", False),
+        min_distance=Output("m", "smallest distance between two nodes", False),
+        edges=Output("", "links", False),
+    )
+
+
+def timeseries(cfg, records: Record, params) -> dict:
+    dtype = records.error.dtype
+    h = sensing_mask(cfg, kit.cast(params, dtype), dtype)
+    return dict(**metrics.error_series(records.error, h), energy=records.energy, lambda2=records.lambda2,
+                min_distance=records.min_distance, edges=records.edges)
+
+
+SCENARIO = Scenario(
+    name=NAME, title="Lou, Cui & Li 2013: a flocking sensor network tracks a target with the Kalman-consensus "
+    "filter", Config=Config, Params=Params, init=init, step=step, reduce=reduce, outputs=outputs,
+    timeseries=timeseries, timeseries_outputs=timeseries_outputs, check_params=check_params)
+default_params = SCENARIO.default_params
