@@ -116,12 +116,17 @@ def command_box(previous, limits: FixedWingLimits, dt):
     return jnp.maximum(-bound, prev - step), jnp.minimum(bound, prev + step)
 
 
-def braking_climb(theta, speed, dt, theta_step, n_terms: int):
+def braking_climb(theta, speed, dt, theta_step):
     """Height the UAV still gains after a step flown at ``θ`` if it then levels off as fast
     as the rate limit allows (``θ − δ, θ − 2δ, …`` down to 0 with ``δ = theta_step``, the
-    largest change per step): ``V Δt Σ_{j≥1} sin(max(θ − j δ, 0))``. For ``θ < 0`` it is the
-    (negative) height still lost, by symmetry. ``n_terms`` (static) bounds the sum; take it
-    ≥ θ_max / δ. Used to keep the altitude limits of eq. 4 reachable (ours)."""
-    j = jnp.arange(1, n_terms + 1, dtype=jnp.result_type(theta, float))
-    mag = jnp.maximum(jnp.abs(theta)[..., None] - j * theta_step, 0.0)
-    return jnp.sign(theta) * speed * dt * jnp.sum(jnp.sin(mag), axis=-1)
+    largest change per step): ``V Δt Σ_{j=1}^{J} sin(θ − j δ)`` with ``J = floor(θ/δ)``, summed
+    in closed form ``sin(θ − (J+1)δ/2) sin(Jδ/2) / sin(δ/2)``. For ``θ < 0`` it is the
+    (negative) height still lost, by symmetry. Used to keep the altitude limits of
+    Chen & Hao 2022, eq. 4 reachable (ours)."""
+    a = jnp.abs(theta)
+    delta = jnp.asarray(theta_step, a.dtype)
+    ok = delta > 0
+    d = jnp.where(ok, delta, 1.0)
+    J = jnp.where(ok, jnp.floor(a / d), 0.0)
+    s = jnp.sin(a - (J + 1.0) * d / 2.0) * jnp.sin(J * d / 2.0) / jnp.sin(d / 2.0)
+    return jnp.sign(theta) * speed * dt * jnp.where(J > 0, s, 0.0)

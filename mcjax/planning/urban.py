@@ -14,8 +14,8 @@ The track's score (to be *maximised*) is
   or (our default) ``log det``: the raw det grows like 1/range⁴ and swamps the step counts
   near the emitter, so its weight c1 means nothing there (docs/equations.md).
 * ``J_T`` (eq. 18): the number of predicted steps before the track first enters a building
-  or the estimated shadow Â_Shadow (the emitter placed at the current estimate, on the
-  ground) — ``n`` for a clear track.
+  or the estimated shadow Â_Shadow (the emitter placed at the current estimate, at its
+  known height) — ``n`` for a clear track.
 * ``J_NLOS`` (eq. 19): the number of predicted steps inside the estimated reflection region
   Â_NLOS (the paper's region membership, eqs. 9–10: ``reflections(check_legs=False)``).
 
@@ -56,13 +56,15 @@ class Weights(NamedTuple):
 class Belief(NamedTuple):
     """What the planner knows of the target (from the IMM-EKF): the combined position estimate
     ``xy`` (2,), the mode estimates ``mode_xy`` (M, 2), mode probabilities ``mu`` (M,), the
-    accumulated FIM per mode ``fim`` (M, 2, 2) and each mode's bearing noise ``sigma`` (M,)."""
+    accumulated FIM per mode ``fim`` (M, 2, 2), each mode's bearing noise ``sigma`` (M,) and
+    the emitter's height ``z`` (known; the paper's emitter is on the ground)."""
 
     xy: jax.Array
     mode_xy: jax.Array
     mu: jax.Array
     fim: jax.Array
     sigma: jax.Array
+    z: jax.Array | float = 0.0
 
 
 class Terms(NamedTuple):
@@ -140,12 +142,11 @@ def predicted_track(uav, command, speed, dt, n: int):
     return track
 
 
-def admissible(buildings, uav, command, track, limits: FixedWingLimits, speed, dt, theta_rate_step,
-               n_brake: int):
+def admissible(buildings, uav, command, track, limits: FixedWingLimits, speed, dt, theta_rate_step):
     """The hard constraints (ours; module docstring): the track meets no building (eq. 3) and
     the altitude band of eq. 4 stays reachable after the step flown at θ."""
     theta = command[0]
-    z_end = uav[2] + speed * dt * jnp.sin(theta) + braking_climb(theta, speed, dt, theta_rate_step, n_brake)
+    z_end = uav[2] + speed * dt * jnp.sin(theta) + braking_climb(theta, speed, dt, theta_rate_step)
     in_band = (z_end >= limits.h_min) & (z_end <= limits.h_max)
     return in_band & ~jnp.any(env.inside(buildings, track[:, :3]))
 
@@ -159,7 +160,7 @@ def score_terms(buildings, belief: Belief, track, fim_kind: str) -> Terms:
     gained = jnp.sum(jax.vmap(lambda xy, s: bearing_information(xy, pos, s))(belief.mode_xy, belief.sigma),
                      axis=1)                                            # (M, 2, 2)
     j_fim = jnp.sum(belief.mu * fim_score(belief.fim + gained, fim_kind))
-    emitter = jnp.concatenate([belief.xy, jnp.zeros(1, belief.xy.dtype)])
+    emitter = jnp.concatenate([belief.xy, jnp.asarray(belief.z, belief.xy.dtype)[None]])
     blocked = env.inside(buildings, pos) | env.in_shadow(buildings, emitter, pos)
     clear = jnp.sum(jnp.cumprod(~blocked))
     nlos = jnp.sum(jnp.any(env.reflections(buildings, emitter, pos, check_legs=False).valid, axis=(-2, -1)))
@@ -198,7 +199,7 @@ def smooth_score_terms(buildings, belief: Belief, track, fim_kind: str, T) -> Te
     fim = belief.fim + gained
     j_fim = jnp.sum(belief.mu * fim_score(fim, fim_kind))
     lo3, hi3 = env._boxes3(buildings)
-    emitter = jnp.concatenate([belief.xy, jnp.zeros(1, belief.xy.dtype)])
+    emitter = jnp.concatenate([belief.xy, jnp.asarray(belief.z, belief.xy.dtype)[None]])
     occupied = 1.0 - jnp.prod(1.0 - _soft_inside_box(pos, lo3, hi3, T), axis=-1)
     shadow = jax.vmap(lambda p: _soft_blocked_segment(emitter, p, lo3, hi3, T))(pos)
     free = (1.0 - occupied) * (1.0 - shadow)

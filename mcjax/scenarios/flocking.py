@@ -60,8 +60,8 @@ def _check(cfg) -> None:
 Config = config_type("Config", dict(
     **kit.common_settings(filter_kinds=FILTER_KINDS, n_agents=20, n_steps=300, min_steps=2, warmup_steps=20,
                           divergence_threshold=5.0),
-    substeps=Setting(50, "RK4 sub-steps per step (ours; the potential is stiff near R and near 0)", low=1,
-                     integer=True),
+    max_substeps=Setting(200, "most RK4 sub-steps per step; each step takes as many as its stiffness needs "
+                         "(ours)", low=1, integer=True),
     filter_nodes=Setting("sensing", "nodes that run a filter and join its consensus: sensing = type I only "
                          "(paper), all = type II too (with no measurement)", choices=FILTER_NODES),
     control_reference=Setting("estimate", "what type-I nodes steer to: their KCF estimate (paper) or the true "
@@ -87,7 +87,7 @@ Params = params_type("Params", dict(
                     integer=True),
     c1=Param(1.0, "1/s^2", "position gain of eq. 10 (ours)", **_POS),
     c2=Param(2.0, "1/s", "velocity gain of eq. 10; also l of eqs. 15-16 (ours)", **_POS),
-    k=Param(1.0, "", "adaptation rate k_ij of eq. 11 (ours, every pair)", **_POS),
+    k=Param(0.1, "", "adaptation rate k_ij of eq. 11 (ours, every pair; see configs/lou2013.toml)", **_POS),
     target_speed=Param(1.0, "m/s", "the target's speed along x (ours)", **_POS),
     sigma_meas=Param(0.1, "m", "position measurement noise std per axis (ours)", **_POS),
     sigma_accel=Param(1.0, "m/s^2", "the filters' CV process noise std (ours)", **_POS),
@@ -97,6 +97,7 @@ Params = params_type("Params", dict(
     box=Param(8.0, "m", "initial positions U[0, box]^2 (paper: 8)", **_POS),
     v0=Param(0.1, "m/s", "initial velocities U[0, v0]^2 (paper: 0.1)", low=0.0),
     start_margin=Param(0.2, "m", "no pair may start in [R - start_margin, R) (ours)", low=0.0),
+    substep_safety=Param(1.0, "", "sub-step h = safety x min(1/sqrt(stiffness), 1/damping) (ours)", **_POS),
     start_min_distance=Param(0.3, "m", "no two nodes may start closer than this (ours; the paper's Fig. 6 starts near 0.3)",
                              low=0.0),
 ), __name__)
@@ -137,6 +138,7 @@ class Record(NamedTuple):
     min_link_margin: jax.Array   # smallest R - r over links and sub-steps (<= 0: a link reached R)
     energy: jax.Array            # φ of eq. 15 at the step's end (true target)
     speed_mismatch: jax.Array    # Σ_i |p_i - p_target|² at the step's end
+    substeps: jax.Array          # RK4 sub-steps taken
     target: jax.Array            # (4,) [x, vx, y, vy]
     start_failed: jax.Array      # () no valid initial draw (the same at every step)
     attempts: jax.Array          # () initial draws used (the same at every step)
@@ -229,7 +231,8 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
             rq = jnp.broadcast_to(x[jnp.array([0, 2])], (n, 2))
             return rq, jnp.broadcast_to(x[jnp.array([1, 3])], (n, 2))
 
-    flock, margin, dmin = fl.rk4_step(state.flock, state.adj, h, reference, gains, p.dt, cfg.substeps)
+    n_sub = fl.stable_substeps(state.flock, state.adj, h, gains, p.dt, cfg.max_substeps, p.substep_safety)
+    flock, margin, dmin = fl.rk4_step(state.flock, state.adj, h, reference, gains, p.dt, n_sub)
 
     # 3. the hysteresis graph at the step's end
     adj = graph.hysteresis_adjacency(state.adj, flock.q, p.R, p.epsilon)
@@ -241,7 +244,7 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
         error=errors, lambda2=graph.algebraic_connectivity(adj), edges=jnp.sum(adj) / 2, added=added,
         removed=removed, min_distance=dmin, min_link_margin=margin,
         energy=fl.energy(flock, adj, h, tq, tp, gains, p.c2),
-        speed_mismatch=jnp.sum((flock.p - tp) ** 2), target=target, start_failed=state.start_failed,
+        speed_mismatch=jnp.sum((flock.p - tp) ** 2), substeps=n_sub, target=target, start_failed=state.start_failed,
         attempts=state.attempts)
     return State(state.t + 1, flock, adj, filters, state.start_failed, state.attempts), rec
 
@@ -261,6 +264,8 @@ def outputs(cfg) -> dict[str, Output]:
         energy_end=Output("", "flocking energy at the end", False),
         energy_max_rise=Output("", "largest rise of the energy between two steps (0 if monotone)", False),
         final_speed_mismatch=Output("m^2/s^2", "sum over nodes of |p_i - p_target|^2 at the end", False),
+        substeps_mean=Output("", "mean RK4 sub-steps per step", False),
+        substeps_capped=Output("steps", "steps that needed more than max_substeps sub-steps", False),
         start_failed=Output("", "no valid initial draw within start_attempts", False),
         start_attempts_used=Output("", "initial draws until a valid one", False),
     )
@@ -283,7 +288,8 @@ def reduce(cfg, records: Record, params) -> dict:
         final_min_distance=records.min_distance[-1], link_reached_R=jnp.any(~(records.min_link_margin > 0)),
         energy_start=e[0], energy_end=e[-1], energy_max_rise=jnp.maximum(jnp.max(e[1:] - e[:-1]), 0.0),
         final_speed_mismatch=records.speed_mismatch[-1], start_failed=records.start_failed[0],
-        start_attempts_used=records.attempts[0],
+        start_attempts_used=records.attempts[0], substeps_mean=jnp.mean(records.substeps.astype(dtype)),
+        substeps_capped=jnp.sum(records.substeps >= cfg.max_substeps),
     )
     return out
 

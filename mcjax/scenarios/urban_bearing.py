@@ -61,8 +61,9 @@ _settings["n_agents"] = Setting(1, "number of UAVs (the paper's system has one)"
 Config = config_type("Config", dict(
     **_settings,
     dt=Setting(2.0, "time step (paper: 2 s)", "s", low=0, low_open=True),
-    theta_rate_max=Setting(1.0 * DEG, "largest |d theta/dt| (paper: 1 deg/s)", "rad/s", low=0),
-    omega_rate_max=Setting(1.0 * DEG, "largest |d omega/dt| (paper: 1 deg/s^2)", "rad/s^2", low=0),
+    theta_rate_max=Setting(1.0 * DEG, "largest |d theta/dt| (paper: 1 deg/s)", "rad/s", low=0, low_open=True),
+    omega_rate_max=Setting(1.0 * DEG, "largest |d omega/dt| (paper: 1 deg/s^2)", "rad/s^2", low=0,
+                           low_open=True),
     theta_step=Setting(1.0 * DEG, "grid step of theta (ours: 1 deg)", "rad", low=0, low_open=True),
     omega_step=Setting(0.5 * DEG, "grid step of omega (ours: 0.5 deg/s)", "rad/s", low=0, low_open=True),
     horizon=Setting(10, "predicted steps n of a candidate track (ours)", "steps", low=1, integer=True),
@@ -242,10 +243,9 @@ def plan_command(cfg, params, b: env.Buildings, uav, previous, belief: urban.Bel
     lo, hi = urban.command_box(previous, lim, cfg.dt)
     width = hi - lo
     safe_w = jnp.where(width > 0, width, 1.0)
-    n_brake = int(np.ceil(np.pi / 2 / max(cfg.theta_rate_max * cfg.dt, 1e-9))) + 1
 
     def to_command(u):
-        return lo + (u + 1.0) / 2.0 * width
+        return jnp.clip(lo + (u + 1.0) / 2.0 * width, lo, hi)
 
     def to_unit(c):
         return jnp.where(width > 0, 2.0 * (c - lo) / safe_w - 1.0, 0.0)
@@ -254,7 +254,7 @@ def plan_command(cfg, params, b: env.Buildings, uav, previous, belief: urban.Bel
         return urban.predicted_track(uav, c, params.speed, cfg.dt, cfg.horizon)
 
     def ok(c, track):
-        return urban.admissible(b, uav, c, track, lim, params.speed, cfg.dt, cfg.theta_rate_max * cfg.dt, n_brake)
+        return urban.admissible(b, uav, c, track, lim, params.speed, cfg.dt, cfg.theta_rate_max * cfg.dt)
 
     def exact(u):
         c = to_command(u)
@@ -303,14 +303,13 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
     imm = state.filters[cfg.filters.index("imm")]
     xy, _ = combine(imm)
     _, sig = mode_models(p, "imm")
-    belief = urban.Belief(xy, imm.x, imm.mu, state.fim, sig)
+    belief = urban.Belief(xy, imm.x, imm.mu, state.fim, sig, p.emitter[2])
     planned, score, _ = plan_command(cfg, p, b, state.uav, state.command, belief, k_plan)
     # in the shadow the paper holds the previous command; ours: only while it stays admissible
     lim = limits_of(cfg, p)
-    n_brake = int(np.ceil(np.pi / 2 / max(cfg.theta_rate_max * cfg.dt, 1e-9))) + 1
     hold_track = urban.predicted_track(state.uav, state.command, p.speed, cfg.dt, cfg.horizon)
     hold_ok = urban.admissible(b, state.uav, state.command, hold_track, lim, p.speed, cfg.dt,
-                               cfg.theta_rate_max * cfg.dt, n_brake)
+                               cfg.theta_rate_max * cfg.dt)
     held = ~state.measured & hold_ok
     command = jnp.where(held, state.command, planned)
     uav = fixed_wing_step(state.uav, command[0], command[1], p.speed, cfg.dt)
@@ -355,8 +354,8 @@ def outputs(cfg) -> dict[str, Output]:
         limit_violations=Output("steps", "steps whose command or altitude broke a limit of eq. 4 (must be 0)",
                                 False),
         min_altitude=Output("m", "lowest altitude flown", False),
-        mu_nlos_when_nlos=Output("", "the IMM's mean NLOS probability on steps with a reflected measurement",
-                                 False),
+        mu_nlos_when_nlos=Output("", "the IMM's mean NLOS probability on steps with a reflected measurement "
+                                 "(NaN if there were none)", False),
     )
 
 
