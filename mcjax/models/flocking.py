@@ -101,7 +101,7 @@ def derivative(state: FlockState, adj, sensing, ref_q, ref_p, g: Gains) -> Flock
 
 
 def potential_curvature(r, R):
-    """ψ″(r) = 6/r⁴ + 2R²/(R − r)³ (exact second derivative of eq. 12) on (0, R)."""
+    """ψ″(r) = 6/r⁴ + 2R²/(R − r)³ (exact second derivative of eq. 12) on (0, R); +∞ outside."""
     inside = (r > 0) & (r < R)
     rs = jnp.where(inside, r, R / 2)
     return jnp.where(inside, 6.0 / rs**4 + 2.0 * R**2 / (R - rs) ** 3, jnp.inf)
