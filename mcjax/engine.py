@@ -60,9 +60,14 @@ def simulate(scenario: Scenario, cfg, params, keys, *, records: bool = False, ti
     return jax.vmap(one)(params, keys)
 
 
-@lru_cache(maxsize=32)
 def compiled(scenario: Scenario, cfg, records: bool = False, timeseries: bool = False) -> Callable:
-    """The jitted :func:`simulate` for one scenario and config (defined once per process)."""
+    """The jitted :func:`simulate` for one scenario and config (defined once per process,
+    however the flags are spelled: positionally, by keyword or left at their defaults)."""
+    return _compiled(scenario, cfg, bool(records), bool(timeseries))
+
+
+@lru_cache(maxsize=32)
+def _compiled(scenario: Scenario, cfg, records: bool, timeseries: bool) -> Callable:
     return jax.jit(lambda params, keys: simulate(scenario, cfg, params, keys, records=records,
                                                  timeseries=timeseries))
 

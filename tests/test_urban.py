@@ -567,3 +567,28 @@ def test_zero_theta_rate_is_rejected_or_planned_in_bounded_memory():
     with pytest.raises(ValueError, match="theta_rate_max must be > 0"):
         S.Config(theta_rate_max=0.0)
     assert _largest_array(_plan_jaxpr(S.Config(theta_rate_max=1e-9))) < 10**5
+
+
+def test_gradient_planner_falls_back_to_an_admissible_grid_command():
+    """Heading straight at the 200 m building 300 m ahead, the previous command (straight and
+    level) and the level-off one both meet it within the horizon. A gradient planner that
+    cannot move (one Adam step of 1e-9) would return that inadmissible command; the scenario
+    must fly the grid's best admissible one instead, whose track clears every box (numpy)."""
+    cfg = S.Config(planner="gradient", plan_iterations=1, plan_learning_rate=1e-9)
+    p = kit.cast(S.default_params(cfg), jnp.float64)
+    b = S.buildings_of(p)
+    uav = jnp.array([4450.0, 5100.0, 150.0, 0.0])
+    belief = urban.Belief(jnp.array([5000.0, 5000.0]), jnp.full((3, 2), 5000.0), jnp.array([0.8, 0.1, 0.1]),
+                          jnp.broadcast_to(1e-6 * jnp.eye(2), (3, 2, 2)), jnp.array([0.2, 1.0, 1.0]) * DEG)
+    straight = urban.predicted_track(uav, jnp.zeros(2), p.speed, cfg.dt, cfg.horizon)
+    assert bool(jnp.any(env.inside(b, straight[:, :3])))  # the previous command is inadmissible
+    command, score, ok = jax.jit(lambda u: S.plan_command(cfg, p, b, u, jnp.zeros(2), belief,
+                                                          jax.random.PRNGKey(0)))(uav)
+    assert bool(ok) and np.isfinite(float(score))
+    track = np.asarray(urban.predicted_track(uav, command, p.speed, cfg.dt, cfg.horizon))
+    boxes = np.asarray(p.buildings)
+    inside = ((track[:, None, 0] >= boxes[:, 0]) & (track[:, None, 0] <= boxes[:, 2])
+              & (track[:, None, 1] >= boxes[:, 1]) & (track[:, None, 1] <= boxes[:, 3])
+              & (track[:, None, 2] <= boxes[:, 4]))
+    assert not inside.any()
+    assert np.all(np.abs(np.asarray(command)) <= np.array([2.0, 2.0]) * DEG + 1e-12)  # within the rate box

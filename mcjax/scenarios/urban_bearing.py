@@ -229,15 +229,15 @@ def _mode_filter(x, P, model, z, uav, q):
 
 
 def planner_options(cfg) -> PlannerOptions:
-    return PlannerOptions("grid" if cfg.planner == "grid" else "gradient", cfg.plan_iterations,
-                          learning_rate=cfg.plan_learning_rate)
+    return PlannerOptions(cfg.planner, cfg.plan_iterations, learning_rate=cfg.plan_learning_rate)
 
 
 def plan_command(cfg, params, b: env.Buildings, uav, previous, belief: urban.Belief, key):
     """The planner's command: the grid of Alg. 1 (or the gradient planner on the smooth score)
     over the commands the rate limits allow, maximising eq. 20 among the admissible ones
     (:mod:`mcjax.planning.urban`). Plans live in the unit box: u ∈ [−1, 1]² maps to the
-    command box. Returns ``(command (2,), exact score, admissible)``."""
+    command box. The gradient planner falls back to the grid's best admissible command when it
+    ends on an inadmissible one. Returns ``(command (2,), exact score, admissible)``."""
     lim = limits_of(cfg, params)
     w = urban.Weights(params.c1, params.c2, params.c3)
     lo, hi = urban.command_box(previous, lim, cfg.dt)
@@ -271,14 +271,18 @@ def plan_command(cfg, params, b: env.Buildings, uav, previous, belief: urban.Bel
     commands = urban.candidate_commands(previous, lim, cfg.dt, (cfg.theta_step, cfg.omega_step), counts)
     candidates = jax.vmap(to_unit)(commands)
     warm = to_unit(previous)
+    grid = solve(PlanCost(exact), warm, key, PlannerOptions("grid"), candidates)
     if cfg.planner == "grid":
-        plan = solve(PlanCost(exact), warm, key, planner_options(cfg), candidates)
+        plan = grid
     else:
-        # start from the better of the previous command and the level-off one (always admissible
-        # when the previous was), so the exact fallback keeps the constraints
+        # Adam from the better of the previous command and the level-off one; if it ends on an
+        # inadmissible command (a track that was clear one step ago can meet a building at its
+        # new last step), the grid's best admissible command is flown instead (ours: the hard
+        # constraints hold whatever the planner)
         level = candidates[counts[0] * counts[1] + counts[1] // 2]
         warm = jnp.where(exact(level) < exact(warm), level, warm)
         plan = solve(PlanCost(exact, smooth), warm, key, planner_options(cfg))
+        plan = jax.tree.map(lambda g, a: jnp.where(jnp.isfinite(plan.cost), a, g), grid, plan)
     return to_command(plan.u), -plan.cost, jnp.isfinite(plan.cost)
 
 

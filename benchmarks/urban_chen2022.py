@@ -1,0 +1,594 @@
+"""Chen & Hao 2022 Table 1 and Figs. 4–5: azimuth-only localisation of an emitter among buildings.
+
+What is run. The scenario ``urban_bearing`` with ``configs/chen2022.toml`` (all values fixed
+there; nothing is tuned here) at the three weight vectors of ``sweeps/chen2022_table1.toml``
+(its [zip] axis): track 1 = full score (c1, c2, c3) = (0.2, 0.5, -0.3), track 2 = without the
+NLOS term (0.2, 0.5, 0), track 3 = FIM only (0.2, 0, 0). Each weight vector runs N seeds
+(default 1,000; the paper ran 50) with the SAME seed indices (common random numbers: seed i
+draws the same prior and the same measurement noise at every weight vector), 250 steps each,
+in one engine sweep (``mcjax.engine.run_chunks`` with per-step records).
+
+How to run::
+
+    python benchmarks/urban_chen2022.py                      # 1,000 runs per weight vector
+    python benchmarks/urban_chen2022.py --runs 50            # the paper's count
+    python benchmarks/urban_chen2022.py [--runs 1000] [--out DIR] [--no-figures] [--no-check]
+                                        [--no-compare-planners] [--runs-compare 100]
+
+What it prints.
+
+1. The wall time of the sweep (compilation included, and compilation alone, timed by
+   compiling the engine's program ahead of time) and, when cheap, of a sweep with the paper's
+   50 runs per weight vector (150 runs; the same compiled program, so no compilation).
+   The machine's load average is printed beside it: timings are wall clock on a shared CPU.
+2. Table 1 beside the paper's: per weight vector the mean over runs of the IMM-EKF's final
+   error (horizontal distance of its estimate from the emitter at the last step — the
+   paper's "RMSE" of eq. 23) with its 95 % Student-t interval, its median, the count of runs
+   whose final error exceeds 100 m (95 % Wilson interval of the fraction), and the same for
+   our LOS-only EKF (a single EKF that assumes line of sight; not in the paper).
+3. A flight table: mean steps in the shadow (no measurement), with an NLOS (reflected,
+   biased) measurement and with the previous command held, and the number of runs (out of
+   ALL runs) that entered a building or broke a limit of eq. 4 — both must be 0.
+4. Paired differences of the final error between weight vectors (same seeds) with 95 % t
+   intervals, then the paper's orderings: "track 2's final error > track 3's" is printed
+   without being checked; "the full score has the lowest mean final error" is THE check.
+5. Planner comparison (``--compare-planners``, on by default): grid (the paper's
+   exhaustive search over (θ, ω)) vs gradient (optax Adam on the smooth surrogate, the
+   config's ``plan_iterations``) on the SAME planning states, and each planner in closed
+   loop on the first ``--runs-compare`` seeds (see below).
+
+Exit status 1 (unless ``--no-check``) when the full score's mean final error is not the
+lowest of the three, or when any run of the Table 1 sweep entered a building or broke a
+limit. Building entries or broken limits of the gradient planner's closed-loop runs are
+printed as a warning, outside the exit status.
+
+Figures (``--out``, default ``results/urban_chen2022/``; ``--no-figures`` skips them):
+``paths.png`` — top view of seed 0's path per weight vector over the buildings, the emitter,
+the start, and the true shadow and reflection (NLOS) regions at 200 m altitude (left: the
+whole flight, at least 4 km x 4 km around the emitter; right: 1.6 km x 1.6 km around it);
+``error_over_time.png`` — the mean over runs of the final-error curve (eq. 23 at every step)
+per weight vector with its 95 % band and the median, log scale, for the IMM-EKF and the
+LOS-only EKF, with the paper's Table 1 values at the last step. Every run's summary goes to
+``OUT/runs/`` (one Parquet part).
+
+The default (3 x 1,000 runs and the planner comparison on 3 x 100 seeds) took about 7 min of
+wall time on the 2-core CPU this was written on (the Table 1 sweep about 2 min of it).
+
+Planner comparison on the same states. The records carry the UAV, the command and the IMM's
+mode probabilities but not the IMM's mode estimates, nor the accumulated FIM, which the
+planner needs. So the states are rebuilt: for the first ``--runs-compare`` seeds of each
+weight vector the scenario's own ``init`` / ``step`` are scanned with the engine's keys
+(``run_key``; init key ``fold_in(key, 0x7FFFFFFF)``, step key ``fold_in(key, t)``, exactly as
+``mcjax.engine``), keeping the full ``State`` before every step — these are the grid
+planner's closed-loop states, and the script checks that this scan reproduces the engine's
+records. From each state the planner's inputs are built as ``urban_bearing.step`` does (the
+IMM's combined estimate, mode estimates, mode probabilities, FIM per mode, mode σ, the plan
+key) and ``urban_bearing.plan_command`` is called, jitted and vmapped, once with
+``planner = "grid"`` and once with ``planner = "gradient"``. Only re-plan states count
+(steps whose command was not held after a step in the shadow), as in the records' ``score``
+(NaN when held). Printed per weight vector: the mean exact score J per re-plan of each
+planner (95 % t interval), the fraction of states where the gradient planner's J is >= the
+grid's (Wilson interval) and where it is strictly higher, and the time per plan after
+compilation (``block_until_ready``): batched (vmap over 1,000 states, best of 3 calls) and
+for a single state (best of 20 calls). The closed-loop lines give each planner's mean J per re-plan and mean final
+error over its own runs (different states, so their J are not comparable state by state).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+
+from mcjax import engine
+from mcjax.filters.imm import combine
+from mcjax.models import environment as env
+from mcjax.planning import urban
+from mcjax.results import environment_metadata, write_part
+from mcjax.scenarios import urban_bearing as ub
+from mcjax.statistics import mean_ci, t_critical, wilson_interval
+from mcjax.sweep import load_spec, point_params, points, run_rows
+
+ROOT = Path(__file__).resolve().parent.parent
+#: Chen & Hao 2022 Table 1: final error (m), mean over 50 runs of eq. 23 at the last step.
+PAPER = {
+    (0.2, 0.5, -0.3): ("track 1", "full score", 1.2),
+    (0.2, 0.5, 0.0): ("track 2", "without the NLOS term", 98.4),
+    (0.2, 0.0, 0.0): ("track 3", "FIM only", 6.5),
+}
+FULL, NO_NLOS, FIM_ONLY = PAPER
+LARGE_ERROR = 100.0   # m: a run "failed to localise" above this final error (our line, for a count)
+ALTITUDE = 200.0      # m: altitude of the drawn shadow / reflection regions (the start altitude)
+ZOOM = 800.0          # m: half-width of the zoomed panel of paths.png
+COLORS = ("tab:blue", "tab:red", "tab:green")
+
+
+def fmt_ci(ci, digits: int = 1) -> str:
+    return f"{ci.mean:.{digits}f} [{ci.low:.{digits}f}, {ci.high:.{digits}f}]"
+
+
+def fmt_wilson(k: int, n: int) -> str:
+    lo, hi = wilson_interval(k, n)
+    return f"{k} ({100 * k / n:.1f} % [{100 * lo:.1f}, {100 * hi:.1f}])"
+
+
+# --------------------------------------------------------------------------- the Table 1 sweep
+
+
+def tracks(spec) -> list[dict]:
+    """One entry per sweep point: its weights, the paper's name and number (if any)."""
+    out = []
+    for _, row in points(spec).iterrows():
+        w = (float(row["c1"]), float(row["c2"]), float(row["c3"]))
+        key = next((k for k in PAPER if np.allclose(k, w)), None)
+        name, what, paper = PAPER[key] if key else (f"point {int(row['point_id'])}", "", float("nan"))
+        out.append(dict(point=int(row["point_id"]), weights=w, key=key, name=name, what=what, paper=paper))
+    return out
+
+
+def run_sweep(spec, runs: int, base_seed: int):
+    """Records (run axis first, point-major: run = point * runs + seed) of every point and
+    seed, the per-run summaries (``reduce``), the wall time including compilation, and the
+    compilation time alone."""
+    sc, cfg = spec.scenario, spec.config
+    pp = point_params(spec)
+    n = spec.n_points * runs
+    t0 = time.perf_counter()
+    # compile the engine's batch program ahead of time, to time compilation apart; the key is
+    # spelled as run_chunks spells it (engine.compiled is an lru_cache on its literal arguments)
+    b = engine.batch_size_for(n)
+    engine.compiled(sc, cfg, True, False).lower(*engine.chunk_inputs(pp, runs, base_seed, 0, b, b)).compile()
+    t_compile = time.perf_counter() - t0
+    chunks = [o for *_, o in engine.run_chunks(sc, cfg, pp, runs, base_seed=base_seed, chunk_size=n, records=True)]
+    records = jax.tree.map(lambda *xs: np.concatenate(xs), *chunks)
+    per_run = jax.tree.map(lambda a: np.asarray(a)[np.arange(n) // runs], pp)
+    summaries = jax.jit(jax.vmap(lambda r, p: sc.reduce(cfg, r, p)))(records, per_run)
+    summaries = {k: np.asarray(v) for k, v in summaries.items()}
+    return records, summaries, time.perf_counter() - t0, t_compile
+
+
+def time_sweep(spec, runs: int, base_seed: int) -> float:
+    """Wall time of a ``runs``-per-point sweep with records (the cached program if the batch
+    size is the same)."""
+    t0 = time.perf_counter()
+    for _ in engine.run_chunks(spec.scenario, spec.config, point_params(spec), runs, base_seed=base_seed,
+                               chunk_size=spec.n_points * runs, records=True):
+        pass
+    return time.perf_counter() - t0
+
+
+def table1(trk, summ, runs: int, imm: int, ekf: int | None) -> str:
+    head = ("| weight vector (c1, c2, c3) | paper: final error, m (50 runs) | ours: IMM-EKF final error, m: mean "
+            "[95 % t interval] | IMM-EKF median, m | IMM-EKF runs with final error > 100 m (% [95 % Wilson]) |"
+            + (" LOS-only EKF final error, m: mean [95 % t] | LOS-only EKF median, m |" if ekf is not None else ""))
+    lines = [head, "|" + "---|" * (5 + 2 * (ekf is not None))]
+    fe = summ["final_error"]
+    for k, t in enumerate(trk):
+        sl = slice(k * runs, (k + 1) * runs)
+        e = fe[sl, imm]
+        cells = [f"{t['name']}, {t['what']} {t['weights']}", f"{t['paper']:g}", fmt_ci(mean_ci(e)),
+                 f"{np.median(e):.2f}", fmt_wilson(int(np.sum(e > LARGE_ERROR)), runs)]
+        if ekf is not None:
+            cells += [fmt_ci(mean_ci(fe[sl, ekf])), f"{np.median(fe[sl, ekf]):.2f}"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def flight_table(trk, summ, runs: int) -> str:
+    lines = ["| weight vector | runs | steps in the shadow (no measurement), mean | steps with an NLOS (reflected) "
+             "measurement, mean | steps holding the previous command, mean | runs that entered a building | "
+             "runs that broke a limit of eq. 4 |", "|---|---|---|---|---|---|---|"]
+    for k, t in enumerate(trk):
+        sl = slice(k * runs, (k + 1) * runs)
+        lines.append(f"| {t['name']} | {runs} | {summ['shadow_steps'][sl].mean():.1f} | "
+                     f"{summ['nlos_steps'][sl].mean():.1f} | {summ['held_steps'][sl].mean():.1f} | "
+                     f"{int(np.sum(summ['building_steps'][sl] > 0))} | "
+                     f"{int(np.sum(summ['limit_violations'][sl] > 0))} |")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- figures
+
+
+def regions(b: env.Buildings, emitter, xs, ys, z: float):
+    """True shadow and reflection (NLOS, the paper's region: ``check_legs=False``) masks on
+    the grid ``xs`` x ``ys`` at altitude ``z``: (len(ys), len(xs)) each."""
+    X, Y = np.meshgrid(xs, ys)
+    pts = jnp.asarray(np.stack([X, Y, np.full_like(X, z)], -1))
+    e = jnp.asarray(emitter)
+    shadow = np.asarray(env.in_shadow(b, e, pts))
+    nlos = np.asarray(jnp.any(env.reflections(b, e, pts, check_legs=False).valid, axis=(-2, -1)))
+    return shadow, nlos
+
+
+def figures(spec, trk, records, runs: int, imm: int, ekf: int | None, out_dir: Path) -> list[Path]:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch, Rectangle
+
+    p = spec.base_params
+    boxes = np.asarray(p.buildings)
+    b = ub.buildings_of(p)
+    emitter = np.asarray(p.emitter)
+    start = np.asarray(p.uav0)
+    paths = []
+
+    # (a) paths over the buildings and the true shadow / reflection regions at ALTITUDE
+    tracks_xy = [np.asarray(records.uav[k * runs])[:, :2] for k in range(len(trk))]   # seed 0 of each point
+    allxy = np.concatenate([*tracks_xy, start[None, :2], emitter[None, :2]])
+    lo = np.minimum(allxy.min(0), emitter[:2] - 2000.0) - 300.0
+    hi = np.maximum(allxy.max(0), emitter[:2] + 2000.0) + 300.0
+    windows = [(lo, hi, "whole flight (and at least 4 km x 4 km around the emitter)"),
+               (emitter[:2] - ZOOM, emitter[:2] + ZOOM, f"zoom: {2 * ZOOM / 1e3:g} km x {2 * ZOOM / 1e3:g} km around "
+                                                         "the emitter")]
+    fig, axes = plt.subplots(1, 2, figsize=(15, 7.2), gridspec_kw=dict(width_ratios=[1.15, 1]))
+    for ax, (wlo, whi, title) in zip(axes, windows):
+        n = 700
+        xs, ys = np.linspace(wlo[0], whi[0], n), np.linspace(wlo[1], whi[1], n)
+        shadow, nlos = regions(b, emitter, xs, ys, ALTITUDE)
+        ext = [xs[0] / 1e3, xs[-1] / 1e3, ys[0] / 1e3, ys[-1] / 1e3]
+        ax.contourf(xs / 1e3, ys / 1e3, shadow.astype(float), levels=[0.5, 1.5], colors=["0.35"], alpha=0.35)
+        ax.contourf(xs / 1e3, ys / 1e3, nlos.astype(float), levels=[0.5, 1.5], colors=["orange"], alpha=0.35)
+        for j, (x0, y0, x1, y1, h) in enumerate(boxes):
+            ax.add_patch(Rectangle((x0 / 1e3, y0 / 1e3), (x1 - x0) / 1e3, (y1 - y0) / 1e3, facecolor="k",
+                                   edgecolor="k", zorder=4))
+            if title.startswith("zoom"):
+                centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
+                away = (centre - emitter[:2]) / max(np.hypot(*(centre - emitter[:2])), 1e-9)
+                ax.annotate(f"building {j + 1}: {h:.0f} m tall", centre / 1e3, xytext=tuple(away * [70, 45]),
+                            textcoords="offset points", ha="center", va="center", fontsize=9, zorder=8,
+                            arrowprops=dict(arrowstyle="-", lw=0.8),
+                            bbox=dict(boxstyle="round,pad=0.2", fc="white", ec="0.5", alpha=0.9))
+        for k, (t, xy) in enumerate(zip(trk, tracks_xy)):
+            ax.plot(xy[:, 0] / 1e3, xy[:, 1] / 1e3, color=COLORS[k % len(COLORS)], lw=1.3, zorder=5,
+                    label=f"{t['name']}: {t['what']} (c1, c2, c3) = {t['weights']}")
+            ax.plot(xy[-1, 0] / 1e3, xy[-1, 1] / 1e3, "o", color=COLORS[k % len(COLORS)], ms=5, zorder=6)
+        ax.plot(emitter[0] / 1e3, emitter[1] / 1e3, "r*", ms=14 if title.startswith("zoom") else 16, mec="k",
+                zorder=7, label="emitter")
+        ax.plot(start[0] / 1e3, start[1] / 1e3, "k^", ms=9, zorder=7, label="UAV start")
+        ax.set(xlim=ext[:2], ylim=ext[2:], xlabel="x (east), km", ylabel="y (north), km", title=title)
+        ax.set_aspect("equal")
+        ax.grid(alpha=0.3)
+    handles, labels = axes[0].get_legend_handles_labels()
+    handles += [Patch(facecolor="0.35", alpha=0.35), Patch(facecolor="orange", alpha=0.35),
+                Patch(facecolor="k")]
+    labels += [f"shadow at {ALTITUDE:.0f} m altitude (no line of sight)",
+               f"reflection (NLOS) region at {ALTITUDE:.0f} m (eqs. 9–10)", "buildings"]
+    fig.legend(handles, labels, loc="lower center", ncol=3, fontsize=9, frameon=False)
+    fig.suptitle("UAV paths, seed 0 of each weight vector (dot = position at the last step); regions drawn "
+                 f"for the true emitter at {ALTITUDE:.0f} m altitude (the UAV flies 100–400 m)")
+    fig.tight_layout(rect=(0, 0.09, 1, 0.97))
+    paths.append(out_dir / "paths.png")
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+
+    # (b) mean error over time with its 95 % t band (log y)
+    err = np.asarray(records.error)[..., 0]            # (runs_total, T, F)
+    T = err.shape[1]
+    steps = np.arange(1, T + 1)
+    filt = [(imm, "IMM-EKF (the paper's filter; the planner uses it)")]
+    if ekf is not None:
+        filt.append((ekf, "LOS-only EKF (ours: assumes line of sight)"))
+    # the axis starts below every mean and median curve; a band reaching <= 0 (heavy tails, few runs) is cut there
+    curves = [f(err[k * runs:(k + 1) * runs, :, i], 0) for k in range(len(trk)) for i, _ in filt
+              for f in (np.mean, np.median)]
+    floor = 0.3 * min(float(np.min(c[c > 0])) for c in curves if np.any(c > 0))
+    fig, axes = plt.subplots(1, len(filt), figsize=(7 * len(filt), 5.2), sharey=True, squeeze=False)
+    for ax, (f, title) in zip(axes[0], filt):
+        for k, t in enumerate(trk):
+            e = err[k * runs:(k + 1) * runs, :, f]
+            m = e.mean(0)
+            half = t_critical(runs - 1) * e.std(0, ddof=1) / np.sqrt(runs) if runs > 1 else np.zeros(T)
+            c = COLORS[k % len(COLORS)]
+            ax.fill_between(steps, np.maximum(m - half, floor), m + half, color=c, alpha=0.2, lw=0)
+            ax.plot(steps, m, color=c, lw=1.5, label=f"{t['name']} ({t['what']}): mean, 95 % band")
+            ax.plot(steps, np.median(e, 0), color=c, lw=1, ls="--", label=f"{t['name']}: median")
+            if f == imm and np.isfinite(t["paper"]):
+                ax.plot(T, t["paper"], marker="D", color=c, mec="k", ms=7, ls="none", clip_on=False,
+                        label=f"{t['name']}: paper's Table 1 ({t['paper']:g} m)")
+        ax.set_yscale("log")
+        ax.set(xlabel="step (Δt = 2 s)", title=title, xlim=(0, T + 3), ylim=(floor, None))
+        ax.grid(alpha=0.3, which="both")
+    axes[0, 0].set_ylabel("distance of the estimate from the emitter, m (eq. 23)")
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(trk), fontsize=8.5, frameon=False)
+    fig.suptitle(f"Localisation error over time, mean over {runs} runs per weight vector (same seeds); "
+                 "band: 95 % t interval of the mean (cut at the axis where it reaches 0)")
+    fig.tight_layout(rect=(0, 0.13, 1, 0.95))
+    paths.append(out_dir / "error_over_time.png")
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+    return paths
+
+
+# --------------------------------------------------------------------------- planner comparison
+
+
+def state_scan(sc, cfg):
+    """``(params, run key) -> (State before every step, Record of every step)``: the engine's
+    ``_run`` with the same keys, keeping the states."""
+    def one(params, key):
+        state = sc.init(cfg, params, jax.random.fold_in(key, 0x7FFFFFFF))
+
+        def body(s, t):
+            s2, rec = sc.step(cfg, params, s, jax.random.fold_in(key, t))
+            return s2, (s, rec)
+
+        _, (states, recs) = jax.lax.scan(body, state, jnp.arange(cfg.n_steps))
+        return states, recs
+    return jax.jit(jax.vmap(one, in_axes=(None, 0)))
+
+
+def planner_fn(cfg, batched: bool = True):
+    """``(params, State, step key) -> (command, exact score J, admissible)`` with the inputs
+    built as ``urban_bearing.step`` builds them."""
+    def plan(params, state, key):
+        p = ub.kit.cast(params, jnp.dtype(cfg.dtype))
+        imm = state.filters[cfg.filters.index("imm")]
+        xy, _ = combine(imm)
+        _, sig = ub.mode_models(p, "imm")
+        belief = urban.Belief(xy, imm.x, imm.mu, state.fim, sig)
+        k_plan, _ = jax.random.split(key)
+        return ub.plan_command(cfg, p, ub.buildings_of(p), state.uav, state.command, belief, k_plan)
+    return jax.jit(jax.vmap(plan, in_axes=(None, 0, 0)) if batched else plan)
+
+
+def best_time(fn, *args, repeats: int = 3) -> float:
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def compare_planners(spec, trk, records, summ, runs: int, n_cmp: int, base_seed: int, imm: int):
+    """Returns (printed text, building/limit problems of the gradient closed loop)."""
+    sc, cfg = spec.scenario, spec.config
+    pp = point_params(spec)
+    kinds = ("grid", "gradient")
+    cfgs = {k: dataclasses.replace(cfg, planner=k) for k in kinds}
+    scan = state_scan(sc, cfg)
+    batched = {k: planner_fn(c) for k, c in cfgs.items()}
+    single = {k: planner_fn(c, batched=False) for k, c in cfgs.items()}
+    keys = jax.vmap(lambda s: engine.run_key(base_seed, s))(jnp.arange(n_cmp, dtype=jnp.uint32))
+    T = cfg.n_steps
+    step_keys = jax.vmap(lambda k: jax.vmap(lambda t: jax.random.fold_in(k, t))(jnp.arange(T)))(keys)
+    step_keys = step_keys.reshape((-1,) + step_keys.shape[2:])
+    lines = [f"States: the grid planner's closed-loop states of seeds 0–{n_cmp - 1} of each weight vector "
+             f"({n_cmp} runs x {T} steps), re-plan steps only (command not held).", "",
+             "| weight vector | re-plan states | grid: mean J per re-plan [95 % t] | gradient: mean J per re-plan "
+             "[95 % t] | gradient J >= grid J (% [95 % Wilson]) | gradient J > grid J + 1e-9 | mean J_grid − "
+             "J_gradient | no admissible command (grid / gradient) |", "|---|---|---|---|---|---|---|---|"]
+    timing = {k: [] for k in kinds}
+    checks = []
+    t_start = time.perf_counter()
+    for k, t in enumerate(trk):
+        p = jax.tree.map(lambda a: a[k], pp)
+        states, recs = scan(p, keys)
+        # the scan must reproduce the engine's records of the same seeds
+        eng = jax.tree.map(lambda a: np.asarray(a)[k * runs:k * runs + n_cmp], records)
+        diff = max(float(np.nanmax(np.abs(np.asarray(recs.error) - eng.error))),
+                   float(np.max(np.abs(np.asarray(recs.uav) - eng.uav))))
+        checks.append(diff)
+        flat = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), states)
+        replan = ~np.asarray(recs.held).ravel()
+        score = {}
+        for kind in kinds:
+            _, s, _ = batched[kind](p, flat, step_keys)
+            score[kind] = np.asarray(s)
+        rec_score = np.asarray(recs.score).ravel()
+        checks.append(float(np.nanmax(np.abs(score["grid"][replan] - rec_score[replan]))))
+        g, d = score["grid"][replan], score["gradient"][replan]
+        ok = np.isfinite(g) & np.isfinite(d)
+        n = int(replan.sum())
+        ge = int(np.sum(d[ok] >= g[ok]))
+        gt = int(np.sum(d[ok] > g[ok] + 1e-9))
+        lines.append(f"| {t['name']} | {n} | {fmt_ci(mean_ci(g[ok]), 3)} | {fmt_ci(mean_ci(d[ok]), 3)} | "
+                     f"{fmt_wilson(ge, int(ok.sum()))} | {fmt_wilson(gt, int(ok.sum()))} | "
+                     f"{np.mean(g[ok] - d[ok]):.4f} | {int(np.sum(~np.isfinite(g)))} / "
+                     f"{int(np.sum(~np.isfinite(d)))} |")
+        # time per plan after compilation: a batch of up to 1,000 states, and one state
+        m = min(1000, flat.uav.shape[0])
+        sub = jax.tree.map(lambda a: a[:m], flat)
+        for kind in kinds:
+            one = jax.tree.map(lambda a: a[m // 2], flat)
+            jax.block_until_ready(single[kind](p, one, step_keys[m // 2]))       # compile
+            timing[kind].append((best_time(batched[kind], p, sub, step_keys[:m]) / m,
+                                 best_time(single[kind], p, one, step_keys[m // 2], repeats=20)))
+    lines.append("")
+    lines.append(f"Sanity: the state scan reproduces the engine's records (largest |difference| of error or UAV "
+                 f"position: {max(checks[0::2]):.1e} m) and the grid planner on those states reproduces the "
+                 f"records' score (largest |difference|: {max(checks[1::2]):.1e}).")
+    lines.append("")
+    lines.append("| planner | time per plan, batched (vmap over 1,000 states, best of 3), µs | time per plan, one "
+                 "state (jit, best of 20), µs |")
+    lines.append("|---|---|---|")
+    for kind in kinds:
+        tb, ts = np.array(timing[kind]).min(0)
+        name = "grid (the paper's)" if kind == "grid" else f"gradient (Adam, {cfg.plan_iterations} steps)"
+        lines.append(f"| {name} | {tb * 1e6:.0f} | {ts * 1e6:.0f} |")
+    same_state_wall = time.perf_counter() - t_start
+
+    # closed loop with the gradient planner on the same seeds; grid's from the Table 1 sweep
+    t0 = time.perf_counter()
+    chunks = [o for *_, o in engine.run_chunks(sc, cfgs["gradient"], pp, n_cmp, base_seed=base_seed,
+                                               chunk_size=spec.n_points * n_cmp, records=True)]
+    grec = jax.tree.map(lambda *xs: np.concatenate(xs), *chunks)
+    loop_wall = time.perf_counter() - t0
+    lines += ["", f"Closed loop, seeds 0–{n_cmp - 1} of each weight vector (each planner flies its own states, so J "
+              "is not comparable state by state):", "",
+              "| weight vector | planner | mean J per re-plan (admissible) | re-plans with no admissible command "
+              "(J = −inf) | IMM-EKF final error, m: mean [95 % t] | median, m | runs with final error > 100 m | "
+              "runs that entered a building | runs that broke a limit |",
+              "|---|---|---|---|---|---|---|---|---|"]
+    problems = 0
+    for k, t in enumerate(trk):
+        grid_sl = slice(k * runs, k * runs + n_cmp)
+        gr_sl = slice(k * n_cmp, (k + 1) * n_cmp)
+        for kind, rec_score, fe, inb, vio in (
+                ("grid", records.score[grid_sl], summ["final_error"][grid_sl, imm],
+                 summ["building_steps"][grid_sl], summ["limit_violations"][grid_sl]),
+                ("gradient", grec.score[gr_sl], grec.error[gr_sl, -1, imm, 0],
+                 grec.in_building[gr_sl].sum(1), grec.violation[gr_sl].sum(1))):
+            nb, nv = int(np.sum(inb > 0)), int(np.sum(vio > 0))
+            problems += (nb + nv) if kind == "gradient" else 0
+            rec_score = np.asarray(rec_score)
+            lines.append(f"| {t['name']} | {kind} | {np.mean(rec_score[np.isfinite(rec_score)]):.3f} | "
+                         f"{int(np.sum(np.isneginf(rec_score)))} | {fmt_ci(mean_ci(fe))} | "
+                         f"{np.median(fe):.2f} | {int(np.sum(fe > LARGE_ERROR))} | {nb} | {nv} |")
+    lines.append("")
+    lines.append(f"Planner comparison wall time: same states {same_state_wall:.1f} s (state scans, 4 compiled planner "
+                 f"programs, timing repeats); gradient closed loop {spec.n_points} x {n_cmp} runs {loop_wall:.1f} s "
+                 f"including compilation.")
+    return "\n".join(lines), problems
+
+
+# --------------------------------------------------------------------------- main
+
+
+def main(argv=None) -> int:
+    t_script = time.perf_counter()
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--runs", type=int, default=1000, help="runs per weight vector (paper: 50)")
+    ap.add_argument("--sweep", type=Path, default=ROOT / "sweeps" / "chen2022_table1.toml",
+                    help="sweep spec giving the config and the weight vectors")
+    ap.add_argument("--out", type=Path, default=ROOT / "results" / "urban_chen2022")
+    ap.add_argument("--base-seed", type=int, default=None, help="default: the sweep spec's")
+    ap.add_argument("--no-figures", action="store_true")
+    ap.add_argument("--no-check", action="store_true", help="always exit 0")
+    ap.add_argument("--compare-planners", dest="compare_planners", action="store_true", default=True,
+                    help="grid vs gradient planner (default: on)")
+    ap.add_argument("--no-compare-planners", dest="compare_planners", action="store_false")
+    ap.add_argument("--runs-compare", type=int, default=100, help="seeds per weight vector for the planner comparison")
+    args = ap.parse_args(argv)
+    if args.runs < 2:
+        ap.error(f"--runs must be >= 2; got {args.runs}")
+    if args.runs_compare < 1:
+        ap.error(f"--runs-compare must be >= 1; got {args.runs_compare}")
+    args.out.mkdir(parents=True, exist_ok=True)
+
+    spec = load_spec(args.sweep, seeds=args.runs)
+    base_seed = spec.base_seed if args.base_seed is None else args.base_seed
+    sc, cfg = spec.scenario, spec.config
+    trk = tracks(spec)
+    imm = cfg.filters.index("imm")
+    ekf = cfg.filters.index("ekf") if "ekf" in cfg.filters else None
+    runs = args.runs
+    print(f"Chen & Hao 2022 Table 1 with {args.sweep.name} (config {spec.source.get('base')}): "
+          f"{spec.n_points} weight vectors x {runs} runs x {cfg.n_steps} steps, seeds 0–{runs - 1} at every weight "
+          f"vector (base seed {base_seed}), planner {cfg.planner!r}, float64, JAX on {jax.default_backend()} "
+          f"({os.cpu_count()} cores)",
+          flush=True)
+
+    load0 = os.getloadavg()[0]
+    records, summ, wall, t_compile = run_sweep(spec, runs, base_seed)
+    n_total = spec.n_points * runs
+    b = engine.batch_size_for(n_total)
+    n_calls = -(-n_total // b)
+    per_run = (wall - t_compile) / n_total
+    print(f"Sweep: {n_total} runs in {wall:.1f} s wall, compilation included (compilation of the {b}-run program "
+          f"alone: {t_compile:.1f} s; then {n_calls} call(s) of it and the per-run summaries: {wall - t_compile:.1f} s = "
+          f"{per_run * 1e3:.1f} ms per run). Load average before the sweep {load0:.2f}, after "
+          f"{os.getloadavg()[0]:.2f} (on {os.cpu_count()} cores; other processes on this machine share them).",
+          flush=True)
+    # the paper's 50 runs per weight vector = 150 runs; the same compiled program if the batch size is the same
+    n50 = spec.n_points * 50
+    if engine.batch_size_for(n50) == b:
+        wall50 = time_sweep(spec, 50, base_seed)
+        print(f"The paper's 50 runs per weight vector correspond to {n50} runs here: measured {wall50:.1f} s wall "
+              f"(the compiled program reused, so no compilation; {-(-n50 // b)} calls of {b} runs, the last "
+              f"padded); with compilation ≈ {wall50 + t_compile:.1f} s.", flush=True)
+    else:
+        wall50 = None
+        print(f"The paper's 50 runs per weight vector correspond to {n50} runs here: not timed (another batch size "
+              f"would compile another program); at {per_run * 1e3:.1f} ms per run that is ≈ {per_run * n50:.1f} s "
+              f"plus ≈ {t_compile:.1f} s of compilation.", flush=True)
+
+    keys = {"point_id": np.arange(n_total) // runs, "seed_index": np.arange(n_total) % runs}
+    for c in ("c1", "c2", "c3"):
+        keys[c] = np.array([t["weights"][("c1", "c2", "c3").index(c)] for t in trk])[keys["point_id"]]
+    keys["track"] = np.array([t["name"] for t in trk])[keys["point_id"]]
+    df = run_rows(sc, cfg, summ, keys)
+    meta = {**sc.metadata(cfg), "benchmark": "urban_chen2022", "config": dataclasses.asdict(cfg),
+            "sweep_file": str(args.sweep), "runs": runs, "wall_s": wall, **environment_metadata()}
+    path = write_part(args.out, "runs", df, "part-000000", meta)
+    print(f"runs: {path} ({len(df)} rows; read back with pandas.read_parquet(\"{args.out / 'runs'}\"))")
+
+    if not args.no_figures:
+        t0 = time.perf_counter()
+        for path in figures(spec, trk, records, runs, imm, ekf, args.out):
+            print(f"figure: {path}")
+        print(f"figures drawn in {time.perf_counter() - t0:.1f} s")
+
+    print(f"\nTable 1 — final localisation error: distance of the estimate from the emitter at the last step "
+          f"(step {cfg.n_steps}), over {runs} runs per weight vector (paper: 50). The paper's number is its mean "
+          f"over runs (eq. 23); ours is the same mean, with its 95 % t interval.\n")
+    print(table1(trk, summ, runs, imm, ekf))
+    print(f"\nFlight statistics (means over runs; building and limit counts over all {n_total} runs, must be 0)\n")
+    print(flight_table(trk, summ, runs))
+
+    fe = summ["final_error"][:, imm].reshape(spec.n_points, runs)
+    mean = {t["key"]: fe[k].mean() for k, t in enumerate(trk)}
+    idx = {t["key"]: k for k, t in enumerate(trk)}
+    print("\nPaired differences of the IMM-EKF's final error between weight vectors (same seeds), m: mean "
+          "[95 % t interval]; median of the per-seed difference")
+    for a, b_ in ((FULL, NO_NLOS), (FULL, FIM_ONLY), (NO_NLOS, FIM_ONLY)):
+        if a in idx and b_ in idx:
+            d = fe[idx[a]] - fe[idx[b_]]
+            print(f"  {PAPER[a][0]} − {PAPER[b_][0]}: {fmt_ci(mean_ci(d), 2)}; median {np.median(d):.3f}")
+
+    bad_building = int(np.sum(summ["building_steps"] > 0))
+    bad_limit = int(np.sum(summ["limit_violations"] > 0))
+    problems_gradient = 0
+    if args.compare_planners:
+        n_cmp = min(args.runs_compare, runs)
+        print(f"\nPlanner comparison: grid (the paper's search, {cfg.theta_step / ub.DEG:g} deg x "
+              f"{cfg.omega_step / ub.DEG:g} deg/s steps) vs gradient (optax Adam on the smooth surrogate, "
+              f"{cfg.plan_iterations} steps); J = c1 J_FIM + c2 J_T + c3 J_NLOS, exact, of the returned command\n",
+              flush=True)
+        text, problems_gradient = compare_planners(spec, trk, records, summ, runs, n_cmp, base_seed, imm)
+        print(text)
+
+    print("\nThe paper's orderings with our building layout (IMM-EKF mean final error):")
+    if NO_NLOS in mean and FIM_ONLY in mean:
+        holds = mean[NO_NLOS] > mean[FIM_ONLY]
+        print(f"  not checked: track 2 (without the NLOS term) has a larger final error than track 3 (FIM only): "
+              f"{mean[NO_NLOS]:.2f} m vs {mean[FIM_ONLY]:.2f} m -> {'holds' if holds else 'does not hold'} "
+              f"(paper: 98.4 m vs 6.5 m)")
+    checks = []
+    if all(k in mean for k in PAPER):
+        lowest = mean[FULL] < min(mean[NO_NLOS], mean[FIM_ONLY])
+        checks.append((f"the full score (track 1) has the lowest mean final error: {mean[FULL]:.2f} m vs track 2 "
+                       f"{mean[NO_NLOS]:.2f} m and track 3 {mean[FIM_ONLY]:.2f} m (paper: 1.2 vs 98.4 and 6.5 m)",
+                       lowest))
+    checks.append((f"no run entered a building ({bad_building} of {n_total} did) and none broke a limit of eq. 4 "
+                   f"({bad_limit} did)", bad_building == 0 and bad_limit == 0))
+    failed = 0
+    for text, ok in checks:
+        print(("  holds   " if ok else "  FAILS   ") + text)
+        failed += not ok
+    if args.compare_planners:
+        print(f"  {'ok' if problems_gradient == 0 else 'WARNING'} (not part of the exit status): gradient-planner "
+              f"closed-loop runs that entered a building or broke a limit: {problems_gradient}")
+
+    total = time.perf_counter() - t_script
+    fifty = (f"measured {wall50:.1f} s" if wall50 is not None else f"≈ {per_run * n50:.1f} s at that per-run cost")
+    print(f"\nWall time: Table 1 sweep {wall:.1f} s ({n_total} runs, compilation included; compilation "
+          f"{t_compile:.1f} s; {per_run * 1e3:.1f} ms per run after compilation); whole script {total:.1f} s. The "
+          f"paper's 50 runs per weight vector are {n50} runs here: {fifty} without compilation.")
+    if args.no_check:
+        return 0
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
