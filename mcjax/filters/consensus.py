@@ -41,7 +41,7 @@ from mcjax.numerics import matvec, spd_inverse, symmetrize, weighted_agent_sum
 FILTER_KINDS = ("cif", "icf", "modified_icf", "kcf", "local")
 CONTRIBUTION_KINDS = ("component", "one")
 ICF_VARIANTS = ("contributions", "priors")
-KCF_GAINS = ("gamma_M", "mu_P")
+KCF_GAINS = ("gamma_M", "mu_P", "prior_consensus")
 WEIGHT_KINDS = ("eq11", "metropolis", "max_degree")
 
 
@@ -190,6 +190,44 @@ def kcf_step(h, angle_mask, opts, epsilon, post: Gaussian, meas: Measurements, F
     return Gaussian(x, M, Y)
 
 
+def prior_consensus_kcf_step(h, angle_mask, opts, post: Gaussian, meas: Measurements, F, Q,
+                             formation=None) -> Gaussian:
+    """The consensus Kalman filter of Chen & Lu 2013, eqs. 6–12 (not Olfati-Saber's γM form).
+
+    The priors are averaged first with the consensus weights ``W`` (``opts.weights``; the
+    paper's max-degree weights of eq. 7), then updated with the measurement information of
+    the agent and its neighbours (``S_i = Σ_{J_i} Hᵀ R⁻¹ H``, ``y_i = Σ_{J_i} Hᵀ R⁻¹ z``):
+
+        M_i = (P̄_i⁻¹ + S_i)⁻¹                                             (eq. 8)
+        x̂_i = x̄ᶜ_i + M_i (y_i − S_i x̄ᶜ_i),   x̄ᶜ_i = Σ_j W_ij x̄_j           (eqs. 6, 9, first line)
+            = x̄_i + M_i (y_i − S_i x̄_i) + (I − M_i S_i) Σ_j W_ij (x̄_j − x̄_i)   (eq. 9, second line)
+
+    computed in the second form, to which eq. 12 adds the formation term inside the sum:
+    ``Σ_j W_ij (x̄_j − x̄_i + formation_ij)`` with ``formation_ij = η (X_j − X_i − d_ij)``
+    (``formation`` (n, n, d) or None for eq. 9). The posterior covariance is ``M_i``; the
+    next prediction gives eq. 11, ``A M Aᵀ + B Q Bᵀ``. One consensus exchange per step.
+    """
+    xb, Pb = predict_moments(post.x, post.P, F, Q)
+    u, U, _ = contributions(h, meas.z, meas.sensors, xb, meas.R_inv, angle_mask)
+    A = meas.adjacency
+    inclusive = A + jnp.eye(A.shape[0], dtype=A.dtype)
+    S = weighted_agent_sum(inclusive, U)
+    yv = weighted_agent_sum(inclusive, u)
+    Yb = spd_inverse(Pb)
+    Y = symmetrize(Yb + S)
+    M = symmetrize(spd_inverse(Y))
+    W = _weights(opts, A)
+    offsets = xb[None, :, :] - xb[:, None, :]                     # x̄_j − x̄_i at [i, j]
+    if formation is not None:
+        offsets = offsets + formation
+    off_diag = W * (1.0 - jnp.eye(W.shape[0], dtype=W.dtype))
+    pull = jnp.sum(off_diag[..., None] * offsets, axis=1)         # Σ_{j≠i} W_ij (…)
+    d = xb.shape[-1]
+    gain = jnp.eye(d, dtype=M.dtype) - jnp.einsum("nab,nbc->nac", M, S)
+    x = xb + matvec(M, yv - matvec(S, xb)) + matvec(gain, pull)
+    return Gaussian(x, M, Y)
+
+
 def init_states(kinds, x0, P0, n_agents):
     """Every filter's state at the first measurement time: the prior ``(x0, P0)``
     (CIF: one Gaussian; the others: one per agent)."""
@@ -212,6 +250,8 @@ def filter_step(kinds, opts: FilterOptions, h, angle_mask, states, meas: Measure
             out.append(modified_icf_step(h, angle_mask, opts, post, meas, F, Q))
         elif kind == "icf":
             out.append(icf_step(h, angle_mask, opts, post, meas, F, Q))
+        elif kind == "kcf" and opts.kcf_gain == "prior_consensus":
+            out.append(prior_consensus_kcf_step(h, angle_mask, opts, post, meas, F, Q))
         elif kind == "kcf":
             out.append(kcf_step(h, angle_mask, opts, kcf_epsilon, post, meas, F, Q))
         else:
