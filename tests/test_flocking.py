@@ -888,3 +888,48 @@ def test_cli_rejects_bad_input_exit_2_nothing_written(tmp_path, case, where):
     lines = [line for line in r.output.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith("error: " + where), r.output
     assert not out.exists()
+
+
+def test_rk4_adaptive_matches_solve_ivp_and_resizes_mid_step():
+    """rk4_adaptive (sub-steps sized before each one from the current state) over the same
+    5-step window: with a small safety factor it equals solve_ivp to 1e-7; with the
+    default it stays within RK4's stability-sized error (1e-2). Two linked nodes closing at
+    40 m/s from 1 m apart get sub-steps from the kinematic bound (half the gap per sub-step),
+    so they never pass through each other: the smallest distance stays > 0 and finite."""
+    q, p, b, adj = ivp_flock()
+    g = fl.Gains(**G_IVP)
+    h = jnp.asarray(H_MIX)
+
+    @jax.jit
+    def advance(q, p, b, t0, safety):
+        def reference(tau):
+            return (jnp.broadcast_to(Q_TARGET0 + V_TARGET * (t0 + tau), (N5, 2)),
+                    jnp.broadcast_to(V_TARGET, (N5, 2)))
+
+        s, margin, dmin, k, capped = fl.rk4_adaptive(fl.FlockState(q, p, b), adj, h, reference, g, DT, 2000, safety)
+        return s.q, s.p, s.b, k, capped
+
+    y0 = np.concatenate([q.ravel(), p.ravel(), b.ravel()])
+    sol = solve_ivp(np_rhs, (0.0, 5 * DT), y0, method="DOP853", rtol=1e-11, atol=1e-12, dense_output=True,
+                    args=(adj, H_MIX, G_IVP["c1"], G_IVP["c2"], G_IVP["k"], G_IVP["R"]))
+    for safety, tol in ((0.02, 1e-7), (1.0, 1e-2)):
+        state = (q, p, b)
+        for m in range(5):
+            *state, k, capped = advance(*state, m * DT, safety)
+            assert not bool(capped)
+        ref = _split(sol.sol(5 * DT))
+        err = max(np.max(np.abs(np.asarray(a) - r)) for a, r in zip(state, ref))
+        assert err < tol, (safety, err)
+
+    # two nodes closing fast
+    q2 = jnp.array([[0.0, 0.0], [1.0, 0.0]])
+    p2 = jnp.array([[20.0, 0.0], [-20.0, 0.0]])
+    adj2 = jnp.array([[0.0, 1.0], [1.0, 0.0]])
+    g2 = fl.Gains(1.0, 2.0, 0.1, 8.4)
+    ref2 = lambda tau: (jnp.zeros((2, 2)), jnp.zeros((2, 2)))  # noqa: E731
+    s, margin, dmin, k, capped = jax.jit(lambda: fl.rk4_adaptive(
+        fl.FlockState(q2, p2, jnp.zeros((2, 2))), adj2, jnp.zeros(2), ref2, g2, 0.1, 500))()
+    assert int(k) >= 4 and not bool(capped)
+    assert np.isfinite(float(dmin)) and 0 < float(dmin) < 1.0 and np.all(np.isfinite(np.asarray(s.q)))
+    # the pair bounced: they end moving apart
+    assert float((s.q[1, 0] - s.q[0, 0]) * (s.p[1, 0] - s.p[0, 0])) > 0

@@ -11,9 +11,10 @@ every link and prevent collisions (Theorem 2). Each step of ``dt``:
 
 1. the type-I nodes measure the target and run the filters over the graph of the nodes
    that run one (``Config.filter_nodes``);
-2. the flock is integrated over ``dt`` with ``Config.substeps`` RK4 sub-steps at the
-   current topology (:func:`mcjax.models.flocking.rk4_step`), each type-I node steering to
-   its estimate extrapolated at constant velocity within the step;
+2. the flock is integrated over ``dt`` at the current topology by RK4 sub-steps sized
+   from its stiffness and closing speeds (:func:`mcjax.models.flocking.rk4_adaptive`, at
+   most ``Config.max_substeps``), each type-I node steering to its estimate extrapolated at
+   constant velocity within the step;
 3. the hysteresis graph is updated; links that broke (never expected) and sub-steps where
    a link reached ``R`` are counted and flag the run.
 
@@ -60,8 +61,8 @@ def _check(cfg) -> None:
 Config = config_type("Config", dict(
     **kit.common_settings(filter_kinds=FILTER_KINDS, n_agents=20, n_steps=300, min_steps=2, warmup_steps=20,
                           divergence_threshold=5.0),
-    max_substeps=Setting(200, "most RK4 sub-steps per step; each step takes as many as its stiffness needs "
-                         "(ours)", low=1, integer=True),
+    max_substeps=Setting(200, "most RK4 sub-steps per step; each sub-step is sized from the flock's "
+                         "stiffness and closing speeds (ours)", low=1, integer=True),
     filter_nodes=Setting("sensing", "nodes that run a filter and join its consensus: sensing = type I only "
                          "(paper), all = type II too (with no measurement)", choices=FILTER_NODES),
     control_reference=Setting("estimate", "what type-I nodes steer to: their KCF estimate (paper) or the true "
@@ -97,7 +98,8 @@ Params = params_type("Params", dict(
     box=Param(8.0, "m", "initial positions U[0, box]^2 (paper: 8)", **_POS),
     v0=Param(0.1, "m/s", "initial velocities U[0, v0]^2 (paper: 0.1)", low=0.0),
     start_margin=Param(0.2, "m", "no pair may start in [R - start_margin, R) (ours)", low=0.0),
-    substep_safety=Param(1.0, "", "sub-step h = safety x min(1/sqrt(stiffness), 1/damping) (ours)", **_POS),
+    substep_safety=Param(1.0, "", "sub-step h = safety x min(1/sqrt(stiffness), 1/damping, half a gap / "
+                         "closing speed) (ours)", **_POS),
     start_min_distance=Param(0.3, "m", "no two nodes may start closer than this (ours; the paper's Fig. 6 starts near 0.3)",
                              low=0.0),
 ), __name__)
@@ -139,6 +141,7 @@ class Record(NamedTuple):
     energy: jax.Array            # φ of eq. 15 at the step's end (true target)
     speed_mismatch: jax.Array    # Σ_i |p_i - p_target|² at the step's end
     substeps: jax.Array          # RK4 sub-steps taken
+    capped: jax.Array            # the step needed more than max_substeps (its last took the rest)
     target: jax.Array            # (4,) [x, vx, y, vy]
     start_failed: jax.Array      # () no valid initial draw (the same at every step)
     attempts: jax.Array          # () initial draws used (the same at every step)
@@ -231,8 +234,8 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
             rq = jnp.broadcast_to(x[jnp.array([0, 2])], (n, 2))
             return rq, jnp.broadcast_to(x[jnp.array([1, 3])], (n, 2))
 
-    n_sub = fl.stable_substeps(state.flock, state.adj, h, gains, p.dt, cfg.max_substeps, p.substep_safety)
-    flock, margin, dmin = fl.rk4_step(state.flock, state.adj, h, reference, gains, p.dt, n_sub)
+    flock, margin, dmin, n_sub, capped = fl.rk4_adaptive(state.flock, state.adj, h, reference, gains, p.dt,
+                                                         cfg.max_substeps, p.substep_safety)
 
     # 3. the hysteresis graph at the step's end
     adj = graph.hysteresis_adjacency(state.adj, flock.q, p.R, p.epsilon)
@@ -244,7 +247,7 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
         error=errors, lambda2=graph.algebraic_connectivity(adj), edges=jnp.sum(adj) / 2, added=added,
         removed=removed, min_distance=dmin, min_link_margin=margin,
         energy=fl.energy(flock, adj, h, tq, tp, gains, p.c2),
-        speed_mismatch=jnp.sum((flock.p - tp) ** 2), substeps=n_sub, target=target, start_failed=state.start_failed,
+        speed_mismatch=jnp.sum((flock.p - tp) ** 2), substeps=n_sub, capped=capped, target=target, start_failed=state.start_failed,
         attempts=state.attempts)
     return State(state.t + 1, flock, adj, filters, state.start_failed, state.attempts), rec
 
@@ -259,7 +262,8 @@ def outputs(cfg) -> dict[str, Output]:
         final_edges=Output("", "links at the end", False),
         min_distance=Output("m", "smallest distance between two nodes over the run (sub-steps included)", False),
         final_min_distance=Output("m", "smallest distance between two nodes at the end", False),
-        link_reached_R=Output("", "some link reached the radius R inside a step (a broken run)", False),
+        link_reached_R=Output("", "some link reached the radius R inside a step, or the flock went non-finite "
+                              "(a broken run)", False),
         energy_start=Output("", "flocking energy (eq. 15) after the first step", False),
         energy_end=Output("", "flocking energy at the end", False),
         energy_max_rise=Output("", "largest rise of the energy between two steps (0 if monotone)", False),
@@ -289,7 +293,7 @@ def reduce(cfg, records: Record, params) -> dict:
         energy_start=e[0], energy_end=e[-1], energy_max_rise=jnp.maximum(jnp.max(e[1:] - e[:-1]), 0.0),
         final_speed_mismatch=records.speed_mismatch[-1], start_failed=records.start_failed[0],
         start_attempts_used=records.attempts[0], substeps_mean=jnp.mean(records.substeps.astype(dtype)),
-        substeps_capped=jnp.sum(records.substeps >= cfg.max_substeps),
+        substeps_capped=jnp.sum(records.capped),
     )
     return out
 
