@@ -61,14 +61,20 @@ def _random_case(rng, n=4):
     return A, xb, Pb, R, z, formation
 
 
-def _mcjax(xb, Pb, z, R, A, formation=None):
-    n = len(xb)
+@jax.jit
+def _mcjax_step(xb, Pb, z, R, A, formation):
+    n = xb.shape[0]
     post = Gaussian(jnp.asarray(xb), jnp.asarray(Pb), jnp.linalg.inv(jnp.asarray(Pb)))
     meas = Measurements(jnp.asarray(z), jnp.zeros((n, 2)), jnp.asarray(A),
                         jnp.broadcast_to(jnp.linalg.inv(jnp.asarray(R)), (n, D, D)))
     F, Q = jnp.eye(D), jnp.zeros((D, D))
-    return prior_consensus_kcf_step(_wind, jnp.array([False, False]), OPTS, post, meas, F, Q,
-                                    None if formation is None else jnp.asarray(formation))
+    return prior_consensus_kcf_step(_wind, jnp.array([False, False]), OPTS, post, meas, F, Q, formation)
+
+
+def _mcjax(xb, Pb, z, R, A, formation=None):
+    """One step; no formation term (``None``) is passed as zeros — eq. 12 with η = 0 is eq. 9,
+    which the test checks separately against the numpy eq. 9."""
+    return _mcjax_step(xb, Pb, z, R, A, np.zeros(xb.shape[:1] * 2 + xb.shape[1:]) if formation is None else formation)
 
 
 def test_both_lines_of_eq9_and_eq12_match_numpy():
@@ -86,6 +92,13 @@ def test_both_lines_of_eq9_and_eq12_match_numpy():
         # η = 0 (a zero formation term) is eq. 9
         np.testing.assert_allclose(np.asarray(_mcjax(xb, Pb, z, R, A, 0 * formation).x), first, rtol=1e-13,
                                    atol=1e-13)
+    # formation=None (eq. 9 without the term), called directly
+    n = len(xb)
+    none = prior_consensus_kcf_step(
+        _wind, jnp.array([False, False]), OPTS, Gaussian(jnp.asarray(xb), jnp.asarray(Pb), jnp.linalg.inv(Pb)),
+        Measurements(jnp.asarray(z), jnp.zeros((n, 2)), jnp.asarray(A), jnp.broadcast_to(jnp.linalg.inv(R), (n, D, D))),
+        jnp.eye(D), jnp.zeros((D, D)))
+    np.testing.assert_allclose(np.asarray(none.x), first, rtol=1e-12, atol=1e-12)
 
 
 def test_complete_graph_equals_centralised_kalman_filter():
