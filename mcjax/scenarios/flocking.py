@@ -100,7 +100,8 @@ Params = params_type("Params", dict(
     start_margin=Param(0.2, "m", "no pair may start in [R - start_margin, R) (ours)", low=0.0),
     substep_safety=Param(1.0, "", "sub-step h = safety x min(1/sqrt(stiffness), 1/damping, half a gap / "
                          "closing speed) (ours)", **_POS),
-    start_min_distance=Param(0.3, "m", "no two nodes may start closer than this (ours; the paper's Fig. 6 starts near 0.3)",
+    start_min_distance=Param(0.3, "m", "no two nodes may start closer than this (ours; the paper's Fig. 6 "
+                             "starts near 0.3)",
                              low=0.0),
 ), __name__)
 
@@ -247,7 +248,8 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
         error=errors, lambda2=graph.algebraic_connectivity(adj), edges=jnp.sum(adj) / 2, added=added,
         removed=removed, min_distance=dmin, min_link_margin=margin,
         energy=fl.energy(flock, adj, h, tq, tp, gains, p.c2),
-        speed_mismatch=jnp.sum((flock.p - tp) ** 2), substeps=n_sub, capped=capped, target=target, start_failed=state.start_failed,
+        speed_mismatch=jnp.sum((flock.p - tp) ** 2), substeps=n_sub, capped=capped, target=target,
+        start_failed=state.start_failed,
         attempts=state.attempts)
     return State(state.t + 1, flock, adj, filters, state.start_failed, state.attempts), rec
 
