@@ -222,9 +222,10 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
                           p.kcf_epsilon)
     errors = jnp.stack([metrics.position_error(f.x, target) * h for f in filters])
 
-    # 2. fly: type-I nodes steer to their first filter's estimate (or the truth), CV-extrapolated
+    # 2. fly: type-I nodes steer to their KCF estimate (the first filter's without a KCF) or the
+    #    truth, CV-extrapolated within the step
     if cfg.control_reference == "estimate":
-        est = filters[0].x
+        est = filters[cfg.filters.index("kcf") if "kcf" in cfg.filters else 0].x
         ref_q0, ref_p0 = est[:, jnp.array([0, 2])], est[:, jnp.array([1, 3])]
 
         def reference(tau):
