@@ -52,6 +52,18 @@ def mean_over(errors, warmup: int = 0, weights=None):
     return jnp.sum(w * errors) / jnp.maximum(jnp.sum(w), 1.0)
 
 
+def nan_max(x, axis=None):
+    """``jnp.max`` that returns NaN when any entry is NaN. XLA's CPU reductions over large
+    arrays can drop NaN (jax 0.10.2: a (100, 300) min over axis 1 ignores a NaN in its row),
+    so a summary that must show a blow-up checks ``isnan`` explicitly."""
+    return jnp.where(jnp.any(jnp.isnan(x), axis=axis), jnp.nan, jnp.max(x, axis=axis))
+
+
+def nan_min(x, axis=None):
+    """``jnp.min`` that returns NaN when any entry is NaN (see :func:`nan_max`)."""
+    return jnp.where(jnp.any(jnp.isnan(x), axis=axis), jnp.nan, jnp.min(x, axis=axis))
+
+
 def nonfinite(errors):
     """True if any error is NaN or infinite."""
     return jnp.any(~jnp.isfinite(errors))

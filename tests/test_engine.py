@@ -75,3 +75,20 @@ def test_float32_config_runs():
     out = _collect(cfg, _points({}), 4, 4)
     assert out["rmse"].dtype == np.float32
     assert np.isfinite(out["rmse"]).all()
+
+
+def test_nan_aware_max_and_min_keep_a_nan_in_a_large_batch():
+    """XLA's CPU min/max over (100, 300) can drop a NaN; mcjax.metrics.nan_max / nan_min
+    must not, since max_error and min_distance are how a blow-up shows in a summary."""
+    import jax
+    import jax.numpy as jnp
+
+    from mcjax.metrics import nan_max, nan_min
+
+    x = np.ones((100, 300))
+    x[-1, 5] = np.nan
+    got_max = np.asarray(jax.jit(jax.vmap(nan_max))(jnp.asarray(x)))
+    got_min = np.asarray(jax.jit(jax.vmap(nan_min))(jnp.asarray(x)))
+    assert np.isnan(got_max[-1]) and np.isnan(got_min[-1])
+    np.testing.assert_array_equal(got_max[:-1], 1.0)
+    np.testing.assert_array_equal(got_min[:-1], 1.0)

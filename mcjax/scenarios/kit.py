@@ -95,7 +95,7 @@ def error_summary(errors, alive, warmup: int, threshold) -> dict:
         out["rmse"].append(metrics.rmse(e, warmup, alive))
         out["mean_error"].append(metrics.mean_over(e, warmup, alive))
         out["final_error"].append(metrics.mean_over(e[-1:], 0, alive))
-        out["max_error"].append(jnp.max(jnp.where(after, e, -jnp.inf)))
+        out["max_error"].append(metrics.nan_max(jnp.where(after, e, -jnp.inf)))
         out["diverged"].append(metrics.diverged(e, threshold, warmup, alive))
         out["nonfinite"].append(metrics.nonfinite(e))
     stats = {k: jnp.stack(v) for k, v in out.items()}
