@@ -107,18 +107,46 @@ def potential_curvature(r, R):
     return jnp.where(inside, 6.0 / rs**4 + 2.0 * R**2 / (R - rs) ** 3, jnp.inf)
 
 
-def stable_substeps(state: FlockState, adj, sensing, g: Gains, dt, max_substeps: int, safety=1.0):
-    """Number of RK4 sub-steps for the step ``dt`` (ours): ``ceil(dt / h)`` with
-    ``h = safety · min(1/√κ, 1/γ)``, where κ bounds the stiffness of the potential per node
-    (Gershgorin row sum of its Hessian block, ``Σ_j |ψ″(r_ij)| + |ψ′(r_ij)|/r_ij`` over
-    links) and γ its damping (``c2`` and ``Σ_j b_ij``); RK4 is stable for h·√κ < 2.8 and
-    h·γ < 2.7. Clipped to [1, max_substeps]."""
+def _rk4_substep(f, s: FlockState, tau, h) -> FlockState:
+    """One classical RK4 step of size ``h`` from time ``tau`` of ``ds/dt = f(s, tau)``."""
+    def add(a, da, c):
+        return jax.tree.map(lambda x, y: x + c * y, a, da)
+
+    k1 = f(s, tau)
+    k2 = f(add(s, k1, h / 2), tau + h / 2)
+    k3 = f(add(s, k2, h / 2), tau + h / 2)
+    k4 = f(add(s, k3, h), tau + h)
+    return jax.tree.map(lambda a, b1, b2, b3, b4: a + h / 6 * (b1 + 2 * b2 + 2 * b3 + b4), s, k1, k2, k3, k4)
+
+
+def _track_margins(s: FlockState, adj, R, margin, dmin):
+    """Running minima of ``R − r_ij`` over links and of the pairwise distance."""
+    _, r, eye = _pair_vectors(s.q)
+    linked = (adj > 0.5) & ~eye
+    return (jnp.minimum(margin, jnp.min(jnp.where(linked, R - r, jnp.inf))),
+            jnp.minimum(dmin, jnp.min(jnp.where(eye, jnp.inf, r))))
+
+
+def _stability_bounds(state: FlockState, adj, sensing, g: Gains):
+    """``(κ, γ, r, linked)``: the Gershgorin bound κ on the potential's Hessian per node
+    (``Σ_j |ψ″| + |ψ′|/r`` over links), the damping γ = max(c2, max Σ_j b_ij on type-II
+    rows), the pair distances and the link mask."""
     _, r, eye = _pair_vectors(state.q)
     linked = (adj > 0.5) & ~eye
     rl = jnp.where(linked, r, g.R / 2)
     per_pair = jnp.where(linked, potential_curvature(rl, g.R) + jnp.abs(potential_slope(rl, g.R)) / rl, 0.0)
     kappa = jnp.max(jnp.sum(per_pair, axis=1))
     gamma = jnp.maximum(g.c2, jnp.max(jnp.sum(jnp.where(linked, jnp.abs(state.b), 0.0), 1) * (1.0 - sensing)))
+    return kappa, gamma, rl, linked
+
+
+def stable_substeps(state: FlockState, adj, sensing, g: Gains, dt, max_substeps: int, safety=1.0):
+    """Number of RK4 sub-steps for the step ``dt`` (ours): ``ceil(dt / h)`` with
+    ``h = safety · min(1/√κ, 1/γ)``, where κ bounds the stiffness of the potential per node
+    (Gershgorin row sum of its Hessian block, ``Σ_j |ψ″(r_ij)| + |ψ′(r_ij)|/r_ij`` over
+    links) and γ its damping (``c2`` and ``Σ_j b_ij``); RK4 is stable for h·√κ < 2.8 and
+    h·γ < 2.7. Clipped to [1, max_substeps]."""
+    kappa, gamma, _, _ = _stability_bounds(state, adj, sensing, g)
     h = safety * jnp.minimum(1.0 / jnp.sqrt(jnp.maximum(kappa, 1e-300)), 1.0 / gamma)
     n = jnp.ceil(dt / h)
     return jnp.clip(jnp.where(jnp.isfinite(n), n, max_substeps), 1, max_substeps).astype(jnp.int32)
@@ -138,22 +166,10 @@ def rk4_step(state: FlockState, adj, sensing, reference, g: Gains, dt, substeps)
         rq, rp = reference(tau)
         return derivative(s, adj, sensing, rq, rp, g)
 
-    def add(s, ds, c):
-        return jax.tree.map(lambda a, b: a + c * b, s, ds)
-
     def body(i, carry):
         s, margin, dmin = carry
-        t = i.astype(h.dtype) * h
-        k1 = f(s, t)
-        k2 = f(add(s, k1, h / 2), t + h / 2)
-        k3 = f(add(s, k2, h / 2), t + h / 2)
-        k4 = f(add(s, k3, h), t + h)
-        s = jax.tree.map(lambda a, b1, b2, b3, b4: a + h / 6 * (b1 + 2 * b2 + 2 * b3 + b4), s, k1, k2, k3, k4)
-        _, r, eye = _pair_vectors(s.q)
-        linked = (adj > 0.5) & ~eye
-        margin = jnp.minimum(margin, jnp.min(jnp.where(linked, g.R - r, jnp.inf)))
-        dmin = jnp.minimum(dmin, jnp.min(jnp.where(eye, jnp.inf, r)))
-        return s, margin, dmin
+        s = _rk4_substep(f, s, i.astype(h.dtype) * h, h)
+        return (s, *_track_margins(s, adj, g.R, margin, dmin))
 
     inf = jnp.asarray(jnp.inf, state.q.dtype)
     state, margin, dmin = jax.lax.fori_loop(0, n, body, (state, inf, inf))
@@ -165,12 +181,7 @@ def stable_step(state: FlockState, adj, sensing, g: Gains, safety=1.0):
     ½ min (R − r_ij)/|ṙ_ij|)`` — the stability bounds of :func:`stable_substeps` plus a
     kinematic one: no linked pair may close half its gap to 0 or to R within one sub-step at
     its current closing speed."""
-    _, r, eye = _pair_vectors(state.q)
-    linked = (adj > 0.5) & ~eye
-    rl = jnp.where(linked, r, g.R / 2)
-    per_pair = jnp.where(linked, potential_curvature(rl, g.R) + jnp.abs(potential_slope(rl, g.R)) / rl, 0.0)
-    kappa = jnp.max(jnp.sum(per_pair, axis=1))
-    gamma = jnp.maximum(g.c2, jnp.max(jnp.sum(jnp.where(linked, jnp.abs(state.b), 0.0), 1) * (1.0 - sensing)))
+    kappa, gamma, rl, linked = _stability_bounds(state, adj, sensing, g)
     dq = state.q[:, None, :] - state.q[None, :, :]
     dv = state.p[:, None, :] - state.p[None, :, :]
     rate = jnp.abs(jnp.sum(dq * dv, -1)) / jnp.where(linked, rl, 1.0)          # |ṙ_ij|
@@ -190,9 +201,6 @@ def rk4_adaptive(state: FlockState, adj, sensing, reference, g: Gains, dt, max_s
         rq, rp = reference(tau)
         return derivative(s, adj, sensing, rq, rp, g)
 
-    def add(s, ds, c):
-        return jax.tree.map(lambda a, b: a + c * b, s, ds)
-
     def cond(carry):
         _, tau, k, _, _ = carry
         return (tau < dt) & (k < max_substeps)
@@ -202,15 +210,8 @@ def rk4_adaptive(state: FlockState, adj, sensing, reference, g: Gains, dt, max_s
         h = jnp.minimum(stable_step(s, adj, sensing, g, safety), dt - tau)
         h = jnp.where(k == max_substeps - 1, dt - tau, h)
         h = jnp.where(jnp.isfinite(h) & (h > 0), h, dt - tau)
-        k1 = f(s, tau)
-        k2 = f(add(s, k1, h / 2), tau + h / 2)
-        k3 = f(add(s, k2, h / 2), tau + h / 2)
-        k4 = f(add(s, k3, h), tau + h)
-        s = jax.tree.map(lambda a, b1, b2, b3, b4: a + h / 6 * (b1 + 2 * b2 + 2 * b3 + b4), s, k1, k2, k3, k4)
-        _, r, eye = _pair_vectors(s.q)
-        linked = (adj > 0.5) & ~eye
-        margin = jnp.minimum(margin, jnp.min(jnp.where(linked, g.R - r, jnp.inf)))
-        dmin = jnp.minimum(dmin, jnp.min(jnp.where(eye, jnp.inf, r)))
+        s = _rk4_substep(f, s, tau, h)
+        margin, dmin = _track_margins(s, adj, g.R, margin, dmin)
         # a NaN state ends the step (it is flagged by its NaN margin / distance)
         tau = jnp.where(jnp.all(jnp.isfinite(s.q)), tau + h, dt)
         return s, tau, k + 1, margin, dmin

@@ -107,10 +107,8 @@ Params = params_type("Params", dict(
 
 
 def check_params(cfg, values: dict) -> list[tuple[str, str]]:
-    table = Params.TABLE
-
     def get(name):
-        return np.asarray(values.get(name, table[name].default_value(cfg)), np.float64)
+        return kit.param_value(Params, cfg, values, name)
 
     bad = []
     if np.any(get("n_sensing") > cfg.n_agents):

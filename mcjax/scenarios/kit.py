@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from mcjax import metrics
 from mcjax.contract import Output, Setting
@@ -50,6 +51,12 @@ def check_common(cfg) -> None:
     """The check across the common fields: ``warmup_steps < n_steps``."""
     if cfg.warmup_steps >= cfg.n_steps:
         raise ValueError(f"warmup_steps must be an integer in [0, n_steps = {cfg.n_steps}); got {cfg.warmup_steps}")
+
+
+def param_value(Params, cfg, values: dict, name: str) -> np.ndarray:
+    """A Params field as a check_params sees it: the spec's value if given, else the declared
+    default (for this Config), as a float64 numpy array."""
+    return np.asarray(values.get(name, Params.TABLE[name].default_value(cfg)), np.float64)
 
 
 def cast(params, dtype):

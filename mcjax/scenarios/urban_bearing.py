@@ -115,10 +115,8 @@ Params = params_type("Params", dict(
 
 def check_params(cfg, values: dict) -> list[tuple[str, str]]:
     """Checks across fields and of the building layout: ``[(field, what is allowed), …]``."""
-    table = Params.TABLE
-
     def get(name):
-        return np.asarray(values.get(name, table[name].default_value(cfg)), np.float64)
+        return kit.param_value(Params, cfg, values, name)
 
     bad = []
     boxes = get("buildings")
