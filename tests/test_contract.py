@@ -66,7 +66,7 @@ def test_config_type_validates_every_field_and_is_hashable():
 def test_every_builtin_scenario_declares_every_field_and_output():
     from mcjax.scenarios import BUILTIN
 
-    assert set(BUILTIN) == {"leader_follower", "uuv_imm", "urban_bearing", "flocking"}
+    assert set(BUILTIN) == {"leader_follower", "uuv_imm", "urban_bearing", "flocking", "wind_formation"}
     for sc in BUILTIN.values():
         cfg = sc.Config()
         assert list(sc.Params._fields) == list(sc.params_table)

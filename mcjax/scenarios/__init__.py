@@ -3,7 +3,7 @@
 
 Three ways to name a scenario (in a config file's ``scenario = "..."``, or :func:`get`):
 
-* a built-in name (``leader_follower``, ``uuv_imm``, ``urban_bearing``, ``flocking``);
+* a built-in name (``leader_follower``, ``uuv_imm``, ``urban_bearing``, ``flocking``, ``wind_formation``);
 * the name a plugin registers: another installed package declares, in its
   ``pyproject.toml``, ``[project.entry-points."mcjax.scenarios"] my_name = "my_pkg.module:SCENARIO"``;
 * a reference ``"path/to/file.py:SCENARIO"`` (relative to the config file's folder) or
@@ -19,13 +19,13 @@ from importlib.metadata import entry_points
 from pathlib import Path
 
 from mcjax.contract import Scenario
-from mcjax.scenarios import flocking, leader_follower, urban_bearing, uuv_imm
+from mcjax.scenarios import flocking, leader_follower, urban_bearing, uuv_imm, wind_formation
 
 #: Entry-point group of third-party scenarios.
 ENTRY_POINT_GROUP = "mcjax.scenarios"
 
 BUILTIN: dict[str, Scenario] = {s.name: s for s in (leader_follower.SCENARIO, uuv_imm.SCENARIO, urban_bearing.SCENARIO,
-                                                  flocking.SCENARIO)}
+                                                  flocking.SCENARIO, wind_formation.SCENARIO)}
 
 
 def _plugin_points() -> dict:

@@ -1,0 +1,391 @@
+"""Three UAVs estimate a constant wind by consensus Kalman filtering and hold a formation on a
+sine path — Chen & Lu 2013.
+
+``n`` UAVs (the paper: 3) fly through a constant wind (40 m/s at 45°). Each step of ``dt``:
+
+1. every UAV measures the wind, z_i = w + v_i (eq. 2; the noise v_i uniform on
+   ±``noise_scale`` or Gaussian, ``Config.wind_noise``);
+2. the filters (``Config.filters``) update their wind estimates over the comm graph (links
+   within ``comm_radius``): ``kcf`` — the consensus Kalman filter of eqs. 6–12 (consensus on
+   the priors with the weights of eq. 7, then the update, plus the formation term of eq. 12,
+   :func:`mcjax.filters.consensus.prior_consensus_kcf_step`); ``local`` — each UAV's own
+   Kalman filter; ``cif`` — one Kalman filter on all the measurements. The wind model of
+   eq. 1 is a random walk, x⁺ = x + w_k with Q = ``sigma_wind_process``² I (the true wind is
+   constant);
+3. the centre Kalman filter (the paper's "main" filter: one Kalman filter on the mean of the
+   measurements — the same as ``cif``) predicts where the wind carries the formation's
+   centroid, P̃ = P + ŵ_c·dt; the centre's next point P̂(k+1) is the path point at distance
+   ``step_length`` l ahead of P̃ (eq. 13; :mod:`mcjax.planning.guidance`, with its approach
+   rule while the path is farther than l);
+4. each UAV flies the air displacement a_i = cap_l(P̂(k+1) + d_i − p_i − ŵ_i·dt) (eqs. 14–16:
+   to its slot, less the drift it expects from its own wind estimate, at most l); the ground
+   moves it by a_i + w·dt, so its wind error becomes a formation error. The UAVs compensate
+   with their ``kcf`` estimate (the first filter's without a ``kcf``).
+
+The formation: the slots d_i about the centroid come from the pairwise offsets ``offsets``
+(rows d_12, d_23, …, then the closing d_1n; the paper's three read as sides 3200 / 2062 /
+2062 m). Table 1's metrics are one UAV's (``Config.report_agent``, the paper's UAV2) mean
+and largest absolute wind error per axis, before filtering (the measurement) and after.
+
+The formation term of eq. 12 is η Σ_j w_ij (X_j − X_i − d_ij) as printed; with a UAV whose
+command compensates its estimate, a larger wind estimate moves it back, so that sign pushes
+a lagging UAV further back. ``formation_sign = "corrective"`` (ours, the default) enters it
+with the sign that pulls the UAV towards its slot; ``"printed"`` keeps the paper's.
+Units: SI (m, s, rad). Our choices where the paper is silent are marked in
+``configs/chen2013.toml``.
+"""
+
+from __future__ import annotations
+
+from itertools import combinations
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mcjax import graph, metrics
+from mcjax.contract import Output, Param, Scenario, Setting, config_type, params_type
+from mcjax.filters.consensus import (
+    WEIGHT_KINDS,
+    FilterOptions,
+    Measurements,
+    cif_step,
+    local_step,
+    prior_consensus_kcf_step,
+)
+from mcjax.filters.gaussian import Gaussian, first_step_model
+from mcjax.numerics import spd_inverse, symmetrize
+from mcjax.planning import guidance
+from mcjax.scenarios import kit
+
+NAME = "wind_formation"
+FILTER_KINDS = ("kcf", "local", "cif")
+NOISES = ("uniform", "gaussian")
+FORMATION_SIGNS = ("corrective", "printed")
+#: Closing tolerance of the offsets (m): the last row must equal the sum of the chain.
+CLOSURE_TOL = 1e-6
+#: An air step counts as capped (eq. 15) when the wanted one is longer than l by this fraction:
+#: on the path the centre's wanted step is l itself, up to rounding.
+CAP_TOL = 1e-9
+
+
+def _check(cfg) -> None:
+    kit.check_common(cfg)
+    if cfg.n_agents < 2:
+        raise ValueError(f"n_agents must be an integer >= 2 (a formation); got {cfg.n_agents}")
+    if cfg.report_agent > cfg.n_agents:
+        raise ValueError(f"report_agent must be an integer in [1, n_agents = {cfg.n_agents}]; "
+                         f"got {cfg.report_agent}")
+
+
+Config = config_type("Config", dict(
+    **kit.common_settings(filter_kinds=FILTER_KINDS, n_agents=3, n_steps=100, min_steps=2, warmup_steps=0,
+                          divergence_threshold=20.0, error_unit="m/s"),
+    wind_noise=Setting("uniform", "wind measurement noise: uniform on [-noise_scale, noise_scale] or "
+                       "gaussian with std noise_scale (ours)", choices=NOISES),
+    weights=Setting("max_degree", "consensus weights of the kcf: max_degree = Chen & Lu 2013 eq. 7",
+                    choices=WEIGHT_KINDS),
+    formation_sign=Setting("corrective", "sign of eq. 12's formation term: corrective (ours: pulls a UAV "
+                           "towards its slot) or printed", choices=FORMATION_SIGNS),
+    report_agent=Setting(2, "the UAV (1-based) whose per-axis wind errors are reported (paper: UAV2)",
+                         low=1, integer=True),
+    root_grid=Setting(128, "grid cells that bracket eq. 13's roots before bisection (ours)", low=2,
+                      integer=True),
+), __name__, _check)
+
+_PAPER_START = np.array([[10000.0, 7000.0], [10000.0, 12000.0], [12000.0, 9000.0]])
+#: The paper's reference vectors as the chain d_12, d_23 and the closing d_13 (configs/chen2013.toml).
+_PAPER_OFFSETS = np.array([[0.0, 3200.0], [1300.0, -1600.0], [1300.0, 1600.0]])
+
+
+def _default_start(cfg):
+    if cfg.n_agents == 3:
+        return _PAPER_START.copy()
+    return np.stack([np.full(cfg.n_agents, 10000.0), 7000.0 + 2500.0 * np.arange(cfg.n_agents)], axis=1)
+
+
+def _default_offsets(cfg):
+    if cfg.n_agents == 3:
+        return _PAPER_OFFSETS.copy()
+    n = cfg.n_agents
+    chain = np.tile([[0.0, 1000.0]], (n, 1))
+    chain[-1] = [0.0, 1000.0 * (n - 1)]
+    return chain
+
+
+_POS = dict(low=0.0, low_open=True)
+Params = params_type("Params", dict(
+    dt=Param(10.0, "s", "measurement and guidance interval (paper: 10 s)", **_POS),
+    step_length=Param(1000.0, "m", "l: the look-ahead of eq. 13 and the longest air step of eq. 15 "
+                      "(paper: V dt = 1000 m)", **_POS),
+    wind_speed=Param(40.0, "m/s", "the constant wind's speed (paper)", low=0.0),
+    wind_direction=Param(np.pi / 4, "rad", "the wind's direction from the x axis (paper: 45 deg)"),
+    noise_scale=Param(10.0, "m/s", "wind measurement noise: the uniform bound or the Gaussian std (ours)", **_POS),
+    sigma_wind_process=Param(0.5, "m/s", "the filters' random-walk wind model, std per step (ours)", **_POS),
+    sigma_wind_prior=Param(50.0, "m/s", "the filters' prior std about zero wind (ours)", **_POS),
+    eta=Param(0.01, "1/s", "formation factor eta of eq. 12 (ours)", low=0.0),
+    comm_radius=Param(1.0e5, "m", "UAVs within this distance exchange estimates (ours: complete graph)", **_POS),
+    path_amplitude=Param(2000.0 / 3.0, "m", "path y = amplitude sin(x / scale) (paper: 2000/3)"),
+    path_scale=Param(1200.0, "m", "path y = amplitude sin(x / scale) (paper: 1200)", **_POS),
+    formation_tolerance=Param(50.0, "m", "pairwise distances count as in formation within this of the "
+                              "reference (ours)", **_POS),
+    start=Param(_default_start, "m", "starting positions (paper: (10000, 7000), (10000, 12000), (12000, 9000))",
+                shape=("n", 2)),
+    offsets=Param(_default_offsets, "m", "pairwise formation offsets d_ij = p_j - p_i: rows d_12, d_23, ..., "
+                  "then the closing d_1n (= their sum)", shape=("n", 2)),
+), __name__)
+
+
+def check_params(cfg, values: dict) -> list[tuple[str, str]]:
+    offsets = kit.param_value(Params, cfg, values, "offsets")
+    bad = []
+    if offsets.shape == (cfg.n_agents, 2):
+        gaps = np.linalg.norm(np.sum(offsets[..., : cfg.n_agents - 1, :], axis=-2) - offsets[..., -1, :], axis=-1)
+        if np.any(gaps > CLOSURE_TOL * (1.0 + np.max(np.abs(offsets)))):
+            bad.append(("offsets", f"pairwise offsets that close: the last row d_1n must equal the sum of the "
+                        f"rows d_12 ... d_(n-1)n (they are {float(np.max(gaps)):g} m apart)"))
+    return bad
+
+
+class State(NamedTuple):
+    t: jax.Array
+    positions: jax.Array    # (n, 2) ground positions
+    filters: tuple          # one Gaussian per filter (cif: single, else a UAV axis first)
+    centre: Gaussian        # the centre Kalman filter's wind estimate
+
+
+class Record(NamedTuple):
+    error: jax.Array         # (F, n) |wind estimate - wind| per filter and UAV
+    axis_error: jax.Array    # (F, 2) |estimate - wind| per axis, report agent
+    raw_error: jax.Array     # (2,) |measurement - wind| per axis, report agent
+    distances: jax.Array     # (pairs,) pairwise distances after the step
+    path_error: jax.Array    # () |Y - psi(X)| of the centroid after the step
+    on_path: jax.Array       # () eq. 13 had a forward root
+    capped: jax.Array        # () some UAV's air step was capped at l
+    air_max: jax.Array       # () longest air step
+    lambda2: jax.Array       # () algebraic connectivity of the comm graph
+    positions: jax.Array     # (n, 2) after the step
+
+
+def pairs(n: int) -> list[tuple[int, int]]:
+    """The UAV pairs (i, j), i < j, 0-based, in the order of the distance outputs."""
+    return list(combinations(range(n), 2))
+
+
+def wind(params, dtype):
+    """The true wind vector (constant; Chen & Lu 2013 §3)."""
+    p = kit.cast(params, dtype)
+    return p.wind_speed * jnp.stack([jnp.cos(p.wind_direction), jnp.sin(p.wind_direction)])
+
+
+def reference_distances(cfg, offsets):
+    """The formation's pairwise distances |d_ij| from the ``offsets`` Param, in the order of
+    :func:`pairs` (jittable)."""
+    d = guidance.centre_offsets(jnp.asarray(offsets))
+    ij = np.array(pairs(cfg.n_agents))
+    return jnp.linalg.norm(d[ij[:, 1]] - d[ij[:, 0]], axis=-1)
+
+
+def noise_variance(cfg, p):
+    """The variance of one axis of the measurement noise (uniform ±a: a²/3; Gaussian: σ²)."""
+    return p.noise_scale ** 2 / 3.0 if cfg.wind_noise == "uniform" else p.noise_scale ** 2
+
+
+def init(cfg, params, key) -> State:
+    """The UAVs at ``start``; every filter at zero wind with covariance ``sigma_wind_prior``² I."""
+    del key
+    dtype = jnp.dtype(cfg.dtype)
+    p = kit.cast(params, dtype)
+    n = cfg.n_agents
+    P0 = jnp.eye(2, dtype=dtype) * p.sigma_wind_prior ** 2
+    g = Gaussian(jnp.zeros(2, dtype), P0, symmetrize(spd_inverse(P0)))
+    per_agent = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), g)
+    filters = tuple(g if k == "cif" else per_agent for k in cfg.filters)
+    return State(jnp.asarray(0, jnp.int32), p.start, filters, g)
+
+
+def _identity(x, sensor):
+    del sensor
+    return x
+
+
+def _per_agent(kind, g: Gaussian, n):
+    return jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), g) if kind == "cif" else g
+
+
+def formation_term(cfg, p, positions, offsets):
+    """Eq. 12's formation term per pair, ``η (X_j − X_i − d_ij)`` at [i, j] (n, n, 2) per axis,
+    with d_ij = d_j − d_i; negated when ``formation_sign = "corrective"`` (module docstring)."""
+    rel = positions[None, :, :] - positions[:, None, :]
+    want = offsets[None, :, :] - offsets[:, None, :]
+    sign = -1.0 if cfg.formation_sign == "corrective" else 1.0
+    return sign * p.eta * (rel - want)
+
+
+def step(cfg, params, state: State, key) -> tuple[State, Record]:
+    """One step of ``dt`` (module docstring): measure (eq. 2), filter (eqs. 6–12), correct the
+    path (eqs. 13–16), fly through the true wind."""
+    dtype = jnp.dtype(cfg.dtype)
+    p = kit.cast(params, dtype)
+    n = cfg.n_agents
+    w = wind(params, dtype)
+    offsets = guidance.centre_offsets(p.offsets)
+
+    # 1. measurements
+    if cfg.wind_noise == "uniform":
+        noise = p.noise_scale * jax.random.uniform(key, (n, 2), dtype, -1.0, 1.0)
+    else:
+        noise = p.noise_scale * jax.random.normal(key, (n, 2), dtype)
+    z = w[None, :] + noise
+
+    # 2. the filters over the comm graph (step 0 updates the prior without predicting)
+    adj = graph.adjacency(state.positions, p.comm_radius)
+    R_inv = jnp.broadcast_to(jnp.eye(2, dtype=dtype) / noise_variance(cfg, p), (n, 2, 2))
+    meas = Measurements(z, state.positions, adj, R_inv)
+    F, Q = first_step_model(state.t == 0, jnp.eye(2, dtype=dtype), jnp.eye(2, dtype=dtype) * p.sigma_wind_process ** 2)
+    no_angle = jnp.array([False, False])
+    opts = FilterOptions(weights=cfg.weights, kcf_gain="prior_consensus")
+    filters = []
+    for kind, post in zip(cfg.filters, state.filters):
+        if kind == "kcf":
+            filters.append(prior_consensus_kcf_step(_identity, no_angle, opts, post, meas, F, Q,
+                                                    formation_term(cfg, p, state.positions, offsets)))
+        elif kind == "local":
+            filters.append(local_step(_identity, no_angle, post, meas, F, Q))
+        else:
+            filters.append(cif_step(_identity, no_angle, post, meas, F, Q))
+    filters = tuple(filters)
+    centre = cif_step(_identity, no_angle, state.centre, meas, F, Q)
+    estimates = [_per_agent(k, f, n).x for k, f in zip(cfg.filters, filters)]
+
+    # 3.–4. path correction and flight
+    psi = guidance.sine_path(p.path_amplitude, p.path_scale)
+    predicted = jnp.mean(state.positions, axis=0) + centre.x * p.dt
+    nxt = guidance.next_centre(psi, predicted, p.step_length, cfg.root_grid)
+    steer = estimates[cfg.filters.index("kcf") if "kcf" in cfg.filters else 0]
+    air = guidance.air_commands(nxt.point, offsets, state.positions, steer, p.dt, p.step_length)
+    positions = state.positions + air + w[None, :] * p.dt
+
+    wanted = nxt.point[None, :] + offsets - state.positions - steer * p.dt
+    a = cfg.report_agent - 1
+    ij = np.array(pairs(n))
+    centroid = jnp.mean(positions, axis=0)
+    rec = Record(
+        error=jnp.stack([jnp.linalg.norm(e - w, axis=-1) for e in estimates]),
+        axis_error=jnp.stack([jnp.abs(e[a] - w) for e in estimates]),
+        raw_error=jnp.abs(z[a] - w),
+        distances=jnp.linalg.norm(positions[ij[:, 1]] - positions[ij[:, 0]], axis=-1),
+        path_error=jnp.abs(centroid[1] - psi(centroid[0])),
+        on_path=nxt.on_path,
+        capped=jnp.any(jnp.linalg.norm(wanted, axis=-1) > p.step_length * (1.0 + CAP_TOL)),
+        air_max=jnp.max(jnp.linalg.norm(air, axis=-1)),
+        lambda2=graph.algebraic_connectivity(adj),
+        positions=positions)
+    return State(state.t + 1, positions, filters, centre), rec
+
+
+def _axis_outputs(prefix: str, what: str, per_filter: bool) -> dict[str, Output]:
+    return {f"{prefix}_{stat}_{ax}": Output("m/s", f"{'mean' if stat == 'mean' else 'largest'} |{what} - wind| "
+                                           f"along {ax}, report_agent, after warm-up (Table 1)", per_filter)
+            for ax in ("x", "y") for stat in ("mean", "max")}
+
+
+def outputs(cfg) -> dict[str, Output]:
+    return dict(
+        **kit.error_outputs("m/s", "wind estimate error"),
+        **_axis_outputs("wind", "estimate", True),
+        **_axis_outputs("raw", "measurement", False),
+        **kit.GRAPH_OUTPUTS,
+        settle_step=Output("steps", "steps flown until every pairwise distance stays within formation_tolerance "
+                           "of the reference to the end (NaN: never)", False),
+        formation_error_max=Output("m", "largest |distance - reference| over pairs after settling", False),
+        formation_error_final=Output("m", "largest |distance - reference| over pairs at the end", False),
+        join_step=Output("steps", "steps flown until eq. 13 first had a forward root (the path within l)", False),
+        path_error_mean=Output("m", "mean |Y - psi(X)| of the centroid after join_step", False),
+        path_error_max=Output("m", "largest |Y - psi(X)| of the centroid after join_step", False),
+        approach_steps=Output("steps", "steps on the approach rule (eq. 13 had no forward root)", False),
+        capped_steps=Output("steps", "steps where some UAV's air step was capped at l (eq. 15)", False),
+        max_air_step=Output("m", "longest air step of any UAV (eq. 15: at most step_length)", False),
+    )
+
+
+def _first(mask, T, dtype):
+    """Index of the first True of ``mask`` (T,), as a float; NaN if none."""
+    return jnp.where(jnp.any(mask), jnp.argmax(mask).astype(dtype), jnp.nan)
+
+
+def reduce(cfg, records: Record, params) -> dict:
+    dtype = records.error.dtype
+    T = records.error.shape[0]
+    steps = jnp.arange(T)
+    alive = jnp.ones(cfg.n_agents, dtype)
+    out = kit.error_summary(records.error, alive, cfg.warmup_steps, cfg.divergence_threshold)
+    after = (steps >= cfg.warmup_steps).astype(dtype)
+    count = jnp.sum(after)
+    for k, ax in enumerate(("x", "y")):
+        out[f"wind_mean_{ax}"] = jnp.sum(records.axis_error[:, :, k] * after[:, None], axis=0) / count
+        out[f"wind_max_{ax}"] = metrics.nan_max(jnp.where(after[:, None] > 0, records.axis_error[:, :, k], -jnp.inf),
+                                                axis=0)
+        out[f"raw_mean_{ax}"] = jnp.sum(records.raw_error[:, k] * after) / count
+        out[f"raw_max_{ax}"] = metrics.nan_max(jnp.where(after > 0, records.raw_error[:, k], -jnp.inf))
+    ref = reference_distances(cfg, jnp.asarray(params.offsets, dtype))
+    dev = jnp.max(jnp.abs(records.distances - ref[None, :]), axis=1)                 # (T,)
+    inside = dev <= jnp.asarray(params.formation_tolerance, dtype)
+    holds = jnp.flip(jnp.cumprod(jnp.flip(inside).astype(jnp.int32))) > 0           # inside from here to the end
+    settle = _first(holds, T, dtype)
+    joined = _first(records.on_path, T, dtype)
+    after_join = (steps >= jnp.nan_to_num(joined, nan=T)) & jnp.isfinite(joined)
+    pe = records.path_error
+    out.update(
+        **metrics.graph_summary(records.lambda2),
+        settle_step=settle + 1.0,
+        formation_error_max=jnp.where(jnp.any(holds), metrics.nan_max(jnp.where(holds, dev, -jnp.inf)), jnp.nan),
+        formation_error_final=dev[-1],
+        join_step=joined + 1.0,
+        path_error_mean=jnp.sum(jnp.where(after_join, pe, 0.0)) / jnp.sum(after_join),
+        path_error_max=metrics.nan_max(jnp.where(after_join, pe, -jnp.inf)),
+        approach_steps=jnp.sum(~records.on_path),
+        capped_steps=jnp.sum(records.capped),
+        max_air_step=metrics.nan_max(records.air_max),
+    )
+    return out
+
+
+def timeseries_outputs(cfg) -> dict[str, Output]:
+    out = dict(
+        **kit.error_series_outputs("m/s", "wind estimate error"),
+        wind_error_x=Output("m/s", "|estimate - wind| along x, report_agent"),
+        wind_error_y=Output("m/s", "|estimate - wind| along y, report_agent"),
+        raw_error_x=Output("m/s", "|measurement - wind| along x, report_agent", False),
+        raw_error_y=Output("m/s", "|measurement - wind| along y, report_agent", False),
+        path_error=Output("m", "|Y - psi(X)| of the centroid", False),
+        lambda2=Output("", "algebraic connectivity of the comm graph", False),
+    )
+    for i, j in pairs(cfg.n_agents):
+        out[f"distance_{i + 1}_{j + 1}"] = Output("m", f"distance between UAV{i + 1} and UAV{j + 1}", False)
+    for i in range(cfg.n_agents):
+        out[f"x_{i + 1}"] = Output("m", f"UAV{i + 1}'s x after the step", False)
+        out[f"y_{i + 1}"] = Output("m", f"UAV{i + 1}'s y after the step", False)
+    return out
+
+
+def timeseries(cfg, records: Record, params) -> dict:
+    dtype = records.error.dtype
+    out = dict(**metrics.error_series(records.error, jnp.ones(cfg.n_agents, dtype)),
+               wind_error_x=records.axis_error[:, :, 0], wind_error_y=records.axis_error[:, :, 1],
+               raw_error_x=records.raw_error[:, 0], raw_error_y=records.raw_error[:, 1],
+               path_error=records.path_error, lambda2=records.lambda2)
+    for k, (i, j) in enumerate(pairs(cfg.n_agents)):
+        out[f"distance_{i + 1}_{j + 1}"] = records.distances[:, k]
+    for i in range(cfg.n_agents):
+        out[f"x_{i + 1}"] = records.positions[:, i, 0]
+        out[f"y_{i + 1}"] = records.positions[:, i, 1]
+    return out
+
+
+SCENARIO = Scenario(
+    name=NAME, title="Chen & Lu 2013: three UAVs estimate the wind by consensus Kalman filtering and hold a "
+    "formation on a sine path", Config=Config, Params=Params, init=init, step=step, reduce=reduce,
+    outputs=outputs, timeseries=timeseries, timeseries_outputs=timeseries_outputs, check_params=check_params)
+default_params = SCENARIO.default_params
