@@ -11,15 +11,17 @@ the paper shows single runs) of 300 steps of 0.1 s, through ``mcjax.engine.run_c
 compiled batches of 100 runs (per-run summaries and per-step series from one simulation).
 Then the ideal case of Theorem 2 (``control_reference = "truth"``, ``target_path = "line"``,
 ``n_sensing = n_agents``: every node steers to the true target on a straight line), and a
-speed/scaling section.
+speed/scaling section (from a lattice start; section 8).
 
 How to run::
 
     python benchmarks/flocking_lou2013.py                    # 1,000 runs (~30–40 min on 2 shared cores)
     python benchmarks/flocking_lou2013.py --runs 20          # a quick look
+    python benchmarks/flocking_lou2013.py --scaling-only     # the scaling section alone (~13 min on 2 shared cores)
     python benchmarks/flocking_lou2013.py [--runs 1000] [--out DIR] [--no-figures] [--no-check]
-                                          [--scaling | --no-scaling] [--scaling-runs 20]
+                                          [--scaling | --no-scaling] [--scaling-only] [--scaling-runs 20]
                                           [--scaling-steps 30] [--scaling-full-steps 300]
+                                          [--scaling-full-runs 20 20 4] [--scaling-sizes 20 50 100]
                                           [--ideal-runs 100] [--nx-runs 5] [--nx-init 200]
 
 What it prints.
@@ -52,20 +54,26 @@ What it prints.
    link (a new link adds its potential to Q) or not; then the same for ``--ideal-runs`` runs of
    the ideal case, where Theorem 2 makes Q non-increasing between new links.
 7. Checks. Exit status 1 (unless ``--no-check``) if any run removed an edge, had a link reach
-   R, had λ2 ≤ 1e-9 at some step, or the KCF's mean RMSE is not below the standalone KF's.
-   Lines marked ``info`` are printed without being checked.
-8. Scaling (``--scaling``, on by default): for N = 20, 50, 100 nodes (``n_sensing = N // 2``;
-   the initial box scaled as 8·sqrt(N/20) m so the density of the initial draw stays the
-   paper's 20 nodes in 8 × 8 m), one compiled batch of ``--scaling-runs`` (20) runs ×
-   ``--scaling-steps`` (30) steps — few steps because a run of 100 nodes costs ~0.4 s per
-   step here; the first seconds, where the flock contracts, are the stiffest — with the
-   compilation timed apart (ahead-of-time ``lower().compile()``), runs/s, the cost per
-   run-step, the sub-steps each step took, the start failures, broken links and blow-ups;
-   the cost of one RK4 sub-step alone (``flocking.rk4_step`` vmapped over the batch); one more
-   batch of ``--scaling-full-steps`` (300) steps at N = 20; and the exponents of log-log fits
-   of both costs vs N (table and ``scaling.png``). The scenario's start rule — no pair within
-   0.2 m below R, none closer than 0.3 m — cannot be met by a uniform draw of 50 or more nodes
-   at that density, so those runs start from a rejected draw; the table says so.
+   R, had λ2 ≤ 1e-9 at some step, or the KCF's mean RMSE is not below the standalone KF's
+   (and, section 8, if a scaling run started from a failed draw). Lines marked ``info``
+   are printed without being checked.
+8. Scaling (``--scaling``, on by default; ``--scaling-only`` runs this section alone): for
+   N = 20, 50, 100 nodes (``n_sensing = N // 2``), every run starts from
+   ``start_layout = "lattice"`` (ours, not the paper's: the nodes on a square lattice of
+   1.75 m, about the paper's density, each moved by U[−0.1, 0.1]² m; one draw per run,
+   ``start_attempts = 1``). A uniform draw of 50 or more nodes at the paper's density almost
+   never avoids a pair just below R, so it is rejected; the lattice never is
+   (``flocking.check_params``), and the in-program start test still flags any draw that
+   breaks the rule (``start_failed``, checked to be 0). Per N: one compiled batch of
+   ``--scaling-runs`` (20) runs × ``--scaling-steps`` (30) steps — the first seconds, where
+   the flock contracts — and one of ``--scaling-full-runs`` (20, 20, 4) runs ×
+   ``--scaling-full-steps`` (300) steps, the paper's 30 s; each with the compilation timed
+   apart (ahead-of-time ``lower().compile()``) and excluded, runs/s, the cost per run-step
+   and per run-substep (the run time over runs × the sub-steps the batch executed: per step,
+   those of its slowest run), the sub-steps per step, the start failures, broken links,
+   blow-ups and steps at the sub-step cap; the cost of one RK4 sub-step alone
+   (``flocking.rk4_step`` vmapped over the batch); and the exponents of log-log fits of
+   every cost vs N (table and ``scaling.png``).
 
 Figures (``--out``, default ``results/flocking_lou2013/``; ``--no-figures``): errors over time
 (``fig3_errors.png``), the flock of seed 0 at t = 0, 15 and 30 s with its links, the target
@@ -88,6 +96,7 @@ import numpy as np
 
 from mcjax import engine, graph
 from mcjax.results import environment_metadata, write_part
+from mcjax.scenarios.flocking import Params as FlockingParams
 from mcjax.scenarios.flocking import target_state
 from mcjax.statistics import mean_ci, t_critical, wilson_interval
 from mcjax.sweep import build_spec, run_rows
@@ -344,15 +353,28 @@ def energy_lines(en: dict, label: str) -> list[str]:
 # --------------------------------------------------------------------------- scaling
 
 
+#: The scaling runs' start: ``start_layout = "lattice"`` with the scenario's default spacing and
+#: jitter (valid for any N, checked by ``flocking.check_params``); one draw per run
+#: (``start_attempts = 1``: the lattice needs no redraws; the in-program test still flags it).
+SCALING_CONFIG = {"start_layout": "lattice", "start_attempts": 1}
+LATTICE_NOTE = (f"{FlockingParams.TABLE['lattice_spacing'].default} m spacing (about the paper's density), each node "
+                f"moved by U[−j, j]² m, j = {FlockingParams.TABLE['lattice_jitter'].default}")
+COST_LABELS = {"ms_per_run_step": "ms per run-step", "us_per_run_substep": "µs per run-substep",
+               "us_per_substep": "µs per run and RK4 sub-step (rk4_step alone)"}
+
+
 def _scaling_setup(config: Path, n: int, steps: int):
-    box = 8.0 * math.sqrt(n / 20)
-    return (*setup(config, {"n_agents": n, "n_steps": steps}, {"n_sensing": n // 2, "box": box}), box)
+    from mcjax.scenarios.flocking import lattice_sites
+
+    sc, cfg, p = setup(config, {"n_agents": n, "n_steps": steps, **SCALING_CONFIG}, {"n_sensing": n // 2})
+    sites = lattice_sites(n)
+    return sc, cfg, p, f"{int(sites[:, 0].max() + 0.5)} x {int(sites[:, 1].max() + 0.5)}"
 
 
 def batch_cost(config: Path, n: int, runs: int, steps: int, base_seed: int) -> dict:
     """One compiled batch of ``runs`` runs × ``steps`` steps of ``n`` nodes: compilation (ahead
     of time, ``lower().compile()``) and run timed apart, with what the runs did."""
-    scenario, cfg, p, box = _scaling_setup(config, n, steps)
+    scenario, cfg, p, lattice = _scaling_setup(config, n, steps)
     fn = engine.compiled(scenario, cfg, records=True)
     params, keys = engine.chunk_inputs(engine.stack_points([p]), runs, base_seed, 0, runs, runs)
     t0 = time.perf_counter()
@@ -364,12 +386,15 @@ def batch_cost(config: Path, n: int, runs: int, steps: int, base_seed: int) -> d
     out = jax.jit(jax.vmap(lambda r: scenario.reduce(cfg, r, p)))(rec)
     out = {k: np.asarray(v) for k, v in out.items()}
     sub = np.asarray(rec.substeps)                      # (runs, T)
+    executed = float(np.sum(sub.max(axis=0)))           # the batch's sub-steps: its slowest run's, per step
     print(f"  N = {n}: compile {compile_s:.1f} s, {runs} runs x {steps} steps in {run_s:.2f} s", flush=True)
-    return dict(n=n, box=box, runs=runs, steps=steps, compile_s=compile_s, run_s=run_s, runs_per_s=runs / run_s,
-                ms_per_run_step=run_s / (runs * steps) * 1e3, substeps_mean=float(sub.mean()),
-                substeps_batch=float(np.mean(sub.max(axis=0))), start_failed=int(out["start_failed"].sum()),
+    return dict(n=n, lattice=lattice, runs=runs, steps=steps, compile_s=compile_s, run_s=run_s,
+                runs_per_s=runs / run_s, ms_per_run_step=run_s / (runs * steps) * 1e3,
+                us_per_run_substep=run_s / (runs * executed) * 1e6, substeps_mean=float(sub.mean()),
+                substeps_batch=executed / steps, start_failed=int(out["start_failed"].sum()),
                 removed=int(np.sum(out["edges_removed"] > 0)), reached=int(out["link_reached_R"].sum()),
                 disconnected=int(np.sum(out["lambda2_min"] <= DISCONNECTED)),
+                capped=int(out["substeps_capped"].sum()),
                 blown=int(np.sum(~np.all(np.isfinite(np.asarray(rec.energy)), axis=1))))
 
 
@@ -398,32 +423,43 @@ def substep_cost(config: Path, n: int, runs: int, base_seed: int, substeps: int 
     return best / (runs * substeps)
 
 
-def scaling(config: Path, sizes: list[int], runs: int, steps: int, full_steps: int, base_seed: int):
-    """Per N: a batch of ``runs`` × ``steps`` (the fit), the RK4 sub-step alone; plus the
-    first size at ``full_steps`` (the paper's 300 steps) for reference."""
+def scaling(config: Path, sizes: list[int], runs: int, steps: int, full_steps: int, full_runs: list[int],
+            base_seed: int):
+    """Per N: a batch of ``runs`` × ``steps`` with the RK4 sub-step alone, and a batch of
+    ``full_runs[i]`` × ``full_steps`` (the paper's 300 steps; skipped if 0 or equal to ``steps``)."""
     rows = [dict(batch_cost(config, n, runs, steps, base_seed), us_per_substep=substep_cost(config, n, runs, base_seed)
                  * 1e6) for n in sizes]
-    extra = batch_cost(config, sizes[0], runs, full_steps, base_seed) if full_steps and full_steps != steps else None
-    return rows, extra
+    full = ([batch_cost(config, n, r, full_steps, base_seed) for n, r in zip(sizes, full_runs)]
+            if full_steps and full_steps != steps else [])
+    return rows, full
 
 
-def scaling_table(rows: list[dict], extra: dict | None) -> tuple[str, dict]:
-    n = np.array([r["n"] for r in rows], float)
+def _fit(rows: list[dict], key: str) -> float:
+    """Least-squares slope of log(cost) vs log(N)."""
+    if len(rows) < 2:
+        return math.nan
+    return float(np.polyfit(np.log([r["n"] for r in rows]), np.log([r[key] for r in rows]), 1)[0])
+
+
+def scaling_table(rows: list[dict], full: list[dict]) -> tuple[str, dict]:
     fits = {}
-    for key in ("ms_per_run_step", "us_per_substep"):
-        y = np.array([r[key] for r in rows])
-        fits[key] = float(np.polyfit(np.log(n), np.log(y), 1)[0]) if len(rows) > 1 else math.nan
-    lines = ["| N | box, m | runs x steps | compile, s | run, s | runs/s | ms per run-step | sub-steps per step "
-             "(mean over runs / slowest run) | µs per run and RK4 sub-step (rk4_step alone) | start failed | "
-             "runs that broke a link | link reached R | runs ever disconnected | flock went non-finite |",
-             "|" + "---|" * 14]
-    for r in rows + ([extra] if extra else []):
+    for label, group in ((f"{rows[0]['steps']} steps", rows), (f"{full[0]['steps']} steps" if full else "", full)):
+        for key in ("ms_per_run_step", "us_per_run_substep", "us_per_substep"):
+            if group and key in group[0]:
+                fits[(label, key)] = _fit(group, key)
+    lines = ["| N | lattice (columns x rows) | runs x steps | compile, s | run, s | runs/s | ms per run-step | "
+             "µs per run-substep | sub-steps per step (mean over runs / slowest run) | µs per run and RK4 sub-step "
+             "(rk4_step alone) | start failed | runs that broke a link | link reached R | runs ever disconnected | "
+             "flock went non-finite | steps at the sub-step cap |",
+             "|" + "---|" * 16]
+    for r in rows + full:
         sub_cost = f"{r['us_per_substep']:.1f}" if "us_per_substep" in r else "–"
-        lines.append(f"| {r['n']} | {r['box']:.2f} | {r['runs']} x {r['steps']} | {r['compile_s']:.1f} | "
-                     f"{r['run_s']:.2f} | {r['runs_per_s']:.2f} | {r['ms_per_run_step']:.2f} | "
-                     f"{r['substeps_mean']:.1f} / {r['substeps_batch']:.1f} | {sub_cost} | "
-                     f"{r['start_failed']}/{r['runs']} | {r['removed']}/{r['runs']} | {r['reached']}/{r['runs']} | "
-                     f"{r['disconnected']}/{r['runs']} | {r['blown']}/{r['runs']} |")
+        lines.append(f"| {r['n']} | {r['lattice']} | {r['runs']} x {r['steps']} | {r['compile_s']:.1f} | "
+                     f"{r['run_s']:.2f} | {r['runs_per_s']:.3g} | {r['ms_per_run_step']:.3g} | "
+                     f"{r['us_per_run_substep']:.3g} | {r['substeps_mean']:.1f} / {r['substeps_batch']:.1f} | "
+                     f"{sub_cost} | {r['start_failed']}/{r['runs']} | {r['removed']}/{r['runs']} | "
+                     f"{r['reached']}/{r['runs']} | {r['disconnected']}/{r['runs']} | {r['blown']}/{r['runs']} | "
+                     f"{r['capped']} |")
     return "\n".join(lines), fits
 
 
@@ -554,29 +590,34 @@ def figures(cfg, p, series: dict, out: dict, traj0: dict, out_dir: Path) -> list
     return paths
 
 
-def scaling_figure(rows: list[dict], fits: dict, out_dir: Path) -> Path:
+def scaling_figure(rows: list[dict], full: list[dict], fits: dict, out_dir: Path) -> Path:
+    """Log-log cost vs N with the fitted exponents: per run-step and per run-substep for each
+    batch length, and the RK4 sub-step alone."""
     import matplotlib
     import matplotlib.ticker
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    fig, ax = plt.subplots(figsize=(7.2, 4.8))
+    curves = [(rows, "ms_per_run_step", "tab:blue", "-"), (rows, "us_per_run_substep", "tab:green", "-"),
+              (rows, "us_per_substep", "tab:orange", "-")]
+    if full:
+        curves[2:2] = [(full, "ms_per_run_step", "tab:blue", "--"), (full, "us_per_run_substep", "tab:green", "--")]
+    for group, key, color, ls in curves:
+        label = f"{group[0]['steps']} steps"
+        n = np.array([r["n"] for r in group], float)
+        y = np.array([r[key] for r in group]) * (1.0 if key.startswith("ms") else 1e-3)
+        what = COST_LABELS[key].replace("µs", "ms")
+        extra = "" if key == "us_per_substep" else f", {label}"
+        ax.loglog(n, y, ls, marker="o", color=color,
+                  label=f"{what}{extra} (runs: {'/'.join(str(r['runs']) for r in group)}): "
+                        f"N^{fits[(label, key)]:.2f}")
     n = np.array([r["n"] for r in rows], float)
-    broken = np.array([r["start_failed"] > 0 for r in rows])
-    steps = rows[0]["steps"]
-    fig, ax = plt.subplots(figsize=(6.8, 4.6))
-    for key, color, label, unit in (
-            ("ms_per_run_step", "tab:blue", f"whole step, per run ({rows[0]['runs']} runs x {steps} steps)", 1.0),
-            ("us_per_substep", "tab:orange", "one RK4 sub-step alone, per run", 1e-3)):
-        y = np.array([r[key] for r in rows]) * unit
-        ax.loglog(n, y, "-", color=color, label=f"{label}: exponent {fits[key]:.2f}")
-        ax.loglog(n[~broken], y[~broken], "o", color=color)
-        ax.loglog(n[broken], y[broken], "o", mfc="white", mec=color)
-    ax.plot([], [], "ko", mfc="white", label="open: the runs started from a rejected draw")
     ax.set(xlabel="nodes N", ylabel="wall time, ms",
-           title="Cost vs flock size (initial density kept: box = 8·√(N/20) m)")
+           title="Flocking cost vs N (lattice start; compilation excluded)")
     ax.set_xticks(n, [str(int(v)) for v in n])
     ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=7)
     path = out_dir / "scaling.png"
     fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
@@ -586,32 +627,9 @@ def scaling_figure(rows: list[dict], fits: dict, out_dir: Path) -> Path:
 # --------------------------------------------------------------------------- main
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--runs", type=int, default=1000, help="Monte-Carlo runs of the paper's set-up")
-    ap.add_argument("--config", type=Path, default=ROOT / "configs" / "lou2013.toml")
-    ap.add_argument("--out", type=Path, default=ROOT / "results" / "flocking_lou2013")
-    ap.add_argument("--base-seed", type=int, default=0)
-    ap.add_argument("--no-figures", action="store_true")
-    ap.add_argument("--check", action=argparse.BooleanOptionalAction, default=True,
-                    help="exit 1 when a check fails (default on)")
-    ap.add_argument("--ideal-runs", type=int, default=100, help="runs of Theorem 2's ideal case (0: skip)")
-    ap.add_argument("--nx-runs", type=int, default=5, help="runs re-run step by step for the networkx cross-check")
-    ap.add_argument("--nx-init", type=int, default=200, help="initial draws for the networkx cross-check")
-    ap.add_argument("--scaling", action=argparse.BooleanOptionalAction, default=True,
-                    help="runs/s for N = 20, 50, 100 nodes (default on)")
-    ap.add_argument("--scaling-runs", type=int, default=20)
-    ap.add_argument("--scaling-steps", type=int, default=30,
-                    help="steps per run at every N (the fit; the stiff first seconds cost the most)")
-    ap.add_argument("--scaling-full-steps", type=int, default=300,
-                    help="steps of one more batch at the first N, as in the paper's runs (0: skip)")
-    ap.add_argument("--scaling-sizes", type=int, nargs="+", default=[20, 50, 100])
-    args = ap.parse_args(argv)
-    if args.runs < 1:
-        ap.error(f"--runs must be >= 1; got {args.runs}")
-    args.out.mkdir(parents=True, exist_ok=True)
-    wall0 = time.perf_counter()
-
+def run_paper(args) -> tuple[int, tuple]:
+    """Sections 1–7 of the module docstring. Returns the number of failed checks and
+    ``(scenario, cfg, p, series, out, traj0)`` for the figures."""
     # 1. the paper's set-up
     scenario, cfg, p = setup(args.config)
     assert tuple(cfg.filters) == FILTERS, cfg.filters
@@ -771,44 +789,82 @@ def main(argv=None) -> int:
                     f"{ideal['max_rel_elsewhere']:.3g} of Q), at {ideal['at_link']} steps with one")
     for text in info:
         print("info    " + text)
+    return failed_checks, (scenario, cfg, p, series, out, traj0)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--runs", type=int, default=1000, help="Monte-Carlo runs of the paper's set-up")
+    ap.add_argument("--config", type=Path, default=ROOT / "configs" / "lou2013.toml")
+    ap.add_argument("--out", type=Path, default=ROOT / "results" / "flocking_lou2013")
+    ap.add_argument("--base-seed", type=int, default=0)
+    ap.add_argument("--no-figures", action="store_true")
+    ap.add_argument("--check", action=argparse.BooleanOptionalAction, default=True,
+                    help="exit 1 when a check fails (default on)")
+    ap.add_argument("--ideal-runs", type=int, default=100, help="runs of Theorem 2's ideal case (0: skip)")
+    ap.add_argument("--nx-runs", type=int, default=5, help="runs re-run step by step for the networkx cross-check")
+    ap.add_argument("--nx-init", type=int, default=200, help="initial draws for the networkx cross-check")
+    ap.add_argument("--scaling", action=argparse.BooleanOptionalAction, default=True,
+                    help="runs/s for N = 20, 50, 100 nodes (default on)")
+    ap.add_argument("--scaling-only", action="store_true",
+                    help="only the scaling section (skips the paper's runs, checks and figures)")
+    ap.add_argument("--scaling-runs", type=int, default=20)
+    ap.add_argument("--scaling-steps", type=int, default=30,
+                    help="steps per run at every N (the first seconds, where the flock contracts)")
+    ap.add_argument("--scaling-full-steps", type=int, default=300,
+                    help="steps of one more batch at every N, as in the paper's runs (0: skip)")
+    ap.add_argument("--scaling-full-runs", type=int, nargs="+", default=[20, 20, 4],
+                    help="runs of the --scaling-full-steps batch per N (one value: every N)")
+    ap.add_argument("--scaling-sizes", type=int, nargs="+", default=[20, 50, 100])
+    args = ap.parse_args(argv)
+    if args.runs < 1:
+        ap.error(f"--runs must be >= 1; got {args.runs}")
+    if args.scaling_full_steps and len(args.scaling_full_runs) not in (1, len(args.scaling_sizes)):
+        ap.error(f"--scaling-full-runs takes one value or one per --scaling-sizes; got {args.scaling_full_runs}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    wall0 = time.perf_counter()
+    failed_checks, paper = (0, None) if args.scaling_only else run_paper(args)
 
     # 8. scaling
-    rows, fits = [], {}
-    if args.scaling:
-        print(f"\n### Speed and scaling ({args.scaling_runs} runs x {args.scaling_steps} steps per N in one compiled "
-              f"batch, and {args.scaling_full_steps} steps at N = {args.scaling_sizes[0]}; n_sensing = N // 2; "
-              f"box = 8·sqrt(N/20) m keeps the paper's initial density)\n")
-        rows, extra = scaling(args.config, args.scaling_sizes, args.scaling_runs, args.scaling_steps,
-                              args.scaling_full_steps, args.base_seed)
-        table, fits = scaling_table(rows, extra)
+    rows, full, fits = [], [], {}
+    if args.scaling or args.scaling_only:
+        full_runs = args.scaling_full_runs * (len(args.scaling_sizes) if len(args.scaling_full_runs) == 1 else 1)
+        print(f"\n### Speed and scaling (start_layout = lattice: the nodes on a jittered square lattice of "
+              f"{LATTICE_NOTE}; n_sensing = N // 2; {args.scaling_runs} runs x {args.scaling_steps} steps per N in "
+              f"one compiled batch" + (f", and {args.scaling_full_steps} steps with "
+                                       f"{', '.join(f'{r} runs at N = {n}' for n, r in zip(args.scaling_sizes, full_runs))}"
+                                       if args.scaling_full_steps else "") + ")\n")
+        rows, full = scaling(args.config, args.scaling_sizes, args.scaling_runs, args.scaling_steps,
+                             args.scaling_full_steps, full_runs, args.base_seed)
+        table, fits = scaling_table(rows, full)
         print()
         print(table)
-        print(f"\nfitted exponent of the cost vs N (log-log, the {args.scaling_steps}-step rows): per run-step "
-              f"{fits['ms_per_run_step']:.2f}; one RK4 sub-step alone (flocking.rk4_step vmapped over the batch, 10 "
-              f"sub-steps, best of 3) {fits['us_per_substep']:.2f}. A batch executes, per step, the sub-steps of its "
-              f"slowest run (the second sub-step column); the per-run-step cost is the sub-step cost times that, "
-              f"plus the filters and the graph. Load average now "
+        print("\nfitted exponent of the cost vs N (log-log, least squares over the sizes):")
+        for (label, key), value in fits.items():
+            print(f"  {label}, {COST_LABELS[key]}: {value:.2f}")
+        print(f"\nA batch executes, per step, the sub-steps of its slowest run (the sub-step column's second "
+              f"figure); µs per run-substep divides the run time by runs x those sub-steps (the filters, the graph and "
+              f"λ2 included). The RK4 sub-step alone is flocking.rk4_step vmapped over {args.scaling_runs} initial "
+              f"states, 10 sub-steps, best of 3. Compilation is timed apart and not in any cost. Load average now "
               f"{', '.join(f'{x:.1f}' for x in os.getloadavg())} on {os.cpu_count()} CPUs.")
-        bad = [r["n"] for r in rows if r["start_failed"]]
-        if bad:
-            print(f"N = {', '.join(map(str, bad))}: the runs started from a rejected draw — at this density a uniform "
-                  f"draw of that many nodes always has pairs within {float(p.start_margin)} m below R (and pairs "
-                  f"closer than {float(p.start_min_distance)} m), so every one of the {cfg.start_attempts} attempts "
-                  f"fails and the run starts from its last draw: linked pairs sit just below R, the potential is "
-                  f"stiff there and the step needs many more sub-steps (or the flock blows up). Their cost per "
-                  f"run-step is that of such starts, not of a valid one.")
+        starts = sum(r["start_failed"] for r in rows + full)
+        ok = starts == 0
+        print(("holds   " if ok else "FAILS   ") + f"every scaling run started from a valid lattice draw "
+              f"(start_failed: {starts})")
+        failed_checks += not ok
 
     if not args.no_figures:
         print()
-        if traj0 is None:
-            traj0 = trajectory(scenario, cfg, p, 0, args.base_seed)
-        for path in figures(cfg, p, series, out, traj0, args.out):
-            print(f"figure: {path}")
+        if paper is not None:
+            scenario, cfg, p, series, out, traj0 = paper
+            if traj0 is None:
+                traj0 = trajectory(scenario, cfg, p, 0, args.base_seed)
+            for path in figures(cfg, p, series, out, traj0, args.out):
+                print(f"figure: {path}")
         if rows:
-            print(f"figure: {scaling_figure(rows, fits, args.out)}")
+            print(f"figure: {scaling_figure(rows, full, fits, args.out)}")
     print(f"\ntotal wall time {time.perf_counter() - wall0:.0f} s")
     return 1 if (failed_checks and args.check) else 0
-
 
 if __name__ == "__main__":
     raise SystemExit(main())

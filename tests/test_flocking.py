@@ -699,7 +699,8 @@ def test_init_draws_for_20_nodes_are_valid_or_flagged():
     start_min_distance, the adjacency is that graph, the gains 0 and every filter at the true
     target with covariance diag(p0_diag); the margin band makes rejections common (some key
     needs several draws). Two more keys ask for 7.9 m between 20 nodes: flagged after all
-    start_attempts draws (no hang)."""
+    start_attempts draws (no hang). The kept draws are the documented uniform draw, re-drawn
+    here from the keys."""
     cfg = S.Config(n_agents=20, n_steps=2, warmup_steps=1, filters=("kcf",))
     over = [{}] * 6 + [dict(start_min_distance=7.9)] * 2
     params = engine.stack_points([S.default_params(cfg, **o) for o in over])
@@ -720,6 +721,54 @@ def test_init_draws_for_20_nodes_are_valid_or_flagged():
         np.testing.assert_array_equal(st.filters[0].P[r], np.broadcast_to(np.diag([0.1] * 4), (20, 4, 4)))
     assert np.max(st.attempts[:6]) > 1
     assert np.all(st.start_failed[6:]) and np.all(st.attempts[6:] == cfg.start_attempts)
+    # the default start_layout, "uniform": the kept draw is box · U[0, 1]² and v0 · U[0, 1]² from
+    # the two halves of that attempt's key (attempt keys: split(run key, start_attempts)), bit for bit
+    assert cfg.start_layout == "uniform"
+    for r in (0, 1):
+        kq, kp = jax.random.split(jax.random.split(keys[r], cfg.start_attempts)[int(st.attempts[r]) - 1])
+        np.testing.assert_array_equal(st.flock.q[r], 8.0 * jax.random.uniform(kq, (20, 2), jnp.float64))
+        np.testing.assert_array_equal(st.flock.p[r], 0.1 * jax.random.uniform(kp, (20, 2), jnp.float64))
+
+
+@pytest.mark.parametrize("n", [20, 50, 100])
+def test_lattice_start_meets_the_start_rule(n):
+    """start_layout = "lattice" (defaults: 1.75 m spacing, jitter 0.1 m) for 20, 50 and 100
+    nodes, 6 keys each, one draw allowed: every start is valid at the first draw — its graph
+    (r < R) is connected (scipy's connected components), no pair in [R − start_margin, R),
+    none closer than start_min_distance, each node within the jitter of its own site of a
+    1.75 m square grid of ceil(sqrt(n)) columns, velocities in [0, v0]², the adjacency that
+    graph — and check_params accepts the set-up."""
+    from scipy.sparse.csgraph import connected_components
+
+    cfg = S.Config(n_agents=n, n_steps=2, warmup_steps=1, filters=("kcf",), start_layout="lattice", start_attempts=1)
+    assert S.check_params(cfg, {}) == []
+    p = S.default_params(cfg)
+    keys = jax.vmap(lambda s: engine.run_key(5, s))(jnp.arange(6, dtype=jnp.uint32))
+    st = jax.tree.map(np.asarray, jax.jit(jax.vmap(lambda k: S.init(cfg, p, k)))(keys))
+    R, margin, dmin, spacing, jitter = 8.4, 0.2, 0.3, 1.75, 0.1
+    cols = int(np.ceil(np.sqrt(n)))
+    off = ~np.eye(n, dtype=bool)
+    for r in range(6):
+        q = st.flock.q[r]
+        d = distances(q)
+        assert connected_components((d < R) & off, directed=False)[0] == 1
+        assert not np.any((d[off] >= R - margin) & (d[off] < R)) and np.min(d[off]) >= dmin
+        cell = np.round(q / spacing - 0.5)
+        assert np.all(np.abs(q - (cell + 0.5) * spacing) <= jitter)
+        assert len({tuple(c) for c in cell}) == n and np.all((cell >= 0) & (cell[:, :1] < cols))
+        assert np.all((st.flock.p[r] >= 0) & (st.flock.p[r] <= 0.1))
+        np.testing.assert_array_equal(st.adj[r], ((d < R) & off).astype(float))
+        assert not st.start_failed[r] and st.attempts[r] == 1
+    assert np.ptp(st.flock.q[:, 0, 0]) > 0  # the jitter differs between keys
+
+
+def test_default_start_is_the_papers_uniform_draw():
+    """The default start_layout is "uniform", also in configs/lou2013.toml (the draw itself,
+    bit for bit: test_init_draws_for_20_nodes_are_valid_or_flagged)."""
+    from mcjax.sweep import load_config_file
+
+    assert S.Config().start_layout == "uniform"
+    assert load_config_file(CONFIG)[1].start_layout == "uniform"
 
 
 def test_scenario_impossible_start_is_flagged_not_hung(scenario_runs):
@@ -845,6 +894,31 @@ def test_check_params_names_the_field():
     assert S.check_params(cfg, {"n_sensing": 6.0, "epsilon": 8.3}) == []
 
 
+def test_lattice_start_rejects_bad_spacing_or_jitter_and_layouts():
+    """check_params with start_layout = "lattice": a spacing that puts some lattice pair in
+    [R − 0.2, R) (5 × 1.65 = 8.25 m) or leaves neighbours unlinked (9 m) names
+    lattice_spacing; a jitter that could push a pair into that band or below 0.3 m names
+    lattice_jitter; 1.6 m without jitter passes (no lattice distance in the band), and the
+    uniform layout ignores both. An unknown layout is a Config error naming the field, and
+    ``mcjax list flocking`` shows the allowed values."""
+    lattice = S.Config(n_agents=20, n_steps=40, warmup_steps=5, start_layout="lattice")
+    assert S.check_params(lattice, {}) == []
+    for values, field in [({"lattice_spacing": 1.65}, "lattice_spacing"), ({"lattice_spacing": 9.0}, "lattice_spacing"),
+                          ({"lattice_jitter": 0.2}, "lattice_jitter"), ({"lattice_jitter": 0.7}, "lattice_jitter"),
+                          ({"lattice_spacing": 1.6}, "lattice_jitter"),
+                          ({"lattice_spacing": np.array([1.75, 1.65])}, "lattice_spacing")]:
+        bad = S.check_params(lattice, values)
+        assert [f for f, _ in bad] == [field], (values, bad)
+        assert all(isinstance(a, str) and a and "\n" not in a for _, a in bad)
+    assert S.check_params(lattice, {"lattice_spacing": 1.6, "lattice_jitter": 0.0}) == []
+    uniform = S.Config(n_agents=20, n_steps=40, warmup_steps=5)
+    assert S.check_params(uniform, {"lattice_spacing": 1.65, "lattice_jitter": 0.7}) == []
+    with pytest.raises(ValueError, match="start_layout"):
+        S.Config(start_layout="hex")
+    r = CliRunner().invoke(main, ["list", "flocking"])
+    assert r.exit_code == 0 and "start_layout" in r.output and "allowed one of uniform, lattice" in r.output
+
+
 def test_param_table_and_config_reject_bad_values():
     T = S.Params.TABLE
     for name, bad, good in [("n_sensing", 0.0, 1.0), ("n_sensing", 2.5, 2.0), ("epsilon", 0.0, 0.1),
@@ -878,6 +952,9 @@ def test_cli_spec_without_bad_input_validates(tmp_path):
     (("", "n_sensing = 2\nc2 = 0.0\n"), "params.c2: must be > 0"),                           # Param table
     (("", "n_sensing = 0\n"), "params.n_sensing: must be an integer >= 1"),                   # Param table
     (("max_substeps = 0\n", "n_sensing = 2\n"), "config: max_substeps must be"),             # Config
+    (('start_layout = "hex"\n', "n_sensing = 2\n"), "config: start_layout must be one of uniform, lattice"),
+    (('start_layout = "lattice"\n', "n_sensing = 2\nlattice_spacing = 9.0\n"),
+     "params.lattice_spacing: must be such that"),                                             # check_params
 ])
 def test_cli_rejects_bad_input_exit_2_nothing_written(tmp_path, case, where):
     """One line, ``error: <where>: …``, exit code 2, nothing written."""

@@ -22,7 +22,11 @@ The initial flock is drawn inside the compiled program: positions U[0, box]², v
 U[0, v0]² (the paper: box 8, v0 0.1), redrawn up to ``Config.start_attempts`` times until
 the initial graph is connected, no pair sits within ``start_margin`` below R (the potential
 is stiff there) and no two nodes are closer than ``start_min_distance``. A run whose draws
-all fail is flagged (``start_failed``) and runs from its last draw.
+all fail is flagged (``start_failed``) and runs from its last draw. ``Config.start_layout =
+"lattice"`` (ours, for scaling studies; not the paper's) places the nodes instead on a square
+lattice of ``lattice_spacing`` jittered by U[−lattice_jitter, lattice_jitter]² per node
+(:func:`lattice_sites`); :func:`check_params` rejects a spacing or jitter with which some
+draw could break the rule above, and the same test still flags any draw that does.
 
 Filters (``Config.filters``): ``kcf`` and ``local`` (each type-I node's standalone Kalman
 filter: the paper's Fig. 2–3 baseline). Errors are the position errors of the type-I
@@ -32,6 +36,7 @@ nodes' estimates. Units: the paper's (m, s). Our choices where it is silent are 
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import jax
@@ -52,6 +57,7 @@ FILTER_KINDS = ("kcf", "local")
 FILTER_NODES = ("sensing", "all")
 CONTROL_REFERENCES = ("estimate", "truth")
 TARGET_PATHS = ("sine", "line")
+START_LAYOUTS = ("uniform", "lattice")
 
 
 def _check(cfg) -> None:
@@ -72,6 +78,9 @@ Config = config_type("Config", dict(
     kcf_gain=Setting("mu_P", "KCF consensus gain: mu_P = Lou et al. 2013 Alg. 1; gamma_M = Olfati-Saber 2009",
                      choices=KCF_GAINS),
     start_attempts=Setting(64, "initial draws tried per run before the run is flagged", low=1, integer=True),
+    start_layout=Setting("uniform", "initial positions: uniform = U[0, box]^2 (paper); lattice = a square lattice "
+                         "of lattice_spacing jittered by lattice_jitter (ours: a valid start for any n_agents)",
+                         choices=START_LAYOUTS),
 ), __name__, _check)
 
 
@@ -103,6 +112,10 @@ Params = params_type("Params", dict(
     start_min_distance=Param(0.3, "m", "no two nodes may start closer than this (ours; the paper's Fig. 6 "
                              "starts near 0.3)",
                              low=0.0),
+    lattice_spacing=Param(1.75, "m", "start_layout = lattice: the lattice's spacing (ours: about the paper's "
+                          "density; with R = 8.4 no lattice distance falls near R)", **_POS),
+    lattice_jitter=Param(0.1, "m", "start_layout = lattice: each node moves by U[-jitter, jitter]^2 from its "
+                         "site (ours)", low=0.0),
 ), __name__)
 
 
@@ -117,7 +130,46 @@ def check_params(cfg, values: dict) -> list[tuple[str, str]]:
         bad.append(("epsilon", "in (0, R): new links form below R - epsilon"))
     if np.any(get("start_margin") >= get("R")):
         bad.append(("start_margin", "in [0, R)"))
+    if cfg.start_layout == "lattice":
+        args = (get("R"), get("start_margin"), get("start_min_distance"))
+        if not np.all(_lattice_valid(cfg.n_agents, get("lattice_spacing"), 0.0, *args)):
+            bad.append(("lattice_spacing", "such that every pair of lattice sites is either below R - start_margin "
+                        "or at R or beyond, neighbours below R - start_margin and at least start_min_distance apart "
+                        "(start_layout = lattice)"))
+        elif not np.all(_lattice_valid(cfg.n_agents, get("lattice_spacing"), get("lattice_jitter"), *args)):
+            bad.append(("lattice_jitter", "small enough that no jittered lattice pair can start in [R - start_margin, "
+                        "R), neighbours stay below R - start_margin and at least start_min_distance apart "
+                        "(start_layout = lattice)"))
     return bad
+
+
+def lattice_sites(n: int) -> np.ndarray:
+    """The sites of ``start_layout = "lattice"`` in units of the spacing, (n, 2): row by row
+    on a grid of ``ceil(sqrt(n))`` columns, cell centres from (0.5, 0.5). Filled row by row,
+    every site but the first has a neighbour one unit away to its left or below it, so the
+    sites' unit links form a connected graph."""
+    cols = math.isqrt(max(n - 1, 0)) + 1
+    i = np.arange(n)
+    return np.stack([i % cols + 0.5, i // cols + 0.5], axis=1)
+
+
+def _lattice_valid(n, spacing, jitter, R, margin, min_distance):
+    """Whether every draw of the jittered lattice meets the start rule (module docstring), by
+    bounds: each node moves at most ``sqrt(2)·jitter`` from its site, so a pair's distance
+    lies within ``2·sqrt(2)·jitter`` of ``spacing`` times its sites' distance. Sufficient:
+    the unit links stay below ``R - margin`` (the graph is connected, :func:`lattice_sites`),
+    no pair's range meets ``[R - margin, R)``, and the shortest is ≥ ``min_distance``.
+    Array arguments broadcast (sweep points); returns a boolean array."""
+    if n < 2:
+        return np.ones(np.broadcast(spacing, jitter, R, margin, min_distance).shape, bool)
+    sites = lattice_sites(n)
+    d0 = np.unique(np.round(np.sqrt(np.sum((sites[:, None] - sites[None]) ** 2, -1)), 12))
+    d0 = d0[d0 > 0]
+    s, spread, R, margin, dmin = (np.asarray(a, np.float64)[..., None] for a in
+                                  (spacing, 2.0 * math.sqrt(2.0) * np.asarray(jitter), R, margin, min_distance))
+    lo, hi = s * d0 - spread, s * d0 + spread
+    outside = np.all((hi < R - margin) | (lo >= R), axis=-1)
+    return outside & (s[..., 0] + spread[..., 0] < R[..., 0] - margin[..., 0]) & (lo[..., 0] >= dmin[..., 0])
 
 
 class State(NamedTuple):
@@ -161,9 +213,14 @@ def sensing_mask(cfg, params, dtype):
 
 
 def _draw_start(cfg, p, key):
+    """One draw of the initial flock (module docstring) and whether it meets the start rule."""
     n = cfg.n_agents
     kq, kp = jax.random.split(key)
-    q = p.box * jax.random.uniform(kq, (n, 2), p.box.dtype)
+    if cfg.start_layout == "uniform":
+        q = p.box * jax.random.uniform(kq, (n, 2), p.box.dtype)
+    else:
+        sites = jnp.asarray(lattice_sites(n), p.box.dtype)
+        q = p.lattice_spacing * sites + p.lattice_jitter * jax.random.uniform(kq, (n, 2), p.box.dtype, -1.0, 1.0)
     v = p.v0 * jax.random.uniform(kp, (n, 2), p.box.dtype)
     d = graph.pairwise_distances(q) + jnp.eye(n, dtype=q.dtype) * 1e9
     adj = ((d < p.R) & ~jnp.eye(n, dtype=bool)).astype(q.dtype)
