@@ -9,10 +9,18 @@ chunk and memory is bounded by the chunk, not the sweep.
 Run r's key is ``fold_in(PRNGKey(base_seed), seed_index)``: a seed index draws the same
 noise at every sweep point (common random numbers) and results do not depend on the chunk
 size. Step t's key is ``fold_in(run_key, t)`` (noise drawn per step, never pre-drawn).
+
+Every CPU core works: the process has one CPU device per core (:mod:`mcjax.runtime`), the
+B-run batch program is compiled once for each device (in parallel), and the batches of a
+chunk go to the devices in turn, dispatched asynchronously so they compute side by side.
+Every device runs the same program on B-aligned slices, so the numbers do not depend on the
+device count either. (A ``shard_map`` over the devices was tried: one program, but its bits
+differ from the one-device program's in the last place.)
 """
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 from typing import Callable, Iterator
 
@@ -20,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcjax import numerics  # noqa: F401  (its import switches on float64)
+from mcjax import numerics  # noqa: F401  (its import switches on float64 and sets up the devices)
 from mcjax.contract import Scenario
 
 
@@ -72,6 +80,33 @@ def _compiled(scenario: Scenario, cfg, records: bool, timeseries: bool) -> Calla
                                                  timeseries=timeseries))
 
 
+def devices() -> list:
+    """The CPU devices a sweep's batches are spread over (one per core; :mod:`mcjax.runtime`)."""
+    return jax.local_devices(backend="cpu")
+
+
+#: Compiled programs per (jitted function, input signature, device): see :func:`_programs`.
+_PROGRAMS: dict = {}
+_PROGRAMS_MAX = 64
+
+
+def _programs(fn, params, keys, devs) -> list:
+    """``fn`` compiled ahead of time for each device of ``devs`` (the same B-run program on
+    every device; compiled in parallel threads, so D devices cost about one compilation of
+    wall time when there are D cores)."""
+    leaves = jax.tree.leaves(params)
+    sig = (fn, jax.tree.structure(params), tuple((np.shape(a), np.asarray(a).dtype.str) for a in leaves),
+           np.shape(keys), tuple(devs))
+    if sig not in _PROGRAMS:
+        lowered = [fn.lower(jax.device_put(params, d), jax.device_put(keys, d)) for d in devs]
+        with ThreadPoolExecutor(len(devs)) as pool:
+            programs = list(pool.map(lambda lo: lo.compile(), lowered))
+        if len(_PROGRAMS) >= _PROGRAMS_MAX:
+            _PROGRAMS.pop(next(iter(_PROGRAMS)))
+        _PROGRAMS[sig] = programs
+    return _PROGRAMS[sig]
+
+
 def stack_points(points: list) -> object:
     """Stack a list of Params (one per sweep point) into one Params with a point axis."""
     return jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *points)
@@ -119,21 +154,29 @@ def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed
     ``point_params``: Params with a leading point axis. ``chunks`` restricts the run to those
     chunk indices (for resuming). ``timeseries=True`` yields ``(outputs, series)`` as the
     outputs (see :func:`simulate`). Each chunk is computed as consecutive calls of one
-    compiled :data:`BATCH_SIZE`-run program (the last call padded), dispatched
-    asynchronously, so memory is bounded by the chunk and numbers do not depend on it.
+    compiled :data:`BATCH_SIZE`-run program (the last call padded by repeating the chunk's
+    last run), sent to the CPU devices in turn and dispatched asynchronously, so memory is
+    bounded by the chunk and the numbers depend neither on it nor on the device count.
     """
     n_points = int(jax.tree.leaves(point_params)[0].shape[0])
     n_runs = n_points * n_seeds
     b = batch_size_for(n_runs)
+    plan = chunk_plan(n_runs, chunk_size)
+    # as many devices as the largest chunk has batches (a one-batch sweep compiles once)
+    devs = devices()[:max(1, min(len(devices()), max(-(-(e - s) // b) for s, e in plan)))]
     fn = compiled(scenario, cfg, records, timeseries)
-    for idx, (start, stop) in enumerate(chunk_plan(n_runs, chunk_size)):
+    programs = None
+    for idx, (start, stop) in enumerate(plan):
         if chunks is not None and idx not in chunks:
             continue
         parts = []
-        for s in range(start, stop, b):
+        for k, s in enumerate(range(start, stop, b)):
             e = min(s + b, stop)
             params, keys = chunk_inputs(point_params, n_seeds, base_seed, s, e, b)
-            parts.append((e - s, fn(params, keys)))
+            if programs is None:
+                programs = _programs(fn, params, keys, devs)
+            dev = devs[k % len(devs)]
+            parts.append((e - s, programs[k % len(devs)](jax.device_put(params, dev), jax.device_put(keys, dev))))
         out = jax.tree.map(lambda *xs: np.concatenate([np.asarray(x)[:m] for (m, _), x in zip(parts, xs)]),
                            *[o for _, o in parts])
         yield idx, start, stop, out

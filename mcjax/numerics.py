@@ -16,6 +16,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from mcjax import runtime  # noqa: F401  (CPU devices and the compilation cache, before JAX starts)
+
 # The one place mcjax switches on JAX's 64-bit mode (docs/architecture.md, "Precision"): every
 # mcjax module that computes with JAX imports this one, so float64 input stays float64 (e.g.
 # graph.algebraic_connectivity of a float64 numpy adjacency) and float32 input, or a Config

@@ -92,3 +92,34 @@ def test_nan_aware_max_and_min_keep_a_nan_in_a_large_batch():
     assert np.isnan(got_max[-1]) and np.isnan(got_min[-1])
     np.testing.assert_array_equal(got_max[:-1], 1.0)
     np.testing.assert_array_equal(got_min[:-1], 1.0)
+
+
+def test_results_do_not_depend_on_the_device_count(tmp_path):
+    """The same sweep on 3 CPU devices (a subprocess: the count is fixed when JAX starts) and on
+    one (chunks of one batch use one device) gives the same bits; the subprocess really has 3."""
+    import os
+    import subprocess
+    import sys
+
+    from mcjax.scenarios import wind_formation as wf
+
+    cfg = wf.Config(n_steps=20)
+    points = engine.stack_points([wf.default_params(cfg), wf.default_params(cfg, comm_radius=2500.0)])
+    one = [o for *_, o in engine.run_chunks(wf.SCENARIO, cfg, points, 150, chunk_size=100)]
+    one = {k: np.concatenate([o[k] for o in one]) for k in one[0]}
+    script = tmp_path / "three.py"
+    script.write_text(
+        "import sys, numpy as np\n"
+        "from mcjax import engine, runtime\n"
+        "from mcjax.scenarios import wind_formation as wf\n"
+        "assert runtime.settings()['cpu_devices'] == 3, runtime.settings()\n"
+        "cfg = wf.Config(n_steps=20)\n"
+        "pts = engine.stack_points([wf.default_params(cfg), wf.default_params(cfg, comm_radius=2500.0)])\n"
+        "out = [o for *_, o in engine.run_chunks(wf.SCENARIO, cfg, pts, 150, chunk_size=1000)]\n"
+        "np.savez(sys.argv[1], **{k: np.concatenate([o[k] for o in out]) for k in out[0]})\n")
+    env = {**os.environ, "MCJAX_CPU_DEVICES": "3"}
+    subprocess.run([sys.executable, str(script), str(tmp_path / "three.npz")], check=True, env=env, timeout=300)
+    three = np.load(tmp_path / "three.npz")
+    assert set(three.files) == set(one)
+    for key in one:
+        np.testing.assert_array_equal(one[key], three[key], err_msg=key)
