@@ -6,33 +6,115 @@ tqdm draws the progress bar.
 
 from __future__ import annotations
 
+import contextlib
+import os
+import shlex
+import signal
 import sys
+import threading
 import time
+import tomllib
 from pathlib import Path
 
 import click
 
+#: What the first Ctrl-C of a sweep or run prints, at once.
+ACK = "stopping after the chunk in flight; press Ctrl-C again to stop now"
+
+
+def _set_value(raw: str):
+    """A ``--set`` value: TOML (``80e3``, ``true``, ``"name"``, ``[1, 2]``), else a bracketed
+    list of bare words (``[name1,name2]``), else the text itself (``name``)."""
+    try:
+        return tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        pass
+    if raw.startswith("[") and raw.endswith("]"):
+        items = [item.strip() for item in raw[1:-1].split(",")]
+        return [_set_value(item) for item in items if item]
+    return raw
+
 
 def _parse_set(values: tuple[str, ...]) -> dict:
-    """``--set key=value`` pairs; values parsed as TOML scalars/arrays when possible."""
-    import tomllib
-
+    """``--set key=value`` pairs (see :func:`_set_value`)."""
     out = {}
     for item in values:
-        if "=" not in item:
-            raise click.BadParameter(f"{item!r}: expected key=value (e.g. params.comm_radius=80e3)", param_hint="--set")
-        key, raw = item.split("=", 1)
-        try:
-            value = tomllib.loads(f"v = {raw}")["v"]
-        except tomllib.TOMLDecodeError:
-            value = raw
-        out[key.strip()] = value
+        key, eq, raw = item.partition("=")
+        if not eq or not key.strip():
+            _fail(f"--set {item!r}: expected KEY=VALUE, e.g. --set params.sensing_radius=100e3")
+        out[key.strip()] = _set_value(raw.strip())
     return out
 
 
 def _fail(message: str) -> None:
-    click.echo(f"error: {message}", err=True)
+    click.echo("error: " + " ".join(str(message).split()), err=True)  # always one line
     sys.exit(2)
+
+
+def _exit_now(code: int) -> None:
+    """Leave at once, without the interpreter's teardown: JAX's compute and compile threads may
+    still run, and tearing the runtime down under them can crash the process."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code)
+
+
+@contextlib.contextmanager
+def _ctrl_c(last_words):
+    """Ctrl-C during a sweep or run. The first one is acknowledged at once (``ACK``) and sets
+    the yielded Event: the sweep stops after the chunk in flight. The second stops now:
+    ``last_words()`` is printed and the process exits with 130. A watcher thread hears the
+    signal through Python's wakeup fd, so the acknowledgement comes even while XLA holds the
+    main thread. Outside the main thread (no signals there) the Event is never set."""
+    stop = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+    read_fd, write_fd = os.pipe()
+    os.set_blocking(write_fd, False)
+
+    def say(text: str) -> None:
+        with contextlib.suppress(OSError):
+            os.write(2, (text + "\n").encode())
+
+    def watch() -> None:
+        count = 0
+        while True:
+            try:
+                data = os.read(read_fd, 64)
+            except OSError:
+                return
+            if not data:
+                return
+            count += data.count(bytes([signal.SIGINT]))
+            if count >= 2:
+                say(f"\nstopped now; {last_words()}")
+                os._exit(130)
+            if count == 1 and not stop.is_set():
+                stop.set()
+                say(f"\n{ACK}")
+
+    old_handler = signal.signal(signal.SIGINT, lambda signum, frame: None)
+    old_fd = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+    watcher = threading.Thread(target=watch, name="mcjax-ctrl-c", daemon=True)
+    watcher.start()
+    try:
+        yield stop
+    finally:
+        signal.set_wakeup_fd(old_fd)
+        signal.signal(signal.SIGINT, old_handler)
+        os.close(write_fd)
+        watcher.join(timeout=1.0)
+        os.close(read_fd)
+
+
+def _read_kind(path: Path) -> dict | None:
+    """The TOML of ``path`` if it reads (for telling a spec from a config), else None."""
+    try:
+        return tomllib.loads(path.read_bytes().decode("utf-8").removeprefix("\ufeff"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return None
 
 
 def _print_summary(df, spec) -> None:
@@ -61,28 +143,60 @@ def main() -> None:
 @click.option("--chunk-size", type=click.IntRange(min=1), default=None,
               help="Runs per compiled batch; memory is bounded by it (overrides the spec).")
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
-              help="Override a spec key, e.g. --set params.comm_radius=80e3 or --set config.n_steps=100. Repeatable.")
+              help="Override a spec key, e.g. --set params.sensing_radius=100e3, --set config.filters=[F1,F2] or "
+                   "--set 'grid.comm_radius=[60e3, 80e3]' (an axis is changed in grid/zip: a params value for a swept "
+                   "field is an error). Repeatable.")
 @click.option("--dry-run", is_flag=True, help="Print the points, run count and chunk plan; compile and write nothing.")
 @click.option("--resume", is_flag=True,
-              help="Finish an interrupted sweep in OUT: run only the chunks with no part file yet.")
-@click.option("--force", is_flag=True, help="Delete an existing output folder first.")
+              help="Finish an interrupted sweep in OUT: check every part file and run only the chunks whose parts "
+                   "are missing or damaged. Seeds, chunk size and --set values come from OUT/sweep.json.")
+@click.option("--force", is_flag=True,
+              help="Replace an existing output folder that holds a previous sweep (OUT/sweep.json).")
 def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force):
     """Run the sweep SPEC: every grid point x every seed, results to OUT/runs/*.parquet.
 
     Each chunk of runs is written as one Parquet part file (atomically: temporary name,
     then rename), so Ctrl-C or a killed process loses at most the chunk in flight, and
-    --resume completes exactly the missing chunks. Prints the report's summary per point
-    and filter (the scenario's error metric with its interval, divergences, graph statistics).
+    --resume completes exactly the missing chunks. The first Ctrl-C stops after the chunk in
+    flight, a second one at once (exit code 130); both print the command that resumes.
+    Prints the report's summary per point and filter (the scenario's error metric with its
+    interval, divergences, graph statistics).
     """
+    state = {"done": 0, "plan": None, "out": out_dir}
+
+    def hint() -> str:
+        done = f"{state['done']} of {state['plan']} chunk(s)" if state["plan"] is not None else "no chunk"
+        if state["plan"] is None:
+            return "interrupted before the sweep started; nothing was written"
+        return (f"interrupted: {done} written to {state['out']}; finish with: mcjax sweep "
+                f"{shlex.quote(str(spec))} --out {shlex.quote(str(state['out']))} --resume")
+
+    with _ctrl_c(hint) as stop:
+        from mcjax.sweep import default_out_dir
+
+        state["out"] = out_dir = out_dir or default_out_dir(spec)
+        _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state, stop, hint)
+
+
+def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state, stop, hint):
+    overrides = _parse_set(sets)
     from mcjax import results
     from mcjax.engine import chunk_plan
-    from mcjax.sweep import OutputError, SpecError, load_spec, missing_chunks, points, prepare_output, run_sweep
+    from mcjax.sweep import (OutputError, SpecError, load_spec, points, prepare_output, read_identity,
+                             run_sweep)
 
+    if resume and not dry_run:  # what the interrupted sweep was given, unless given again
+        try:
+            saved = read_identity(out_dir)
+        except OutputError as exc:
+            _fail(str(exc))
+        seeds = seeds if seeds is not None else saved["seeds"]
+        chunk_size = chunk_size if chunk_size is not None else saved["chunk_size"]
+        overrides = overrides if sets else saved.get("set", {})
     try:
-        s = load_spec(spec, seeds=seeds, chunk_size=chunk_size, overrides=_parse_set(sets))
+        s = load_spec(spec, seeds=seeds, chunk_size=chunk_size, overrides=overrides)
     except SpecError as exc:
         _fail(str(exc))
-    out_dir = out_dir or Path("results") / spec.stem
     plan = chunk_plan(s.n_runs, s.chunk_size)
     size = plan[0][1] - plan[0][0]
     click.echo(f"scenario {s.scenario.name}: {s.n_points} point(s) x {s.seeds} seed(s) = {s.n_runs} runs, "
@@ -91,25 +205,33 @@ def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force):
         click.echo(points(s).to_string(index=False))
         for i, (a, b) in enumerate(plan):
             click.echo(f"chunk {i}: runs {a}..{b - 1}")
+        if stop.is_set():
+            _exit_now(130)
         return
+    base = (spec.parent / s.source["base"]).resolve()
     try:
-        todo = prepare_output(s, out_dir, resume=resume, force=force)
+        todo = prepare_output(s, out_dir, resume=resume, force=force, keep=[spec, base], spec_file=spec,
+                              note=lambda line: click.echo(f"resume: {line}", err=True))
     except OutputError as exc:
         _fail(str(exc))
+    state["plan"] = len(plan)
+    state["done"] = 0 if todo is None else len(plan) - len(todo)
     if todo is not None:
         click.echo(f"resuming: {len(plan) - len(todo)} of {len(plan)} chunk(s) already written")
     from tqdm import tqdm
 
     remaining = s.n_runs if todo is None else sum(plan[i][1] - plan[i][0] for i in todo)
     t0 = time.perf_counter()
-    try:
-        with tqdm(total=remaining, unit="run", desc="sweep", disable=None) as bar:
-            run_sweep(s, out_dir, chunks=todo, progress=bar.update)
-    except KeyboardInterrupt:
-        n_done = len(plan) - len(missing_chunks(s, out_dir))
-        click.echo(f"\ninterrupted: {n_done} of {len(plan)} chunk(s) written to {out_dir}; "
-                   f"finish with: mcjax sweep {spec} --out {out_dir} --resume", err=True)
-        sys.exit(130)
+
+    def progress(n: int) -> None:
+        state["done"] += 1
+        bar.update(n)
+
+    with tqdm(total=remaining, unit="run", desc="sweep", disable=None) as bar:
+        run_sweep(s, out_dir, chunks=todo, progress=progress, should_stop=stop.is_set)
+    if stop.is_set():
+        click.echo(hint(), err=True)
+        _exit_now(130)
     elapsed = time.perf_counter() - t0
     df = results.read_table(out_dir, "runs")
     click.echo(f"{len(df)} rows in {out_dir / 'runs'}; {remaining} runs in {elapsed:.1f} s "
@@ -122,18 +244,33 @@ def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force):
 @click.option("--seeds", type=click.IntRange(min=1), default=None,
               help="Monte-Carlo seeds [default: the config's `seeds` (the paper's run count), else 20].")
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
-              help="Override a value, e.g. --set params.comm_radius=80e3. Repeatable.")
+              help="Override a value, e.g. --set params.comm_radius=80e3 or --set config.filters=[F1,F2] "
+                   "(names from `mcjax list`). "
+                   "Repeatable.")
 def run(config, seeds, sets):
     """Run one parameter point of CONFIG (configs/*.toml) and print a summary table
-    (nothing is written to disk)."""
-    from mcjax.sweep import SpecError, build_spec, run_sweep
+    (nothing is written to disk). The first Ctrl-C stops after the chunk in flight, a second
+    one at once (exit code 130)."""
+    with _ctrl_c(lambda: "nothing was written") as stop:
+        overrides = _parse_set(sets)
+        data = _read_kind(config)
+        if data is not None and "base" in data:
+            _fail(f"{config} is a sweep spec (it names a base config), not a config file: run it with "
+                  f"`mcjax sweep {shlex.quote(str(config))}`")
+        from mcjax.sweep import SpecError, build_spec, run_sweep
 
-    try:
-        s = build_spec({"base": str(config.resolve())}, Path.cwd(), seeds=seeds, overrides=_parse_set(sets))
-    except SpecError as exc:
-        _fail(str(exc))
-    df = run_sweep(s)
-    _print_summary(df, s)
+        if not config.is_file():
+            _fail(f"config file not found: {config}" if not config.exists() else f"{config} is not a file")
+        try:
+            s = build_spec({"base": str(config.resolve())}, Path.cwd(), seeds=seeds, overrides=overrides)
+        except SpecError as exc:
+            _fail(str(exc))
+        df = run_sweep(s, should_stop=stop.is_set)
+        if stop.is_set():
+            click.echo(f"interrupted: {len(df) // max(len(s.config.filters), 1)} of {s.n_runs} run(s) done, "
+                       f"nothing written", err=True)
+            _exit_now(130)
+        _print_summary(df, s)
 
 
 @main.command()
@@ -151,10 +288,14 @@ def report(out_dir, fmt, no_plots):
     """
     from mcjax.report import report as make_report
 
+    warn = (lambda text: click.echo(f"warning: {text}", err=True)) if fmt == "csv" else None
     try:
-        table, plots = make_report(out_dir, fmt, plots=not no_plots)
+        table, plots = make_report(out_dir, fmt, plots=not no_plots, warn=warn)
     except ValueError as exc:
         _fail(str(exc))
+    except KeyboardInterrupt:
+        click.echo("interrupted", err=True)
+        sys.exit(130)
     click.echo(table)
     for p in plots:
         click.echo(f"plot: {p}")

@@ -83,8 +83,100 @@ def _in_range(arr, low, high, low_open) -> bool:
     return bool(np.all(ok))
 
 
+def _show(value) -> str:
+    """``repr(value)`` on one line, cut to a readable length."""
+    text = repr(value.tolist() if isinstance(value, np.ndarray) else value).replace("\n", " ")
+    return text if len(text) <= 120 else text[:100] + f"... ({len(text)} characters)"
+
+
 def _bad(allowed: str, value) -> str:
-    return f"must be {allowed}; got {value!r}"
+    return f"must be {allowed}; got {_show(value)}"
+
+
+# ------------------------------------------------------------------ exact kinds of values
+# A spec is TOML, whose values have exact kinds: a boolean is not a number, a float is not
+# an integer, a string is not a list, a table is not a list. These helpers hold that line
+# (numpy scalars count as their Python kinds, so code may pass them too).
+
+def _is_bool(v) -> bool:
+    return isinstance(v, (bool, np.bool_))
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, (int, np.integer)) and not _is_bool(v)
+
+
+def _is_real(v) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not _is_bool(v)
+
+
+def _same(value, choice) -> bool:
+    """``value`` is ``choice`` in kind and in value: true is not 1, 1.0 is not 1, "1" is not 1."""
+    if isinstance(choice, str):
+        return isinstance(value, str) and value == choice
+    if _is_bool(choice):
+        return _is_bool(value) and value == choice
+    if _is_int(choice):
+        return _is_int(value) and value == choice
+    if _is_real(choice):
+        return _is_real(value) and value == choice
+    return type(value) is type(choice) and value == choice
+
+
+def _leaves(value):
+    """The leaves of a nested list (a value itself if it is no list); None if a leaf is a
+    table, a string, a boolean or anything but a number."""
+    if isinstance(value, np.ndarray):
+        return [value] if value.dtype.kind in "iuf" else None
+    if isinstance(value, (list, tuple)):
+        out = []
+        for v in value:
+            sub = _leaves(v)
+            if sub is None:
+                return None
+            out += sub
+        return out
+    return [value] if _is_real(value) else None
+
+
+def _integral_leaves(leaves) -> bool:
+    """Every leaf is an integer in kind (an integer-typed array counts; a float never does)."""
+    return all(_is_int(v) or (isinstance(v, np.ndarray) and v.dtype.kind in "iu") for v in leaves)
+
+
+def _within(value, low, high, low_open) -> bool:
+    """A scalar range check that also holds for integers beyond float range."""
+    if low is not None and not (value > low if low_open else value >= low):
+        return False
+    return high is None or value <= high
+
+
+#: Upper bounds of the integer Config fields that declare none, so that no spec can ask
+#: for more than one machine holds before the sweep even sizes its batches: the agents
+#: and steps every Config has, and any other count (iterations, samples, grid cells,
+#: sub-steps, attempts). The sweep's memory check (mcjax.sweep) refines these per program.
+COUNT_CEILINGS = {"n_agents": 1_000, "n_steps": 1_000_000}
+#: The bound of every other integer Config field without a declared upper bound.
+COUNT_CEILING = 100_000
+
+
+def ceiling(name: str, setting: "Setting") -> int | None:
+    """The upper bound :func:`config_type` enforces on an integer Setting that declares no
+    ``high`` (:data:`COUNT_CEILINGS`, else :data:`COUNT_CEILING`); None for other fields."""
+    if not setting.integer or setting.choices is not None or (setting.high is not None and setting.high < math.inf):
+        return None
+    return COUNT_CEILINGS.get(name, COUNT_CEILING)
+
+
+def setting_problem(name: str, setting: "Setting", value) -> str | None:
+    """:meth:`Setting.problem`, then the field's :func:`ceiling`."""
+    msg = setting.problem(value)
+    top = ceiling(name, setting)
+    if msg is None and top is not None and value > top:
+        low = setting.low if setting.low is not None else -math.inf
+        return _bad(_range_text(low, top, setting.low_open, True) + (f" {setting.unit}" if setting.unit else ""),
+                    value)
+    return msg
 
 
 class Setting(NamedTuple):
@@ -108,21 +200,26 @@ class Setting(NamedTuple):
         return _range_text(self.low, self.high, self.low_open, self.integer)
 
     def problem(self, value) -> str | None:
-        """None if ``value`` is allowed, else ``"must be …; got …"``."""
+        """None if ``value`` is allowed, else ``"must be …; got …"``. Kinds are exact: a
+        boolean is no number, a float no integer, a string no list."""
         if self.many:
-            ok = isinstance(value, tuple) and len(value) > 0 and len(set(value)) == len(value)
-            unknown = [v for v in value if v not in self.choices] if isinstance(value, tuple) else []
-            if ok and not unknown:
-                return None
-            return _bad(self.allowed(), value) + (f" (unknown: {', '.join(map(repr, unknown))})" if unknown else "")
+            if not isinstance(value, (tuple, list)):
+                return _bad(self.allowed(), value)
+            unknown = [v for v in value if not any(_same(v, c) for c in self.choices)]
+            if unknown:
+                return _bad(self.allowed(), value) + f" (unknown: {', '.join(map(_show, unknown))})"
+            if len(value) == 0 or len(set(value)) != len(value):
+                return _bad(self.allowed(), value)
+            return None
         if self.choices is not None:
-            return None if value in self.choices else _bad(self.allowed(), value)
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            return _bad("a number" if not self.integer else "an integer", value)
-        if self.integer and not isinstance(value, int):
-            return _bad(self.allowed(), value)
-        if not math.isfinite(value) or not _in_range(np.asarray(value), self.low, self.high, self.low_open):
-            return _bad(self.allowed() + (f" {self.unit}" if self.unit else ""), value)
+            return None if any(_same(value, c) for c in self.choices) else _bad(self.allowed(), value)
+        unit = f" {self.unit}" if self.unit else ""
+        if not _is_real(value) or (self.integer and not _is_int(value)):
+            return _bad(self.allowed() + ("" if self.integer else unit), value)
+        if not _is_int(value) and not math.isfinite(value):
+            return _bad(self.allowed() + unit, value)
+        if not _within(value, self.low, self.high, self.low_open):
+            return _bad(self.allowed() + unit, value)
         return None
 
 
@@ -153,13 +250,55 @@ class Param(NamedTuple):
     def default_value(self, cfg):
         return self.default(cfg) if callable(self.default) else self.default
 
-    def problem(self, value, n_agents: int | None = None) -> str | None:
+    def scalar(self, cfg) -> bool:
+        """Whether the field takes one number: no ``shape``, not per agent, and a scalar
+        default (for ``cfg``). A field with an array default and no ``shape`` takes any
+        shape (its scenario's ``check_params`` checks it)."""
+        return self.shape is None and not self.per_agent and np.ndim(self.default_value(cfg)) == 0
+
+    def _integral(self) -> bool:
+        return self.integer or (self.choices is not None and all(_is_int(c) for c in self.choices))
+
+    def expected(self, n_agents: int | None = None, cfg=None) -> str:
+        """What the field takes, in words: its form (a number, one per agent, a shape) and
+        its allowed values, e.g. ``"a number or a list of n_agents = 5 numbers, >= 0 m"``."""
+        kind = "integer" if self._integral() else "number"
+        if self.shape is not None:
+            shown = "x".join("n_agents" if d == "n" else str(d) for d in self.shape)
+            want = "" if n_agents is None else " (" + "x".join(str(n_agents if d == "n" else d)
+                                                           for d in self.shape) + ")"
+            form = f"an array of {kind}s of shape {shown}{want}"
+        elif self.per_agent:
+            agents = "n_agents" if n_agents is None else f"n_agents = {n_agents}"
+            form = f"a{'n' if kind == 'integer' else ''} {kind} or a list of {agents} {kind}s"
+        elif cfg is not None and self.scalar(cfg):
+            form = f"a{'n' if kind == 'integer' else ''} {kind}"
+        else:
+            form = f"a{'n' if kind == 'integer' else ''} {kind} or a rectangular list of {kind}s"
+        if self.choices is not None:
+            return f"{form}, {self.allowed()}"
+        rng = _range_text(self.low, self.high, self.low_open, False)
+        return form if rng == "any number" else f"{form}, {rng}" + (f" {self.unit}" if self.unit else "")
+
+    def problem(self, value, n_agents: int | None = None, *, exact: bool = False, cfg=None) -> str | None:
         """None if ``value`` is allowed (for ``n_agents`` agents, when given: shapes are then
-        checked too), else ``"must be …; got …"``."""
+        checked too), else ``"must be …; got …"``. A boolean, a string or a table is never a
+        number, nor is a ragged list an array.
+
+        ``exact=True`` reads ``value`` as a spec gives it: an integer field (or one whose
+        choices are integers) takes integers only (``5.0`` is a float), and with ``cfg`` (the
+        Config; it also sets ``n_agents``) a :meth:`scalar` field takes one number only."""
+        if cfg is not None:
+            n_agents = cfg.n_agents
+        leaves = _leaves(value)
+        if leaves is None:
+            return _bad(self.expected(n_agents, cfg) if exact else "a number or a list of numbers", value)
         try:
             arr = np.asarray(value, dtype=np.float64)
-        except (TypeError, ValueError):
-            return _bad("a number or a list of numbers", value)
+        except (TypeError, ValueError, OverflowError):  # ragged, or an integer beyond float range
+            return _bad(self.expected(n_agents, cfg) if exact else "a number or a list of numbers", value)
+        if exact and self._integral() and not _integral_leaves(leaves):
+            return _bad(self.expected(n_agents, cfg), value)
         if not np.all(np.isfinite(arr)):
             return _bad("finite", value)
         if self.choices is not None:
@@ -169,6 +308,8 @@ class Param(NamedTuple):
             return _bad(self.allowed(), value)
         elif not _in_range(arr, self.low, self.high, self.low_open):
             return _bad(self.allowed() + (f" {self.unit}" if self.unit else ""), value)
+        if exact and cfg is not None and self.scalar(cfg) and arr.ndim != 0:
+            return _bad(self.expected(n_agents, cfg), value)
         if n_agents is not None:
             if self.per_agent and arr.shape not in ((), (n_agents,)):
                 return _bad(f"a number or a list of n_agents = {n_agents} numbers", value)
@@ -198,7 +339,7 @@ def config_type(name: str, settings: Mapping[str, Setting], module: str,
             if s.many and isinstance(value, list):
                 object.__setattr__(self, field, tuple(value))
                 value = tuple(value)
-            msg = s.problem(value)
+            msg = setting_problem(field, s, value)
             if msg:
                 raise ValueError(f"{field} {msg}")
         if check is not None:

@@ -448,13 +448,16 @@ def figures(df: pd.DataFrame, metadata: Mapping[str, Any] | Schema,
 
 
 def make_plots(df: pd.DataFrame, metadata: Mapping[str, Any] | Schema, out_dir: str | os.PathLike,
-               axes: str | Sequence[str] | None = None) -> list[Path]:
+               axes: str | Sequence[str] | None = None, note: str | None = None) -> list[Path]:
     """Write the :func:`figures` of a runs table as PNG files to ``out_dir/report/``
-    (created if missing); return their paths in the order made."""
+    (created if missing); return their paths in the order made. ``note`` (e.g. that the
+    dataset is incomplete) is printed in red along the bottom of every figure."""
     report_dir = Path(out_dir) / "report"
     paths: list[Path] = []
     for name, fig in figures(df, metadata, axes):
         report_dir.mkdir(parents=True, exist_ok=True)
+        if note:
+            fig.supxlabel(note, color="#b00000", fontsize="small")  # constrained layout makes room
         path = report_dir / name
         fig.savefig(path, format="png")
         fig.clear()

@@ -15,19 +15,25 @@ This module does not import JAX.
 
 from __future__ import annotations
 
+import json
 import os
+import shlex
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import pandas as pd
 
 from mcjax import results, tables
 from mcjax.tables import FORMATS
 
-__all__ = ["FORMATS", "summary_text", "report"]
+__all__ = ["FORMATS", "summary_text", "report", "completeness"]
+
+#: The sweep's identity file in its output folder (written by :mod:`mcjax.sweep`).
+IDENTITY_FILE = "sweep.json"
 
 
-def summary_text(df: pd.DataFrame, metadata: Mapping[str, Any], fmt: str = "text") -> str:
+def summary_text(df: pd.DataFrame, metadata: Mapping[str, Any], fmt: str = "text",
+                 warning: str | None = None) -> str:
     """The summary table of a runs table, grouped by the metadata's swept axes × filter.
 
     For ``"text"`` and ``"markdown"`` the table is preceded by the legend of
@@ -47,28 +53,62 @@ def summary_text(df: pd.DataFrame, metadata: Mapping[str, Any], fmt: str = "text
     sch = tables.schema(metadata, df.columns)
     axes = tables.swept_axes(metadata, df.columns)
     summary = tables.summarize(df, metadata, axes)
-    return tables.format_table(summary, fmt, tables.legend_lines(sch, axes))
+    header = tables.legend_lines(sch, axes)
+    return tables.format_table(summary, fmt, ([f"WARNING: {warning}"] if warning else []) + header)
 
 
-def report(out_dir: str | os.PathLike, fmt: str = "text", *,
-           plots: bool = True) -> tuple[str, list[Path]]:
+def _identity(out: Path) -> dict:
+    try:
+        saved = json.loads((out / IDENTITY_FILE).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return {}
+    return saved if isinstance(saved, dict) else {}
+
+
+def completeness(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, Any]) -> str | None:
+    """None if the dataset holds every run its sweep planned, else one line saying how many
+    are present and how to finish it. The plan is the parts' ``n_runs`` (or the folder's
+    ``sweep.json`` for datasets written before parts recorded it); without either, None."""
+    out = Path(out_dir)
+    saved = _identity(out)
+    planned = metadata.get("n_runs", saved.get("n_runs"))
+    if not isinstance(planned, int) or isinstance(planned, bool) or not {"point_id", "seed_index"} <= set(df.columns):
+        return None
+    present = len(df[["point_id", "seed_index"]].drop_duplicates())
+    if present >= planned:
+        return None
+    spec = saved.get("spec_file") if isinstance(saved.get("spec_file"), str) else "SPEC"
+    return (f"incomplete dataset: {present} of {planned} planned runs present ({planned - present} missing); "
+            f"finish it with `mcjax sweep {shlex.quote(spec)} --out {shlex.quote(str(out))} --resume`")
+
+
+def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
+           warn: Callable[[str], None] | None = None) -> tuple[str, list[Path]]:
     """Summarise a sweep's output folder: ``(formatted table, plot paths)``.
 
     Reads ``OUT/runs`` (:func:`mcjax.results.read_table`) and its metadata
     (:func:`mcjax.results.read_metadata`), formats the table of :func:`summary_text` and,
     unless ``plots=False``, writes the figures of :func:`mcjax.plots.make_plots` to
-    ``OUT/report/``.
+    ``OUT/report/``. A dataset with fewer runs than its sweep planned (:func:`completeness`)
+    gets a ``WARNING:`` line at the top of the table's header (``warn`` is told too: CSV has
+    no header) and a note on every plot.
 
     Raises:
         ValueError: ``fmt`` is not one of :data:`FORMATS`; ``out_dir`` holds no runs (the
-            message names the folder); its metadata declares no outputs (written by an
-            older mcjax; the message names the folder and says what to do).
+            message names the folder); a part file is damaged
+            (:class:`mcjax.results.DamagedPartError`, naming it); its metadata declares no
+            outputs (written by an older mcjax; the message names the folder and says what to do).
     """
     tables.check_format(fmt)
     if not isinstance(out_dir, (str, os.PathLike)) or str(out_dir) == "":
         raise TypeError(f"out_dir must be a non-empty str or os.PathLike, got {out_dir!r}")
     out = Path(out_dir)
-    df = results.read_table(out)
+    try:
+        df = results.read_table(out)
+    except results.DamagedPartError as exc:  # name the spec to resume with, when the folder says it
+        spec = _identity(out).get("spec_file")
+        raise results.DamagedPartError(str(exc).replace("mcjax sweep SPEC", f"mcjax sweep {shlex.quote(spec)}")
+                                       if isinstance(spec, str) else str(exc)) from None
     if df.empty:
         raise ValueError(f"no runs found in {str(out)!r}: expected Parquet part files in "
                          f"{str(out / 'runs')!r} (is this the output folder of `mcjax sweep`?)")
@@ -77,9 +117,13 @@ def report(out_dir: str | os.PathLike, fmt: str = "text", *,
         tables.schema(metadata, df.columns)
     except ValueError as exc:
         raise ValueError(f"cannot report on {str(out)!r}: {exc}") from None
-    table = summary_text(df, metadata, fmt)
+    incomplete = completeness(out, df, metadata)
+    if incomplete and warn is not None:
+        warn(incomplete)
+    table = summary_text(df, metadata, fmt, warning=incomplete)
     if not plots:
         return table, []
     from mcjax.plots import make_plots  # matplotlib only when plotting
 
-    return table, make_plots(df, metadata, out)
+    note = incomplete and incomplete.split(";")[0].replace("incomplete", "INCOMPLETE", 1)
+    return table, make_plots(df, metadata, out, note=note)

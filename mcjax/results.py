@@ -63,6 +63,10 @@ __all__ = [
     "read_metadata",
     "environment_metadata",
     "clean_staging",
+    "remove_empty_staging",
+    "part_problem",
+    "remove_part",
+    "DamagedPartError",
 ]
 
 #: Name of the staging folder (a sibling of the dataset folders, never inside them).
@@ -157,6 +161,20 @@ def _fsync_dir(path: Path) -> None:
         pass
     finally:
         os.close(fd)
+
+
+class DamagedPartError(ValueError):
+    """A part file cannot be read (truncated, empty, not Parquet); the message names it."""
+
+
+def _damaged(out: Path, path: Path, exc: BaseException) -> DamagedPartError:
+    text = " ".join(str(exc).split())[:200]
+    return DamagedPartError(f"{path.relative_to(out) if out in path.parents else path} is damaged "
+                            f"({type(exc).__name__}: {text}); repair the dataset with `mcjax sweep SPEC --out "
+                            f"{out} --resume`")
+
+
+_READ_ERRORS = (pa.ArrowException, OSError, ValueError, KeyError, UnicodeDecodeError)
 
 
 def _part_files(out_dir: Path, table_name: str) -> list[Path]:
@@ -295,7 +313,10 @@ def read_table(out_dir: str | os.PathLike, table_name: str = "runs") -> pd.DataF
         return pd.DataFrame()
     frames = []
     for f in files:
-        table = pq.read_table(f)
+        try:
+            table = pq.read_table(f)
+        except _READ_ERRORS as exc:
+            raise _damaged(out, f, exc) from None
         keys = [p.split("=", 1) for p in f.relative_to(out / table_name).parts[:-1]]
         for i, (key, value) in enumerate(keys):
             column = pa.array([int(value) if value.lstrip("-").isdigit() else value] * table.num_rows)
@@ -322,7 +343,10 @@ def read_metadata(out_dir: str | os.PathLike, table_name: str = "runs") -> dict[
     files = _part_files(out, table_name)
     if not files:
         return {}
-    return _decode_metadata(pq.read_schema(files[0]).metadata)
+    try:
+        return _decode_metadata(pq.read_schema(files[0]).metadata)
+    except _READ_ERRORS as exc:
+        raise _damaged(out, files[0], exc) from None
 
 
 def _package_version(name: str) -> str:
@@ -406,3 +430,41 @@ def clean_staging(out_dir: str | os.PathLike) -> int:
     except OSError:
         pass
     return removed
+
+
+def remove_empty_staging(out_dir: str | os.PathLike) -> None:
+    """Remove ``OUT/_staging/`` if it holds nothing (a finished writer leaves it empty)."""
+    try:
+        (_check_out_dir(out_dir) / STAGING_DIR).rmdir()
+    except OSError:
+        pass
+
+
+def part_problem(out_dir: str | os.PathLike, table_name: str, part_name: str, seeds: range,
+                 rows_per_run: int) -> str | None:
+    """None if the part ``OUT/<table_name>/<part_name>.parquet`` is readable and holds exactly
+    the runs ``seeds`` (its ``seed_index`` values), each in ``rows_per_run`` rows; else what
+    is wrong, in a few words."""
+    path = _check_out_dir(out_dir) / table_name / f"{part_name}{_PARQUET_SUFFIX}"
+    expected = len(seeds) * rows_per_run
+    try:
+        meta = pq.ParquetFile(path).metadata
+        if meta.num_rows != expected:
+            return f"{meta.num_rows} rows, not {expected}"
+        got = pq.read_table(path, columns=["seed_index"]).column(0).to_numpy()
+    except _READ_ERRORS as exc:
+        return f"unreadable: {type(exc).__name__}: {' '.join(str(exc).split())[:160]}"
+    if len(got) and (got.min() < seeds.start or got.max() >= seeds.stop):
+        return f"runs outside seeds {seeds.start}..{seeds.stop - 1}"
+    counts = pd.Series(got).value_counts()
+    if len(counts) != len(seeds) or not (counts == rows_per_run).all():
+        return f"not {rows_per_run} rows for each of seeds {seeds.start}..{seeds.stop - 1}"
+    return None
+
+
+def remove_part(out_dir: str | os.PathLike, table_name: str, part_name: str) -> None:
+    """Delete a part file (a damaged one, before its chunk is written again)."""
+    try:
+        (_check_out_dir(out_dir) / table_name / f"{part_name}{_PARQUET_SUFFIX}").unlink()
+    except FileNotFoundError:
+        pass
