@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax import numerics  # noqa: F401  (its import switches on float64 and sets up the devices)
+from mcjax import runtime
 from mcjax.contract import Scenario
 
 
@@ -90,21 +91,40 @@ _PROGRAMS: dict = {}
 _PROGRAMS_MAX = 64
 
 
-def _programs(fn, params, keys, devs) -> list:
+def _programs(fn, params, keys, devs, label: str | None = None) -> list:
     """``fn`` compiled ahead of time for each device of ``devs`` (the same B-run program on
     every device; compiled in parallel threads, so D devices cost about one compilation of
-    wall time when there are D cores)."""
+    wall time when there are D cores). With a ``label`` (a built-in scenario's name, Config
+    and flags), the programs are also stored on disk and loaded from there next time
+    (:func:`mcjax.runtime.load_executable`)."""
     leaves = jax.tree.leaves(params)
-    sig = (fn, jax.tree.structure(params), tuple((np.shape(a), np.asarray(a).dtype.str) for a in leaves),
-           np.shape(keys), tuple(devs))
+    shapes = (str(jax.tree.structure(params)), tuple((np.shape(a), np.asarray(a).dtype.str) for a in leaves),
+              np.shape(keys))
+    sig = (fn, shapes, tuple(devs))
     if sig not in _PROGRAMS:
-        lowered = [fn.lower(jax.device_put(params, d), jax.device_put(keys, d)) for d in devs]
-        with ThreadPoolExecutor(len(devs)) as pool:
-            programs = list(pool.map(lambda lo: lo.compile(), lowered))
+        disk_key = None if label is None else f"{label}|{shapes}"
+        programs = [None if disk_key is None else runtime.load_executable(disk_key, d) for d in devs]
+        todo = [i for i, p in enumerate(programs) if p is None]
+        if todo:
+            lowered = {i: fn.lower(jax.device_put(params, devs[i]), jax.device_put(keys, devs[i])) for i in todo}
+            with ThreadPoolExecutor(len(todo)) as pool:
+                for i, prog in zip(todo, pool.map(lambda i: lowered[i].compile(), todo)):
+                    programs[i] = prog
+                    if disk_key is not None:
+                        runtime.store_executable(disk_key, devs[i], prog, runtime.custom_call_targets(lowered[i]))
         if len(_PROGRAMS) >= _PROGRAMS_MAX:
             _PROGRAMS.pop(next(iter(_PROGRAMS)))
         _PROGRAMS[sig] = programs
     return _PROGRAMS[sig]
+
+
+def _label(scenario: Scenario, cfg, records: bool, timeseries: bool) -> str | None:
+    """What names a batch program on disk: only for scenarios defined inside mcjax, whose code
+    the cache key covers (:func:`mcjax.runtime.load_executable`)."""
+    module = getattr(scenario.init, "__module__", "") or ""
+    if not module.startswith("mcjax."):
+        return None
+    return f"{scenario.name}|{module}|{cfg!r}|{bool(records)}|{bool(timeseries)}"
 
 
 def stack_points(points: list) -> object:
@@ -174,7 +194,7 @@ def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed
             e = min(s + b, stop)
             params, keys = chunk_inputs(point_params, n_seeds, base_seed, s, e, b)
             if programs is None:
-                programs = _programs(fn, params, keys, devs)
+                programs = _programs(fn, params, keys, devs, _label(scenario, cfg, records, timeseries))
             dev = devs[k % len(devs)]
             parts.append((e - s, programs[k % len(devs)](jax.device_put(params, dev), jax.device_put(keys, dev))))
         out = jax.tree.map(lambda *xs: np.concatenate([np.asarray(x)[:m] for (m, _), x in zip(parts, xs)]),

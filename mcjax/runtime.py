@@ -8,7 +8,13 @@
 * **A persistent compilation cache.** Compiled programs are kept on disk, so a second sweep of
   the same spec (or any run of the same Config) skips compilation. The folder is
   ``$MCJAX_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/mcjax/jax`` (default ``~/.cache/mcjax/jax``);
-  ``MCJAX_CACHE_DIR=off`` turns it off. It is safe to delete at any time.
+  ``MCJAX_CACHE_DIR=off`` turns it off. It is safe to delete at any time. Two layers:
+  JAX's own cache (keyed on the program itself, so it skips XLA's compilation but not the
+  tracing of the scenario, ~5–10 s for a closed loop), and for the built-in scenarios the
+  engine's batch programs stored whole (:func:`load_executable`), keyed on mcjax's source
+  code, the JAX version, the CPU, the scenario, its Config and the input shapes — a second
+  sweep of the same spec starts computing at once. A user's own scenario (a file or a
+  plugin) uses only JAX's layer, which cannot go stale when its code changes.
 
 If JAX's backend is already running when mcjax is first imported (a program that computed with
 JAX before importing mcjax), the device count cannot change any more: mcjax then uses the
@@ -17,7 +23,12 @@ devices JAX has, and says nothing. Call :func:`settings` to see what applies.
 
 from __future__ import annotations
 
+import hashlib
 import os
+import pickle
+import platform
+import re
+from functools import lru_cache
 from pathlib import Path
 
 import jax
@@ -65,6 +76,98 @@ def _apply() -> None:
 def settings() -> dict:
     """What applies in this process: CPU devices in use and the cache folder (or None)."""
     return {"cpu_devices": len(jax.devices("cpu")), "cache_dir": cache_dir()}
+
+
+@lru_cache(maxsize=1)
+def _code_version() -> str:
+    """A hash of mcjax's source files, JAX's version and the CPU: what a stored program
+    depends on besides its own key."""
+    h = hashlib.sha256()
+    root = Path(__file__).resolve().parent
+    for path in sorted(root.rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            cpu += next((line for line in f if line.startswith(("model name", "flags"))), "")
+    except OSError:
+        pass
+    h.update(f"{jax.__version__}|{cpu}".encode())
+    return h.hexdigest()
+
+
+def _executable_path(key: str) -> Path | None:
+    folder = cache_dir()
+    if folder is None:
+        return None
+    digest = hashlib.sha256(f"{_code_version()}|{key}".encode()).hexdigest()[:40]
+    return folder / "mcjax-programs" / f"{digest}.pkl"
+
+
+#: Programs loaded from and stored to the disk cache in this process.
+STATS = {"loaded": 0, "stored": 0}
+_TARGET = re.compile(r"custom_call @([A-Za-z0-9_.]+)")
+
+
+def custom_call_targets(lowered) -> frozenset:
+    """The custom-call targets (library kernels, e.g. LAPACK's) a lowered program calls."""
+    return frozenset(_TARGET.findall(lowered.as_text()))
+
+
+@lru_cache(maxsize=1)
+def _ready_targets() -> frozenset:
+    """Lower (not compile) a small program of the dense linear algebra mcjax uses, in float32
+    and float64, and return the custom-call targets it calls. Lowering is what makes JAX set
+    up those kernels in a process (LAPACK's are bound at their first lowering); a stored
+    program that calls only these can run without being lowered again."""
+    import jax.numpy as jnp
+    from jax.scipy.linalg import solve_triangular
+
+    def zoo(a, b):
+        return [(jnp.linalg.eigvalsh(x), jnp.linalg.cholesky(x), jnp.linalg.solve(x, x),
+                 solve_triangular(x, x, lower=True)) for x in (a, b)]
+
+    return custom_call_targets(jax.jit(zoo).lower(jnp.eye(2, dtype=jnp.float32), jnp.eye(2, dtype=jnp.float64)))
+
+
+def load_executable(key: str, device):
+    """The program stored under ``key`` for ``device`` (:func:`store_executable`), or None when
+    there is none, the cache is off, the file cannot be loaded, or the program calls a library
+    kernel this process has not set up (then the caller compiles it again)."""
+    from jax.experimental import serialize_executable
+
+    path = _executable_path(f"{key}|{device.id}")
+    if path is None or not path.is_file():
+        return None
+    try:
+        blob, in_tree, out_tree, targets = pickle.loads(path.read_bytes())
+        if not set(targets) <= _ready_targets():
+            return None
+        program = serialize_executable.deserialize_and_load(blob, in_tree, out_tree, execution_devices=[device])
+        STATS["loaded"] += 1
+        return program
+    except Exception:  # a damaged or foreign file: compile again and overwrite it
+        return None
+
+
+def store_executable(key: str, device, compiled, targets: frozenset) -> None:
+    """Store a compiled program for :func:`load_executable`, with the custom-call ``targets``
+    its lowering calls (atomically; failures are ignored: the cache is an optimisation)."""
+    from jax.experimental import serialize_executable
+
+    path = _executable_path(f"{key}|{device.id}")
+    if path is None:
+        return
+    try:
+        data = pickle.dumps((*serialize_executable.serialize(compiled), tuple(sorted(targets))))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+        STATS["stored"] += 1
+    except Exception:
+        pass
 
 
 _apply()

@@ -124,3 +124,41 @@ def test_results_do_not_depend_on_the_device_count(tmp_path):
     assert set(three.files) == set(one)
     for key in one:
         np.testing.assert_array_equal(one[key], three[key], err_msg=key)
+
+
+def test_a_second_process_loads_the_stored_program_and_gets_the_same_bits(tmp_path):
+    """The persistent cache: the first process compiles and stores the batch program, the
+    second loads it (no compilation) and computes the same numbers; a damaged file is
+    compiled again, never trusted."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    script = tmp_path / "run.py"
+    script.write_text(
+        "import sys, json, numpy as np\n"
+        "from mcjax import engine, runtime\n"
+        "from mcjax.scenarios import wind_formation as wf\n"
+        "cfg = wf.Config(n_steps=15)\n"
+        "out = [o for *_, o in engine.run_chunks(wf.SCENARIO, cfg, engine.stack_points([wf.default_params(cfg)]),"
+        " 20, chunk_size=100)]\n"
+        "np.save(sys.argv[1], out[0]['rmse'])\n"
+        "print(json.dumps(runtime.STATS))\n")
+    env = {**os.environ, "MCJAX_CACHE_DIR": str(tmp_path / "cache"), "MCJAX_CPU_DEVICES": "1"}
+
+    def run(name):
+        r = subprocess.run([sys.executable, str(script), str(tmp_path / name)], env=env, timeout=300,
+                           capture_output=True, text=True, check=True)
+        return json.loads(r.stdout.strip().splitlines()[-1]), np.load(tmp_path / name)
+
+    first, a = run("a.npy")
+    second, b = run("b.npy")
+    assert first == {"loaded": 0, "stored": 1} and second == {"loaded": 1, "stored": 0}
+    np.testing.assert_array_equal(a, b)
+    stored = list((tmp_path / "cache" / "mcjax-programs").glob("*.pkl"))
+    assert len(stored) == 1
+    stored[0].write_bytes(b"garbage")
+    third, c = run("c.npy")
+    assert third == {"loaded": 0, "stored": 1}
+    np.testing.assert_array_equal(a, c)
