@@ -41,7 +41,7 @@ def _parse_set(values: tuple[str, ...]) -> dict:
     for item in values:
         key, eq, raw = item.partition("=")
         if not eq or not key.strip():
-            _fail(f"--set {item!r}: expected KEY=VALUE, e.g. --set params.sensing_radius=100e3")
+            _fail(f"--set {item!r}: must be KEY=VALUE, e.g. --set params.sensing_radius=100e3")
         out[key.strip()] = _set_value(raw.strip())
     return out
 
@@ -58,6 +58,20 @@ def _exit_now(code: int) -> None:
         with contextlib.suppress(Exception):
             stream.flush()
     os._exit(code)
+
+
+def _own_process() -> bool:
+    """Whether this process is the mcjax command itself (the ``mcjax`` script or ``python -m
+    mcjax.cli``), not a program that calls it (click's test runner): only then does a command
+    keep its Ctrl-C handling to the end and leave without the interpreter's teardown."""
+    return Path(sys.argv[0]).name in ("mcjax", "cli.py")
+
+
+def _done(stop: threading.Event) -> None:
+    """The end of a sweep or run that completed: in the command's own process, leave now (130
+    if a Ctrl-C came meanwhile), so no Ctrl-C can land in the teardown."""
+    if _own_process():
+        _exit_now(130 if stop.is_set() else 0)
 
 
 @contextlib.contextmanager
@@ -102,11 +116,12 @@ def _ctrl_c(last_words):
     try:
         yield stop
     finally:
-        signal.set_wakeup_fd(old_fd)
-        signal.signal(signal.SIGINT, old_handler)
-        os.close(write_fd)
-        watcher.join(timeout=1.0)
-        os.close(read_fd)
+        if not _own_process():  # in its own process the handler stays to the end (see _done)
+            signal.set_wakeup_fd(old_fd)
+            signal.signal(signal.SIGINT, old_handler)
+            os.close(write_fd)
+            watcher.join(timeout=1.0)
+            os.close(read_fd)
 
 
 def _read_kind(path: Path) -> dict | None:
@@ -136,7 +151,7 @@ def main() -> None:
 
 
 @main.command()
-@click.argument("spec", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("spec", type=click.Path(path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output folder of the Parquet dataset (default: results/<spec name>).")
 @click.option("--seeds", type=click.IntRange(min=1), default=None, help="Monte-Carlo seeds per point (overrides the spec).")
@@ -199,21 +214,26 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
         _fail(str(exc))
     plan = chunk_plan(s.n_runs, s.chunk_size)
     size = plan[0][1] - plan[0][0]
-    click.echo(f"scenario {s.scenario.name}: {s.n_points} point(s) x {s.seeds} seed(s) = {s.n_runs} runs, "
-               f"{len(plan)} chunk(s) of {size}, filters {', '.join(s.config.filters)}")
+    headline = (f"scenario {s.scenario.name}: {s.n_points} point(s) x {s.seeds} seed(s) = {s.n_runs} runs, "
+                f"{len(plan)} chunk(s) of {size}, filters {', '.join(s.config.filters)}")
     if dry_run:
+        click.echo(headline)
         click.echo(points(s).to_string(index=False))
         for i, (a, b) in enumerate(plan):
             click.echo(f"chunk {i}: runs {a}..{b - 1}")
         if stop.is_set():
             _exit_now(130)
         return
+    if stop.is_set():
+        click.echo(hint(), err=True)
+        _exit_now(130)
     base = (spec.parent / s.source["base"]).resolve()
     try:
         todo = prepare_output(s, out_dir, resume=resume, force=force, keep=[spec, base], spec_file=spec,
                               note=lambda line: click.echo(f"resume: {line}", err=True))
     except OutputError as exc:
         _fail(str(exc))
+    click.echo(headline)
     state["plan"] = len(plan)
     state["done"] = 0 if todo is None else len(plan) - len(todo)
     if todo is not None:
@@ -237,10 +257,11 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
     click.echo(f"{len(df)} rows in {out_dir / 'runs'}; {remaining} runs in {elapsed:.1f} s "
                f"({remaining / max(elapsed, 1e-9):.1f} runs/s incl. compilation)")
     _print_summary(df, s)
+    _done(stop)
 
 
 @main.command()
-@click.argument("config", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("config", type=click.Path(path_type=Path))
 @click.option("--seeds", type=click.IntRange(min=1), default=None,
               help="Monte-Carlo seeds [default: the config's `seeds` (the paper's run count), else 20].")
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
@@ -260,17 +281,20 @@ def run(config, seeds, sets):
         from mcjax.sweep import SpecError, build_spec, run_sweep
 
         if not config.is_file():
-            _fail(f"config file not found: {config}" if not config.exists() else f"{config} is not a file")
+            _fail(f"config file not found: {config}" if not config.exists() else f"{config} is a folder, not a file")
         try:
             s = build_spec({"base": str(config.resolve())}, Path.cwd(), seeds=seeds, overrides=overrides)
         except SpecError as exc:
             _fail(str(exc))
+        click.echo(f"scenario {s.scenario.name}: {s.n_points} point(s) x {s.seeds} seed(s) = {s.n_runs} runs, "
+                   f"filters {', '.join(s.config.filters)}")
         df = run_sweep(s, should_stop=stop.is_set)
         if stop.is_set():
             click.echo(f"interrupted: {len(df) // max(len(s.config.filters), 1)} of {s.n_runs} run(s) done, "
                        f"nothing written", err=True)
             _exit_now(130)
         _print_summary(df, s)
+        _done(stop)
 
 
 @main.command()

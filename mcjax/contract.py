@@ -299,6 +299,8 @@ class Param(NamedTuple):
             return _bad(self.expected(n_agents, cfg) if exact else "a number or a list of numbers", value)
         if exact and self._integral() and not _integral_leaves(leaves):
             return _bad(self.expected(n_agents, cfg), value)
+        if exact and cfg is not None and self.scalar(cfg) and arr.ndim != 0:
+            return _bad(self.expected(n_agents, cfg), value)
         if not np.all(np.isfinite(arr)):
             return _bad("finite", value)
         if self.choices is not None:
@@ -308,8 +310,6 @@ class Param(NamedTuple):
             return _bad(self.allowed(), value)
         elif not _in_range(arr, self.low, self.high, self.low_open):
             return _bad(self.allowed() + (f" {self.unit}" if self.unit else ""), value)
-        if exact and cfg is not None and self.scalar(cfg) and arr.ndim != 0:
-            return _bad(self.expected(n_agents, cfg), value)
         if n_agents is not None:
             if self.per_agent and arr.shape not in ((), (n_agents,)):
                 return _bad(f"a number or a list of n_agents = {n_agents} numbers", value)

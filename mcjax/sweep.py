@@ -406,12 +406,13 @@ def build_spec(data: dict, base_dir: str | Path, *, seeds: int | None = None, ch
                 raise SpecError(f"grid.{k}: must not repeat a value (each point once); {dup} is given twice")
             axes[table][k] = values
             if k in spec_params:
-                raise SpecError(f"params.{k}: is also swept by {table}.{k}; set a field in [params] or sweep it, not "
-                                f"both (change the axis with {table}.{k} = [...])")
+                raise SpecError(f"params.{k}: must not be set while {table}.{k} sweeps it; change the axis instead "
+                                f"({table}.{k} = [...], or --set '{table}.{k}=[...]')")
     grid, zipped = axes["grid"], axes["zip"]
     both = set(grid) & set(zipped)
     if both:
-        raise SpecError(f"zip.{sorted(both)[0]}: already a grid axis; an axis goes in [grid] or [zip], not both")
+        raise SpecError(f"zip.{sorted(both)[0]}: must not also be a grid axis (grid.{sorted(both)[0]}); an axis goes "
+                        f"in [grid] or in [zip]")
     lengths = {k: len(v) for k, v in zipped.items()}
     if len(set(lengths.values())) > 1:
         raise SpecError(f"zip: axes must have equal lengths; got {lengths}")

@@ -108,7 +108,7 @@ def run_filter(
     kcf_epsilon : ε of the KCF consensus gain.
 
     Returns numpy arrays: estimates (…, T, n, 4) and covariances (…, T, n, 4, 4); the CIF
-    reports its single estimate for every agent.
+    reports its single estimate for every agent. Every bad argument raises ValueError naming it.
     """
     if kind not in FILTER_KINDS:
         raise ValueError(f"kind must be one of {', '.join(map(repr, FILTER_KINDS))}; got {kind!r}")
@@ -155,7 +155,8 @@ def run_filter(
     Ra = _as_array("R", R, np.float64)
     _expect_shape("R", Ra, (2, 2), "(range–bearing noise covariance)")
     _check_spd("R", Ra)
-    if not np.isfinite(kcf_epsilon) or kcf_epsilon < 0:
+    if (isinstance(kcf_epsilon, (bool, np.bool_)) or not isinstance(kcf_epsilon, (int, float, np.integer, np.floating))
+            or not np.isfinite(kcf_epsilon) or kcf_epsilon < 0):
         raise ValueError(f"kcf_epsilon must be a finite number >= 0; got {kcf_epsilon!r}")
 
     dt = jnp.float64 if dtype == "float64" else jnp.float32
