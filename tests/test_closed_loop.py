@@ -96,3 +96,20 @@ def test_paper_config_icf_reproduces_table_1_case_2():
     assert not icf["diverged"].any() and not mod["diverged"].any()
     assert icf["mean_error"].mean() > mod["mean_error"].mean()
     assert icf["mean_error"].mean() < 1000.0  # finite and small, as in the paper (39.7 m vs 9.8 m)
+
+
+def test_fixed_plan_period_plans_only_when_due_and_gives_the_same_bits(mixed):
+    """``plan_period = τ_r``: the planner sits in a ``lax.cond`` on the step alone, skipped on
+    the other steps — the same records as the every-step program with ``replan_every = τ_r``
+    (a t_r = 5, τ_r = 3 batch), and a replan_every that differs from it is rejected."""
+    _, a, b = mixed
+    cfg = lf.Config(**{**{k: getattr(CFG, k) for k in CFG.SETTINGS}, "plan_period": 3})
+    fast = engine.compiled(lf.SCENARIO, cfg, records=True)
+    jaxpr = str(jax.make_jaxpr(fast)(*batch(cfg, [dict(horizon=5, replan_every=3, alpha_I=1000.0)] * 3, [5, 1, 7])))
+    assert "cond[" in jaxpr  # a real branch, not a select over both sides
+    c = jax.tree.map(np.asarray, fast(*batch(cfg, [dict(horizon=5, replan_every=3, alpha_I=1000.0)] * 3, [5, 1, 7])))
+    for name in ("positions", "error", "plan_cost", "lambda2"):
+        np.testing.assert_array_equal(getattr(c, name), getattr(b, name), err_msg=name)
+    assert lf.check_params(cfg, {"replan_every": 2}) == [
+        ("replan_every", "equal to config.plan_period = 3 (set plan_period = 0 to vary it)")]
+    assert lf.check_params(cfg, {"replan_every": 3}) == []

@@ -75,6 +75,10 @@ Config = config_type("Config", dict(
                     choices=PLANNERS),
     max_horizon=Setting(8, "steps the planning rollout runs; Params.horizon (t_r) <= this", "steps",
                         low=1, integer=True),
+    plan_period=Setting(0, "tau_r fixed in the compiled program: the planner runs only on the steps it "
+                        "re-plans (Params.replan_every must equal it); 0 = tau_r from Params, free to vary "
+                        "in a batch, at the cost of planning every step and keeping the due plans",
+                        "steps", low=0, integer=True),
     plan_iterations=Setting(10, "gradient: Adam steps; cem: rounds", low=1, integer=True),
     plan_samples=Setting(256, "random / cem: plans scored per re-plan (cem: >= 2 per round)", low=2,
                          integer=True),
@@ -159,6 +163,9 @@ def check_params(cfg, values: dict) -> list[tuple[str, str]]:
         bad.append(("horizon", f"an integer in [1, max_horizon = {cfg.max_horizon}]"))
     if np.any(tau != np.round(tau)) or np.any(tau < 1) or np.any(tau > tr):
         bad.append(("replan_every", "an integer in [1, horizon]"))
+    elif cfg.plan_period > 0 and np.any(tau != cfg.plan_period):
+        bad.append(("replan_every", f"equal to config.plan_period = {cfg.plan_period} (set plan_period = 0 "
+                                    "to vary it)"))
     return bad
 
 
@@ -210,8 +217,22 @@ def _plan(cfg, params, state: State, uavs, filters, age, key):
     """Re-plan if due (every τ_r steps, and at step 0): Sun et al. 2011 §4.2 steps ① – ③.
 
     The leader (agent 0) plans from its own modified-ICF estimate and the UAV states it
-    knows; the plan is computed every step (one program for every τ_r in a batch) and kept
-    only when due."""
+    knows. With ``Config.plan_period = 0`` the plan is computed every step (one program for
+    every τ_r in a batch: under ``vmap`` a branch on a per-run condition computes both sides)
+    and kept only when due. With ``plan_period = τ_r > 0`` "due" depends only on the step
+    (t mod τ_r = 0, the same in every run of the batch), so ``lax.cond`` skips the planner on
+    the other steps; the plans are the same."""
+    if cfg.plan_period > 0:
+        return jax.lax.cond(state.t % cfg.plan_period == 0,
+                            lambda: _new_plan(cfg, params, state, uavs, filters, age, key),
+                            lambda: (state.plan_u, state.plan_cmd, age, state.plan_cost))
+    new = _new_plan(cfg, params, state, uavs, filters, age, key)
+    due = (state.t == 0) | (age >= params.replan_every)
+    return tuple(jnp.where(due, a, b) for a, b in zip(new, (state.plan_u, state.plan_cmd, age, state.plan_cost)))
+
+
+def _new_plan(cfg, params, state: State, uavs, filters, age, key):
+    """A new plan (Sun et al. 2011 §4.2 steps ① – ③): ``(u, commands, 0, cost)``."""
     n, dtype = cfg.n_agents, uavs.dtype
     leader = per_agent("modified_icf", filters[cfg.filters.index("modified_icf")], n)
     problem = Problem(uavs, leader.x[0], symmetrize(leader.Y[0]))
@@ -228,9 +249,7 @@ def _plan(cfg, params, state: State, uavs, filters, age, key):
     _, _, commands, _ = rollout(problem, plan.u, dyn)
     ok = jnp.all(jnp.isfinite(commands))
     commands = jnp.where(ok, commands, uavs[:, 3])  # a non-finite plan holds the headings
-    due = (state.t == 0) | (age >= params.replan_every)
-    return (jnp.where(due, plan.u, state.plan_u), jnp.where(due, commands, state.plan_cmd),
-            jnp.where(due, 0, age), jnp.where(due, plan.cost, state.plan_cost))
+    return plan.u, commands, jnp.zeros_like(age), plan.cost
 
 
 def step(cfg, params, state: State, key) -> tuple[State, Record]:
