@@ -57,7 +57,7 @@ def main(argv=None) -> None:
     jax.config.update("jax_enable_x64", True)
 
     _, cfg, p = load_config_file(args.config)
-    n, H = cfg.n_agents, cfg.max_horizon
+    n, H = cfg.n_agents, max(cfg.max_horizon, args.horizon)
     probs = problems(args.problems, n)
     dyn = Dynamics(1.0, p.get("alpha_phi", 1.0), p.get("turn_rate_max", np.deg2rad(10.0)), args.horizon,
                    p.get("sigma_accel", 50.0))
