@@ -82,8 +82,9 @@ def _compiled(scenario: Scenario, cfg, records: bool, timeseries: bool) -> Calla
 
 
 def devices() -> list:
-    """The CPU devices a sweep's batches are spread over (one per core; :mod:`mcjax.runtime`)."""
-    return jax.local_devices(backend="cpu")
+    """The devices a sweep's batches are spread over: JAX's default backend's (on the CPU, one
+    per core: :mod:`mcjax.runtime`)."""
+    return jax.local_devices()
 
 
 #: Compiled programs per (jitted function, input signature, device): see :func:`_programs`.
