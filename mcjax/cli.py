@@ -357,9 +357,13 @@ def list_scenarios(scenario):
             agent += ", shape " + "x".join("n_agents" if d == "n" else str(d) for d in p.shape)
         click.echo(f"  {name}{unit}: {p.description}\n      default {shown}; allowed {p.allowed()}{agent}")
     click.echo("\nConfig (fixes shapes / the program; changing it recompiles):")
+    from mcjax.contract import ceiling
+
     for name, st in sc.settings.items():
         unit = f" [{st.unit}]" if st.unit else ""
-        click.echo(f"  {name}{unit}: {st.description}\n      default {st.default!r}; allowed {st.allowed()}")
+        top = ceiling(name, st)
+        most = f" (at most {top})" if top is not None else ""
+        click.echo(f"  {name}{unit}: {st.description}\n      default {st.default!r}; allowed {st.allowed()}{most}")
     click.echo("\nOutputs (one row per run and filter in OUT/runs):")
     for name, o in sc.outputs(cfg).items():
         unit = f" [{o.unit}]" if o.unit else ""
