@@ -11,8 +11,10 @@ import json
 import math
 import random
 import re
+import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -79,15 +81,12 @@ def tiny(name: str) -> dict:
 
 def shipped(path: Path) -> dict:
     """A shipped spec made tiny: base made absolute, 2 seeds, a few steps."""
-    import tomllib
 
     data = tomllib.loads(path.read_text())
     data["base"] = str((path.parent / data["base"]).resolve())
     scenario = tomllib.loads(Path(data["base"]).read_text())["scenario"]
     data["seeds"] = 2
     data["config"] = {**data.get("config", {}), **TINY[scenario][1]}
-    if "filters" in data["config"] and "filters" in TINY[scenario][1] and scenario == "leader_follower":
-        data["config"]["filters"] = ["icf", "modified_icf", "cif"]
     return data
 
 
@@ -200,8 +199,6 @@ def range_cases() -> list[Case]:
         spec = tiny(name)
         cfg = sc.Config()
         for k, p in sc.params_table.items():
-            import numpy as np
-
             shape = np.shape(p.default_value(cfg))
             if p.low is not None and p.choices is None:
                 below = p.low if p.low_open else p.low - 1
@@ -330,8 +327,6 @@ def file_cases() -> list[Case]:
 
 
 def shape_cases() -> list[Case]:
-    import numpy as np
-
     out = []
     for name, sc in scenarios.BUILTIN.items():
         spec = tiny(name)
