@@ -278,12 +278,15 @@ def run(config, seeds, sets):
         if data is not None and "base" in data:
             _fail(f"{config} is a sweep spec (it names a base config), not a config file: run it with "
                   f"`mcjax sweep {shlex.quote(str(config))}`")
+        from mcjax.engine import BATCH_SIZE, devices
         from mcjax.sweep import SpecError, build_spec, run_sweep
 
         if not config.is_file():
             _fail(f"config file not found: {config}" if not config.exists() else f"{config} is a folder, not a file")
         try:
-            s = build_spec({"base": str(config.resolve())}, Path.cwd(), seeds=seeds, overrides=overrides)
+            # chunks of one batch per device: a Ctrl-C waits for little (the numbers do not depend on it)
+            s = build_spec({"base": str(config.resolve())}, Path.cwd(), seeds=seeds, overrides=overrides,
+                           chunk_size=BATCH_SIZE * len(devices()))
         except SpecError as exc:
             _fail(str(exc))
         click.echo(f"scenario {s.scenario.name}: {s.n_points} point(s) x {s.seeds} seed(s) = {s.n_runs} runs, "
