@@ -233,6 +233,20 @@ def _axis_values(where: str, v, integral: bool) -> list:
     return v
 
 
+def _same_shape(where: str, values: list, param, cfg) -> list:
+    """An axis's values with one shape, so its points stack into one array: a per-agent
+    field's numbers become one per agent when some value lists them (``[450.0, [400.0, …]]``);
+    any other field's values must already agree."""
+    arrays = [np.asarray(v, np.float64) for v in values]
+    shapes = {a.shape for a in arrays}
+    if len(shapes) == 1:
+        return values
+    if param.per_agent:
+        return [np.broadcast_to(a, (cfg.n_agents,)).tolist() for a in arrays]
+    raise SpecError(f"{where}: must hold values of one shape (they are the points of one array); got shapes "
+                    f"{', '.join(sorted('x'.join(map(str, sh)) or 'scalar' for sh in shapes))}")
+
+
 def _distinct(values) -> str | None:
     """The first value given twice (as text), or None."""
     seen = set()
@@ -373,7 +387,8 @@ def build_spec(data: dict, base_dir: str | Path, *, seeds: int | None = None, ch
     base = read_config_file(base_path)
     scenario, cfg, params = base.scenario, base.config, dict(base.params)
     if "scenario" in data and data["scenario"] != scenario.name:
-        raise SpecError(f"scenario: {data['scenario']!r} does not match the base config's {scenario.name!r}")
+        raise SpecError(f"scenario: must be the base config's {scenario.name!r} (or left out); got "
+                        f"{data['scenario']!r}")
     cfg_over = dict(data.get("config", {}))
     for path, value in overrides.items():  # --set config.filters=NAME: a one-item list
         table, _, name = str(path).partition(".")
@@ -402,6 +417,7 @@ def build_spec(data: dict, base_dir: str | Path, *, seeds: int | None = None, ch
                 isinstance(c, int) for c in p.choices)))
             for value in values:
                 _check_params(scenario, cfg, {k: value}, f"{table}.")
+            values = _same_shape(f"{table}.{k}", values, p, cfg)
             if table == "grid" and (dup := _distinct(values)) is not None:
                 raise SpecError(f"grid.{k}: must not repeat a value (each point once); {dup} is given twice")
             axes[table][k] = values
@@ -440,7 +456,7 @@ def build_spec(data: dict, base_dir: str | Path, *, seeds: int | None = None, ch
     if not isinstance(timeseries, bool):
         raise SpecError(f"timeseries: must be true or false; got {_show(timeseries)}")
     if timeseries and scenario.timeseries is None:
-        raise SpecError(f"timeseries: scenario {scenario.name!r} has no per-step series")
+        raise SpecError(f"timeseries: must be false: scenario {scenario.name!r} has no per-step series")
     spec = SweepSpec(scenario, cfg, base_params, grid, zipped, seeds, base_seed, chunk, data, timeseries,
                      json.loads(json.dumps(overrides)))
     _check_points(spec, params)
@@ -454,15 +470,27 @@ def _check_points(spec: SweepSpec, params: dict) -> None:
     if check is None:
         return
     table = points(spec)
-    merged = {**params, **{axis: table[axis].to_numpy() for axis in spec.axes}}
-    for name, allowed in check(spec.config, merged):
+    merged = {**params, **{axis: np.asarray(table[axis].tolist(), np.float64) for axis in spec.axes}}
+    bad = check(spec.config, merged)
+    # a check written for one point may skip arrays with a point axis: each value of an axis of
+    # vectors or matrices is checked on its own too (with the other fields at their base values)
+    for axis in spec.axes:
+        values = spec.grid.get(axis, spec.zipped.get(axis))
+        for value in (values if not bad and np.ndim(values[0]) > 0 else []):
+            bad = [(name, allowed) for name, allowed in check(spec.config, {**params, axis: np.asarray(value)})
+                   if name == axis]
+            if bad:
+                raise SpecError(f"{'grid' if axis in spec.grid else 'zip'}.{axis}: must be {bad[0][1]}; "
+                                f"got {_show(value)}")
+    for name, allowed in bad:
         where = "grid." if name in spec.grid else "zip." if name in spec.zipped else "params."
-        got = np.asarray(merged.get(name, getattr(spec.base_params, name)))
-        if name in spec.axes or got.ndim == 0:  # an axis: its distinct values over the points
-            got = sorted(set(np.atleast_1d(got).tolist()))
+        if name in spec.axes:  # an axis: its distinct values
+            values = spec.grid.get(name, spec.zipped.get(name))
+            got = sorted(set(values)) if all(np.ndim(v) == 0 for v in values) else [
+                json.loads(t) for t in dict.fromkeys(json.dumps(v) for v in values)]
             got = got if len(got) > 1 else got[0]
-        else:  # a vector or matrix param: as given
-            got = got.tolist()
+        else:  # as given
+            got = np.asarray(merged.get(name, getattr(spec.base_params, name))).tolist()
         raise SpecError(f"{where}{name}: must be {allowed}; got {_show(got)}")
 
 

@@ -192,6 +192,19 @@ def test_set_filters_and_which_command_a_file_is_for(tmp_path):
     assert r.exit_code == 2 and "is a folder" in _one_line(r)
 
 
+def test_axes_of_vectors_stack_into_one_array_per_field(tmp_path):
+    """A per-agent axis may mix one number for all agents with one per agent; every axis's
+    points stack into one array with a leading point axis (what the engine is given)."""
+    from mcjax.sweep import point_params
+
+    spec = tmp_path / "v.toml"
+    spec.write_text(f'base = "{ROOT / "configs" / "ren2017.toml"}"\nseeds = 2\n[config]\nn_steps = 3\n'
+                    'warmup_steps = 1\n[grid]\ncomm_radius = [450.0, [400.0, 450.0, 500.0, 450.0, 450.0, 450.0]]\n'
+                    'mu0 = [[0.5, 0.5], [0.3, 0.7]]\n')
+    p = point_params(load_spec(spec))
+    assert p.comm_radius.shape == (4, 6) and p.mu0.shape == (4, 2) and p.comm_radius[0, 0] == 450.0
+
+
 # --------------------------------------------------------------------------- run_filter
 
 

@@ -278,6 +278,13 @@ def axis_cases() -> list[Case]:
         case("axes", "params.comm_radius: must not be set while grid.comm_radius sweeps it", lf,
              args=["--set", "params.comm_radius=80e3"]),
         case("axes", "grid.comm_radius: must be", lf, args=["--set", "grid.comm_radius=[]"]),
+        case("axes", "grid.mu0: must be two probabilities", with_(tiny("uuv_imm"), "grid", {"mu0": [[0.5, 0.5], [0.6, 0.6]]})),
+        case("axes", "grid.offsets: must be pairwise offsets that close", with_(tiny("wind_formation"), "grid", {
+            "offsets": [[[0.0, 3200.0], [1300.0, -1600.0], [1300.0, 1600.0]],
+                        [[0.0, 3200.0], [1300.0, -1600.0], [1300.0, 1500.0]]]})),
+        case("axes", "grid.buildings: must hold values of one shape", with_(tiny("urban_bearing"), "grid", {
+            "buildings": [[[4750.0, 5050.0, 4850.0, 5150.0, 200.0]],
+                          [[4750.0, 5050.0, 4850.0, 5150.0, 200.0], [5100.0, 4800.0, 5250.0, 4900.0, 100.0]]]})),
         case("axes", "--set 'nokey'", lf, args=["--set", "nokey"]),
         case("axes", "params.nope: unknown key", lf, args=["--set", "params.nope=1"]),
         case("axes", "config: must be a table", lf, args=["--set", "config=5"]),
