@@ -57,20 +57,27 @@ def summary_text(df: pd.DataFrame, metadata: Mapping[str, Any], fmt: str = "text
     return tables.format_table(summary, fmt, ([f"WARNING: {warning}"] if warning else []) + header)
 
 
-def _identity(out: Path) -> dict:
+def _identity(out: Path) -> dict | None:
+    """The folder's sweep.json: {} when there is none, None when it is damaged."""
+    if not (out / IDENTITY_FILE).exists():
+        return {}
     try:
         saved = json.loads((out / IDENTITY_FILE).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, ValueError):
-        return {}
-    return saved if isinstance(saved, dict) else {}
+        return None
+    return saved if isinstance(saved, dict) else None
 
 
 def completeness(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, Any]) -> str | None:
     """None if the dataset holds every run its sweep planned, else one line saying how many
     are present and how to finish it. The plan is the parts' ``n_runs`` (or the folder's
-    ``sweep.json`` for datasets written before parts recorded it); without either, None."""
+    ``sweep.json`` for datasets written before parts recorded it); without either, None. A
+    damaged ``sweep.json`` is said instead (the folder can then not be resumed)."""
     out = Path(out_dir)
     saved = _identity(out)
+    if saved is None:
+        return (f"{out / IDENTITY_FILE} is damaged, so this folder cannot be resumed (the table below is "
+                f"complete as far as its parts go); start the sweep again with --force to repair it")
     planned = metadata.get("n_runs", saved.get("n_runs"))
     if not isinstance(planned, int) or isinstance(planned, bool) or not {"point_id", "seed_index"} <= set(df.columns):
         return None
@@ -106,7 +113,7 @@ def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
     try:
         df = results.read_table(out)
     except results.DamagedPartError as exc:  # name the spec to resume with, when the folder says it
-        spec = _identity(out).get("spec_file")
+        spec = (_identity(out) or {}).get("spec_file")
         raise results.DamagedPartError(str(exc).replace("mcjax sweep SPEC", f"mcjax sweep {shlex.quote(spec)}")
                                        if isinstance(spec, str) else str(exc)) from None
     if df.empty:

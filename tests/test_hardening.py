@@ -123,7 +123,7 @@ def test_damaged_sweep_json_is_one_line_and_report_still_reads(dataset, tmp_path
         line = _one_line(r)
         assert "sweep.json is damaged" in line and "--force" in line
     r = CliRunner().invoke(main, ["report", str(out), "--no-plots"])
-    assert r.exit_code == 0 and "WARNING" not in r.output
+    assert r.exit_code == 0 and "WARNING: " in r.output and "sweep.json is damaged" in r.output.splitlines()[0]
     r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out), "--force"])  # a sweep's folder: replaced
     assert r.exit_code == 0, r.output
 
