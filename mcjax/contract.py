@@ -25,6 +25,11 @@ What a scenario provides:
 * optionally ``check_params(cfg, values) -> [(field, allowed), …]``: checks across fields
   (e.g. the horizon against ``Config.max_horizon``); single-field checks come from the table.
 
+Validation reads values as a spec writes them (TOML): kinds are exact — a boolean is no
+number, a float no integer (:meth:`Param.problem` with ``exact=True``), a string or a table no
+list — and integer Config fields without a declared upper bound get the contract's
+:func:`ceiling` (:data:`COUNT_CEILINGS`), so a spec cannot ask for more than a machine holds.
+
 Output roles tell the layers above what a column means: ``"error"`` (exactly one: the error
 metric the report leads with), ``"divergence"`` (the divergence flag), ``"nonfinite"`` and
 the graph statistics ``"connectivity_mean"``, ``"connectivity_min"`` and
