@@ -176,7 +176,7 @@ def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed
     chunk indices (for resuming). ``timeseries=True`` yields ``(outputs, series)`` as the
     outputs (see :func:`simulate`). Each chunk is computed as consecutive calls of one
     compiled :data:`BATCH_SIZE`-run program (the last call padded by repeating the chunk's
-    last run), sent to the CPU devices in turn and dispatched asynchronously, so memory is
+    last run), sent to the devices in turn and dispatched asynchronously, so memory is
     bounded by the chunk and the numbers depend neither on it nor on the device count.
     """
     n_points = int(jax.tree.leaves(point_params)[0].shape[0])
