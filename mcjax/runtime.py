@@ -8,13 +8,12 @@
 * **A persistent compilation cache.** Compiled programs are kept on disk, so a second sweep of
   the same spec (or any run of the same Config) skips compilation. The folder is
   ``$MCJAX_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/mcjax/jax`` (default ``~/.cache/mcjax/jax``);
-  ``MCJAX_CACHE_DIR=off`` turns it off. It is safe to delete at any time. Two layers:
-  JAX's own cache (keyed on the program itself, so it skips XLA's compilation but not the
-  tracing of the scenario, ~5–10 s for a closed loop), and for the built-in scenarios the
-  engine's batch programs stored whole (:func:`load_executable`), keyed on mcjax's source
-  code, the JAX version, the CPU, the scenario, its Config and the input shapes — a second
-  sweep of the same spec starts computing at once. A user's own scenario (a file or a
-  plugin) uses only JAX's layer, which cannot go stale when its code changes.
+  ``MCJAX_CACHE_DIR=off`` turns it off. It is safe to delete at any time. For the built-in
+  scenarios the engine stores its batch programs whole (:func:`load_executable`), keyed on
+  mcjax's source code, the JAX version, the CPU, the scenario, its Config and the input
+  shapes — a second sweep of the same spec starts computing at once. A user's own scenario
+  (a file or a plugin) is compiled every time: its code is not in the key. (JAX's own
+  persistent cache is not used: loading from it failed in some runs, see :func:`_apply`.)
 
 If JAX's backend is already running when mcjax is first imported (a program that computed with
 JAX before importing mcjax), the device count cannot change any more: mcjax then uses the
@@ -66,11 +65,9 @@ def _apply() -> None:
         jax.config.update("jax_num_cpu_devices", _device_count())
     except RuntimeError:
         pass  # the backend already runs: keep its devices
-    folder = cache_dir()
-    if folder is not None:
-        jax.config.update("jax_compilation_cache_dir", str(folder))
-        # cache every program that took a second or more to compile (JAX's default threshold)
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+    # JAX's own persistent compilation cache is not switched on: with it, runs that loaded a
+    # cached program failed with "NOT_FOUND: Function convert_convert_fusion not found" (2 of 3
+    # runs of the default sweep, jax 0.10.2, CPU). Only the engine's program store is used.
 
 
 def settings() -> dict:
