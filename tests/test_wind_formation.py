@@ -191,6 +191,10 @@ def test_check_params_names_the_field():
     assert S.check_params(S.Config(), {}) == []
     bad = S.check_params(S.Config(), BAD["offsets_open"][1])
     assert bad and bad[0][0] == "offsets" and "sum" in bad[0][1]
+    # with a sweep-point axis, one open formation among closed ones is still caught
+    points = np.stack([S._PAPER_OFFSETS, np.asarray(BAD["offsets_open"][1]["offsets"])])
+    assert [f for f, _ in S.check_params(S.Config(), {"offsets": points})] == ["offsets"]
+    assert S.check_params(S.Config(), {"offsets": np.stack([S._PAPER_OFFSETS] * 2)}) == []
 
 
 def _spec(tmp_path, config="", params=""):

@@ -20,7 +20,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax.numpy as jnp
-import numpy as np
 from jax import lax
 
 
@@ -94,14 +93,14 @@ def cap_step(step, l):
     return step * jnp.minimum(1.0, l / jnp.maximum(norm, jnp.finfo(step.dtype).tiny))
 
 
-def air_commands(next_point, offsets, positions, wind_estimates, dt, l):
-    """Each UAV's air displacement over the step (Chen & Lu 2013 eqs. 14–16, our reading):
-    the ground displacement it wants, ΔF_i = P̂(k+1) + d_i − p_i (eq. 14 as read in the issue:
-    to its slot around the centre's next point), less the wind drift it predicts, Δz_i = ŵ_i·dt
-    (eq. 16's first term), capped at ``l`` (eq. 15). The UAV then moves by this plus the true
-    wind's drift. ``offsets`` d_i (n, 2), ``positions`` (n, 2), ``wind_estimates`` (n, 2)."""
-    wanted = next_point[None, :] + offsets - positions
-    return cap_step(wanted - wind_estimates * dt, l)
+def wanted_steps(next_point, offsets, positions, wind_estimates, dt):
+    """Each UAV's air displacement before eq. 15's cap (Chen & Lu 2013 eqs. 14 and 16, our
+    reading): the ground displacement it wants, ΔF_i = P̂(k+1) + d_i − p_i (eq. 14 as read in
+    the issue: to its slot around the centre's next point), less the wind drift it predicts,
+    Δz_i = ŵ_i·dt (eq. 16's first term). :func:`cap_step` then gives the air step flown; the
+    UAV moves by that plus the true wind's drift. ``offsets`` d_i (n, 2), ``positions`` (n, 2),
+    ``wind_estimates`` (n, 2)."""
+    return next_point[None, :] + offsets - positions - wind_estimates * dt
 
 
 def centre_offsets(chain_offsets):
@@ -115,11 +114,3 @@ def centre_offsets(chain_offsets):
     rel = jnp.concatenate([jnp.zeros((1, 2), chain_offsets.dtype),
                            jnp.cumsum(chain_offsets[: n - 1], axis=0)])
     return rel - jnp.mean(rel, axis=0)
-
-
-def closure_gap(chain_offsets):
-    """|d_12 + … + d_(n−1)n − d_1n|: how far the offsets are from closing the polygon (0 when
-    they describe one formation)."""
-    c = np.asarray(chain_offsets, np.float64)
-    n = c.shape[0]
-    return float(np.linalg.norm(np.sum(c[: n - 1], axis=0) - c[n - 1]))

@@ -140,7 +140,7 @@ Params = params_type("Params", dict(
 def check_params(cfg, values: dict) -> list[tuple[str, str]]:
     offsets = kit.param_value(Params, cfg, values, "offsets")
     bad = []
-    if offsets.shape == (cfg.n_agents, 2):
+    if offsets.shape[-2:] == (cfg.n_agents, 2):   # one formation, or one per sweep point
         gaps = np.linalg.norm(np.sum(offsets[..., : cfg.n_agents - 1, :], axis=-2) - offsets[..., -1, :], axis=-1)
         if np.any(gaps > CLOSURE_TOL * (1.0 + np.max(np.abs(offsets)))):
             bad.append(("offsets", f"pairwise offsets that close: the last row d_1n must equal the sum of the "
@@ -264,10 +264,10 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
     predicted = jnp.mean(state.positions, axis=0) + centre.x * p.dt
     nxt = guidance.next_centre(psi, predicted, p.step_length, cfg.root_grid)
     steer = estimates[cfg.filters.index("kcf") if "kcf" in cfg.filters else 0]
-    air = guidance.air_commands(nxt.point, offsets, state.positions, steer, p.dt, p.step_length)
+    wanted = guidance.wanted_steps(nxt.point, offsets, state.positions, steer, p.dt)
+    air = guidance.cap_step(wanted, p.step_length)                                   # eq. 15
     positions = state.positions + air + w[None, :] * p.dt
 
-    wanted = nxt.point[None, :] + offsets - state.positions - steer * p.dt
     a = cfg.report_agent - 1
     ij = np.array(pairs(n))
     centroid = jnp.mean(positions, axis=0)
@@ -310,7 +310,7 @@ def outputs(cfg) -> dict[str, Output]:
     )
 
 
-def _first(mask, T, dtype):
+def _first(mask, dtype):
     """Index of the first True of ``mask`` (T,), as a float; NaN if none."""
     return jnp.where(jnp.any(mask), jnp.argmax(mask).astype(dtype), jnp.nan)
 
@@ -333,8 +333,8 @@ def reduce(cfg, records: Record, params) -> dict:
     dev = jnp.max(jnp.abs(records.distances - ref[None, :]), axis=1)                 # (T,)
     inside = dev <= jnp.asarray(params.formation_tolerance, dtype)
     holds = jnp.flip(jnp.cumprod(jnp.flip(inside).astype(jnp.int32))) > 0           # inside from here to the end
-    settle = _first(holds, T, dtype)
-    joined = _first(records.on_path, T, dtype)
+    settle = _first(holds, dtype)
+    joined = _first(records.on_path, dtype)
     after_join = (steps >= jnp.nan_to_num(joined, nan=T)) & jnp.isfinite(joined)
     pe = records.path_error
     out.update(
