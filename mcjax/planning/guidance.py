@@ -107,7 +107,7 @@ def centre_offsets(chain_offsets):
     """Each UAV's offset d_i from the formation's centroid, from pairwise offsets.
 
     ``chain_offsets`` (n, 2): rows d_12, d_23, …, d_(n−1)n (d_ij = desired p_j − p_i), then the
-    closing row d_1n, which must equal the sum of the others (:func:`closure_gap`). Returns
+    closing row d_1n, which must equal the sum of the others (the scenario checks it). Returns
     (n, 2) with Σ_i d_i = 0.
     """
     n = chain_offsets.shape[0]
