@@ -51,6 +51,14 @@ def _fail(message: str) -> None:
     sys.exit(2)
 
 
+def _check_environment() -> None:
+    """The environment variables mcjax reads, checked before JAX starts (one line, exit 2)."""
+    raw = os.environ.get("MCJAX_CPU_DEVICES")
+    if raw is not None and not (raw.strip().isdigit() and int(raw) >= 1):
+        _fail(f"MCJAX_CPU_DEVICES must be a positive integer (CPU devices to use; unset = one per core); "
+              f"got {raw!r}")
+
+
 def _exit_now(code: int) -> None:
     """Leave at once, without the interpreter's teardown: JAX's compute and compile threads may
     still run, and tearing the runtime down under them can crash the process."""
@@ -148,6 +156,7 @@ def main() -> None:
     Run a sweep spec (sweeps/*.toml) into a Parquet dataset with `mcjax sweep`, run one
     parameter point for a quick look with `mcjax run`, list scenarios with `mcjax list`.
     """
+    _check_environment()
 
 
 @main.command()

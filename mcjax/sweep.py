@@ -180,12 +180,17 @@ def _build_config(scenario: Scenario, table: dict, where: str):
         v = tuple(v) if s.many and isinstance(v, list) else v
         msg = setting_problem(k, s, v)
         if msg:
-            raise SpecError(f"{where.rstrip('.')}: {k} {msg}")
+            raise SpecError(f"{where}{k}: {msg}")
         values[k] = v
     try:
         return scenario.Config(**values)
     except (TypeError, ValueError) as exc:
-        raise SpecError(f"{where.rstrip('.')}: {_one_line(exc)}") from None
+        text = _one_line(exc)
+        # the scenario's checks across fields open with the field they blame ("warmup_steps must …")
+        field, _, rest = text.partition(" ")
+        if field in scenario.settings and rest:
+            raise SpecError(f"{where}{field}: {rest}") from None
+        raise SpecError(f"{where.rstrip('.')}: {text}") from None
 
 
 def _check_params(scenario: Scenario, cfg, table: dict, where: str) -> None:
@@ -598,9 +603,9 @@ def _check_memory(spec: SweepSpec, chunk_where: str = "chunk_size") -> None:
             f"array {_gb(largest)}), above the memory budget of {_gb(budget)} (half this machine's memory)")
     if runs * T * record > need / 2:
         steps = max(1, int((budget / runs - STEP_COPIES * largest) / max(record, 1)))
-        raise SpecError(f"config: n_steps = {T}: {text}; allowed: n_steps <= {steps} with these settings")
-    shown = ", ".join(f"{n} = {getattr(cfg, n)} (default {spec.scenario.settings[n].default})" for n in far)
-    raise SpecError(f"config: {shown}: {text}; allowed: smaller values (about {budget / need:.2g} times these "
+        raise SpecError(f"config.n_steps: {T} steps: {text}; allowed: n_steps <= {steps} with these settings")
+    shown = ", ".join(f"config.{n} = {getattr(cfg, n)} (default {spec.scenario.settings[n].default})" for n in far)
+    raise SpecError(f"{shown}: {text}; allowed: smaller values (about {budget / need:.2g} times these "
                     f"or less)")
 
 

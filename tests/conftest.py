@@ -1,12 +1,28 @@
 import os
+import shutil
+import tempfile
 
 # One CPU device per test process: pytest-xdist already runs one process per core, and a
 # second device would compile every batch program twice (tests that need several devices
 # start a subprocess with MCJAX_CPU_DEVICES set; see tests/test_engine.py).
 os.environ.setdefault("MCJAX_CPU_DEVICES", "1")
-# No persistent compilation cache: each test compiles what it runs, as on a fresh machine
-# (tests/test_engine.py tests the cache in subprocesses with their own folder).
-os.environ.setdefault("MCJAX_CACHE_DIR", "off")
+# The engine's program store in a folder of this test session's own, shared by the xdist
+# workers and the CLI subprocesses the tests start (they inherit the environment): a batch
+# program is compiled once per session instead of once per process, and no program stored
+# by an earlier session or another mcjax version is ever used. tests/test_engine.py tests the
+# store itself in subprocesses with folders of their own.
+if "MCJAX_TEST_PROGRAMS" not in os.environ:  # the controller (or a plain run): make the folder
+    os.environ["MCJAX_TEST_PROGRAMS"] = tempfile.mkdtemp(prefix="mcjax-test-programs-")
+    _OWN_FOLDER = True
+else:
+    _OWN_FOLDER = False
+os.environ.setdefault("MCJAX_CACHE_DIR", os.environ["MCJAX_TEST_PROGRAMS"])
+
+
+def pytest_unconfigure(config):
+    """The controller removes the session's program folder when the run ends."""
+    if _OWN_FOLDER and not hasattr(config, "workerinput"):
+        shutil.rmtree(os.environ["MCJAX_TEST_PROGRAMS"], ignore_errors=True)
 
 import jax  # noqa: E402
 

@@ -67,7 +67,7 @@ def test_killed_sweep_resumes_to_identical_rows(tmp_path):
     import time
 
     spec = tmp_path / "spec.toml"
-    spec.write_text(f'base = "{BASE}"\nseeds = 500\nchunk_size = 100\n[config]\nn_steps = 40\n'
+    spec.write_text(f'base = "{BASE}"\nseeds = 500\nchunk_size = 100\n[config]\nn_steps = 20\n'
                     f'warmup_steps = 2\nplanner = "none"\nfilters = ["cif", "modified_icf"]\n'
                     f'[grid]\ncomm_radius = [60e3, 80e3, 100e3]\n')
     out = tmp_path / "killed"
@@ -158,7 +158,7 @@ def test_bad_config_value_exit_2(tmp_path):
     spec = tmp_path / "spec.toml"
     spec.write_text(f'base = "{BASE}"\n[config]\nfilters = ["cif", "ukf"]\n')
     r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / "o")])
-    assert r.exit_code == 2 and "filters must be a non-empty list of distinct values from cif" in r.output and "(unknown: 'ukf')" in r.output and not (tmp_path / "o").exists()
+    assert r.exit_code == 2 and "config.filters: must be a non-empty list of distinct values from cif" in r.output and "(unknown: 'ukf')" in r.output and not (tmp_path / "o").exists()
 
 
 def test_report_command_prints_table_and_writes_plots(tmp_path):

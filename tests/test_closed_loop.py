@@ -40,13 +40,6 @@ def test_mixed_horizons_share_one_program(mixed):
     assert not np.array_equal(a.positions[0], a.positions[1])
 
 
-def test_run_alone_equals_run_in_mixed_batch(mixed):
-    _, a, _ = mixed
-    alone = engine.compiled(lf.SCENARIO, CFG, records=True)(*batch(CFG, [dict(horizon=5, replan_every=3, alpha_I=1000.0)], [1]))
-    np.testing.assert_allclose(np.asarray(alone.positions)[0], a.positions[1], rtol=1e-9, atol=1e-6)
-    np.testing.assert_allclose(np.asarray(alone.error)[0], a.error[1], rtol=1e-6, atol=1e-6)
-
-
 def test_replans_every_tau_r_and_respects_the_turn_rate(mixed):
     _, a, _ = mixed
     # the plan in force changes exactly at steps 0, τ_r, 2τ_r, ... (its exact cost is recorded)

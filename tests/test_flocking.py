@@ -951,8 +951,8 @@ def test_cli_spec_without_bad_input_validates(tmp_path):
     (("", "n_sensing = 2\nepsilon = 9.0\n"), "params.epsilon: must be in (0, R)"),            # check_params
     (("", "n_sensing = 2\nc2 = 0.0\n"), "params.c2: must be > 0"),                           # Param table
     (("", "n_sensing = 0\n"), "params.n_sensing: must be an integer >= 1"),                   # Param table
-    (("max_substeps = 0\n", "n_sensing = 2\n"), "config: max_substeps must be"),             # Config
-    (('start_layout = "hex"\n', "n_sensing = 2\n"), "config: start_layout must be one of uniform, lattice"),
+    (("max_substeps = 0\n", "n_sensing = 2\n"), "config.max_substeps: must be"),             # Config
+    (('start_layout = "hex"\n', "n_sensing = 2\n"), "config.start_layout: must be one of uniform, lattice"),
     (('start_layout = "lattice"\n', "n_sensing = 2\nlattice_spacing = 9.0\n"),
      "params.lattice_spacing: must be such that"),                                             # check_params
 ])

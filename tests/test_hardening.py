@@ -23,10 +23,9 @@ from mcjax.sweep import check_parts, default_out_dir, load_spec
 
 ROOT = Path(__file__).parents[1]
 WIND = ROOT / "configs" / "chen2013.toml"
-#: Subprocesses run without the persistent compilation cache (loading a cached program
-#: fails now and then with "JaxRuntimeError: NOT_FOUND: Function ... not found", which has
-#: nothing to do with what is tested here).
-ENV = {**os.environ, "MCJAX_CACHE_DIR": "off"}
+#: Subprocesses share the test session's program store (tests/conftest.py): the programs the
+#: first of them compiles, the others load.
+ENV = dict(os.environ)
 CLI = [sys.executable, "-m", "mcjax.cli"]
 
 
@@ -190,6 +189,17 @@ def test_set_filters_and_which_command_a_file_is_for(tmp_path):
     assert r.exit_code == 2 and "is a config file" in _one_line(r) and f"mcjax run {WIND}" in r.output
     r = CliRunner().invoke(main, ["sweep", str(tmp_path), "--dry-run"])
     assert r.exit_code == 2 and "is a folder" in _one_line(r)
+
+
+@pytest.mark.parametrize("value", ["zero", "0", "-2", "1.5", ""])
+def test_a_bad_cpu_device_count_is_one_line_naming_the_variable(value, tmp_path):
+    spec = _spec(tmp_path, seeds=2)
+    for args in (["list"], ["sweep", str(spec), "--dry-run"], ["run", str(WIND)]):
+        r = CliRunner().invoke(main, args, env={"MCJAX_CPU_DEVICES": value})
+        assert r.exit_code == 2 and "MCJAX_CPU_DEVICES must be a positive integer" in _one_line(r), (args, r.output)
+        assert "Traceback" not in r.output
+    r = CliRunner().invoke(main, ["sweep", str(spec), "--dry-run"], env={"MCJAX_CPU_DEVICES": "2"})
+    assert r.exit_code == 0, r.output
 
 
 def test_axes_of_vectors_stack_into_one_array_per_field(tmp_path):

@@ -178,7 +178,7 @@ def wrong_type_cases() -> list[Case]:
         cfg = sc.Config()
         for k, s in sc.settings.items():
             for v in _wrong_setting_values(s)[:3]:
-                out.append(case("types", f"config: {k} must be", with_(spec, f"config.{k}", v)))
+                out.append(case("types", f"config.{k}: must be", with_(spec, f"config.{k}", v)))
         for i, (k, p) in enumerate(sc.params_table.items()):
             values = _wrong_param_values(p, cfg.n_agents)
             for v in (values[i % len(values)], values[(i + 1) % len(values)]):
@@ -221,10 +221,13 @@ def range_cases() -> list[Case]:
         for k, s in sc.settings.items():
             if s.low is not None and not s.many and s.choices is None and k not in ("warmup_steps",):
                 below = s.low if s.low_open else s.low - 1
-                out.append(case("range", f"config: {k} must be",
+                out.append(case("range", f"config.{k}: must be",
                                 with_(spec, f"config.{k}", int(below) if s.integer else float(below))))
+            if s.high is not None and s.high < math.inf and s.choices is None and not s.many:
+                above = int(s.high + 1) if s.integer else float(s.high) + 1.0
+                out.append(case("range", f"config.{k}: must be", with_(spec, f"config.{k}", above)))
             if not s.integer and s.choices is None and not s.many:
-                out.append(case("range", f"config: {k} must be", with_(spec, f"config.{k}", math.nan)))
+                out.append(case("range", f"config.{k}: must be", with_(spec, f"config.{k}", math.nan)))
     # across fields (the scenarios' check_params / Config checks)
     out += [
         case("range", "grid.horizon: must be an integer in [1, max_horizon",
@@ -234,8 +237,8 @@ def range_cases() -> list[Case]:
              with_(with_(tiny("uuv_imm"), "params.ct_start", 2), "params.ct_stop", 1)),
         case("range", "params.n_sensing: must be", with_(tiny("flocking"), "params.n_sensing", 21)),
         case("range", "params.h_min: must be", with_(tiny("urban_bearing"), "params.h_min", 500.0)),
-        case("range", "config: warmup_steps must be", with_(tiny("uuv_imm"), "config.warmup_steps", 3)),
-        case("range", "config: report_agent must be", with_(tiny("wind_formation"), "config.report_agent", 4)),
+        case("range", "config.warmup_steps: must be", with_(tiny("uuv_imm"), "config.warmup_steps", 3)),
+        case("range", "config.report_agent: must be", with_(tiny("wind_formation"), "config.report_agent", 4)),
     ]
     return out
 
@@ -374,11 +377,11 @@ def count_cases() -> list[Case]:
         for k, s in sc.settings.items():
             if s.integer and (s.high is None or s.high == math.inf) and k != "warmup_steps":
                 top = COUNT_CEILINGS.get(k, COUNT_CEILING)
-                out.append(case("counts", f"config: {k} must be an integer in [", with_(spec, f"config.{k}", top + 1)))
-                out.append(case("counts", f"config: {k} must be an integer in [", with_(spec, f"config.{k}", 2**70)))
+                out.append(case("counts", f"config.{k}: must be an integer in [", with_(spec, f"config.{k}", top + 1)))
+                out.append(case("counts", f"config.{k}: must be an integer in [", with_(spec, f"config.{k}", 2**70)))
     # within the ceilings, but the chunk plan would not fit in memory
     wind = {**wind, "seeds": 100}  # a full batch of 100 runs
-    out.append(case("counts", "config: n_steps = 900000", with_(wind, "config.n_steps", 900_000)))
+    out.append(case("counts", "config.n_steps", with_(wind, "config.n_steps", 900_000)))
     out.append(case("counts", "timeseries: one batch", with_({**wind, "timeseries": True}, "config.n_steps", 1_000_000)))
     return out
 

@@ -511,7 +511,7 @@ def test_cli_rejects_bad_input_exit_2_nothing_written(tmp_path, case):
     if case == "R2":
         spec, where = _cli_spec(tmp_path, params="R2 = 1.5\n"), "params.R2: must be in [0, 1]"
     elif case == "theta_step":
-        spec, where = _cli_spec(tmp_path, config="theta_step = 0.0\n"), "config: theta_step must be > 0"
+        spec, where = _cli_spec(tmp_path, config="theta_step = 0.0\n"), "config.theta_step: must be > 0"
     else:
         field, values = BAD[case]
         spec = _cli_spec(tmp_path, params="".join(f"{k} = {_toml(v)}\n" for k, v in values.items()))

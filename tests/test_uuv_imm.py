@@ -215,7 +215,7 @@ def test_sweep_over_comm_radius_and_turn_rate(tmp_path):
     ("[params]\nimm_transition = [[0.9, 0.2], [0.1, 0.9]]\n", "params.imm_transition: must be a 2x2 matrix"),
     ("[params]\nct_start = 50\nct_stop = 40\n", "params.ct_stop: must be a step >= ct_start"),
     ("[params]\nmu0 = [0.5, 0.7]\n", "params.mu0: must be two probabilities [CV, CT] that sum to 1"),
-    ("[config]\nschedule = \"random\"\n", "schedule must be one of fixed, markov"),
+    ("[config]\nschedule = \"random\"\n", "config.schedule: must be one of fixed, markov"),
 ])
 def test_bad_uuv_spec_exit_2(tmp_path, body, message):
     spec = tmp_path / "spec.toml"

@@ -220,9 +220,9 @@ def test_cli_rejects_bad_input_exit_2_nothing_written(tmp_path, params, where):
 
 
 def test_cli_rejects_bad_config(tmp_path):
-    for config, where in (('report_agent = 4\n', "config: report_agent must be an integer in [1, n_agents = 3]"),
-                          ('n_agents = 1\n', "config: n_agents must be an integer >= 2"),
-                          ('wind_noise = "laplace"\n', "config: wind_noise must be one of uniform, gaussian")):
+    for config, where in (('report_agent = 4\n', "config.report_agent: must be an integer in [1, n_agents = 3]"),
+                          ('n_agents = 1\n', "config.n_agents: must be an integer >= 2"),
+                          ('wind_noise = "laplace"\n', "config.wind_noise: must be one of uniform, gaussian")):
         r = CliRunner().invoke(main, ["sweep", str(_spec(tmp_path, config=config)), "--out", str(tmp_path / "o")])
         assert r.exit_code == 2 and r.output.strip().startswith("error: " + where), r.output
 

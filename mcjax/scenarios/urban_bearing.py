@@ -96,8 +96,10 @@ Params = params_type("Params", dict(
     R2=Param(0.5, "", "reflectance of the walls (paper)", **_PROB),
     power=Param(1.0, "W", "transmit power P (paper; scales every path alike)", **_POS),
     directivity=Param(1.0, "", "antenna directivity D (paper: omnidirectional)", **_POS),
-    sigma_los=Param(0.2 * DEG, "rad", "LOS bearing noise std (paper: 0.2 deg)", **_POS),
-    sigma_nlos=Param(1.0 * DEG, "rad", "NLOS bearing noise std (paper: 1 deg)", **_POS),
+    sigma_los=Param(0.2 * DEG, "rad", "LOS bearing noise std (paper: 0.2 deg)", **_POS,
+                    high=float(np.pi)),
+    sigma_nlos=Param(1.0 * DEG, "rad", "NLOS bearing noise std (paper: 1 deg)", **_POS,
+                     high=float(np.pi)),
     bias_los=Param(0.0, "rad", "the LOS mode's bearing bias (paper: 0)", low=-np.pi, high=np.pi),
     bias_nlos=Param(20.0 * DEG, "rad", "the NLOS modes' bearing bias +/- (paper: 20 deg)", low=0.0, high=np.pi),
     imm_transition=Param(_TRANSITION, "", "the IMM's mode transition matrix P(j | l), modes LOS, NLOS+, NLOS- "
