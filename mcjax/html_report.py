@@ -133,8 +133,17 @@ def _html_table(headers: Sequence[str], rows: Sequence[Sequence[str]], numeric: 
             f"<tbody>\n{body}\n</tbody></table></div>")
 
 
+def _scaled(value: Any, factor: float) -> Any:
+    if isinstance(value, (tuple, list)):
+        return tuple(_scaled(v, factor) for v in value)
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and factor != 1.0:
+        return value * factor
+    return value
+
+
 def glance(summary: pd.DataFrame, sch: tables.Schema, axes: Sequence[str]) -> pd.DataFrame:
-    """The summary's headline columns as text: per point and filter, the runs, the mean error
+    """The summary's headline columns as text: per point (its axes in their display units)
+    and filter, the runs, the mean error
     ``mean [low, high]`` and, with a divergence flag, the mean over non-divergent runs and
     the divergence rate with their intervals (numbers by :func:`mcjax.tables.format_number`)."""
     e = sch.error
@@ -148,7 +157,11 @@ def glance(summary: pd.DataFrame, sch: tables.Schema, axes: Sequence[str]) -> pd
                 f"{tables.format_number(hi, tables.STAT_DIGITS)}]")
 
     u = tables.unit(e, sch)
-    out = pd.DataFrame({a: summary[a] for a in [*axes, "filter"]})
+    out = pd.DataFrame(index=summary.index)
+    for a in axes:  # in the unit the plots use
+        shown, factor = tables.display(a, sch)
+        out[f"{a} [{shown}]" if shown else a] = summary[a].map(lambda v, f=factor: _scaled(v, f))
+    out["filter"] = summary["filter"]
     out["runs"] = summary["n"]
     out[f"mean {e}" + (f" [{u}]" if u else "")] = [interval(r, f"{e}_mean", f"{e}_ci_low", f"{e}_ci_high")
                                                     for _, r in summary.iterrows()]
@@ -208,7 +221,7 @@ def page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, An
             else None)
     planned = metadata.get("n_runs")
     filters = ", ".join(tables.ordered_filters(df["filter"], sch.filters)) if "filter" in df.columns else ""
-    axes_text = ", ".join(f"{a} ({tables.axis_label(a, sch).partition(' ')[2] or 'no unit'})" for a in axes)
+    axes_text = ", ".join(f"{a} (plotted in {tables.display(a, sch)[0] or 'no unit'})" for a in axes)
     facts = [f"Dataset: <code>{_e(out)}</code>",
              f"Filters: {_e(filters)}",
              f"Swept: {_e(axes_text) if axes else 'nothing (a single point)'}",
@@ -247,12 +260,13 @@ def page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, An
     # summary
     pct = f"{100 * CONFIDENCE:g} %"
     parts.append('<section id="summary"><h2>Summary</h2>')
-    parts.append(f"<p>Per point and filter: the runs, the mean {_e(sch.error)} with its {pct} Student-t "
+    parts.append(f"<p>Per point (in the plots' units) and filter: the runs, the mean {_e(sch.error)} with its "
+                 f"{pct} Student-t "
                  f"interval" + (f", the same over the non-divergent runs and the divergence rate with its {pct} "
                                 f"Wilson interval" if sch.divergence else "") + ".</p>")
     g = glance(summary, sch, axes)
     parts.append(_html_table(*tables.format_cells(g)))
-    parts.append("<h3>Every statistic</h3>")
+    parts.append("<h3>Every statistic</h3><p>As <code>mcjax report</code> prints it (the dataset's units).</p>")
     parts.append('<ul class="legend">' + "".join(f"<li>{_e(line)}</li>"
                                                 for line in tables.legend_lines(sch, axes)) + "</ul>")
     parts.append(_html_table(*tables.format_cells(summary)))
