@@ -154,7 +154,7 @@ def main() -> None:
     """
 
 
-@main.command(short_help="Run a sweep spec (sweeps/*.toml) into a Parquet dataset and print a summary.")
+@main.command(short_help="Run a sweep spec (sweeps/*.toml) into Parquet; print a summary.")
 @click.argument("spec", type=click.Path(path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output folder of the Parquet dataset (default: results/<spec name>).")
@@ -266,7 +266,7 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
     _done(stop)
 
 
-@main.command(short_help="Run one point of a config (configs/*.toml) and print a summary; writes nothing.")
+@main.command(short_help="Run one point of a config (configs/*.toml); print a summary.")
 @click.argument("config", type=click.Path(path_type=Path))
 @click.option("--seeds", type=click.IntRange(min=1), default=None,
               help="Monte-Carlo seeds [default: the config's `seeds` (the paper's run count), else 20].")
@@ -306,7 +306,7 @@ def run(config, seeds, sets):
         _done(stop)
 
 
-@main.command(short_help="Summarise a sweep's dataset: a table, plots and OUT_DIR/report/index.html.")
+@main.command(short_help="A sweep dataset's tables, plots and OUT_DIR/report/index.html.")
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--format", "fmt", type=click.Choice(["text", "csv", "markdown"]), default="text", show_default=True,
               help="Format of the printed summary table.")
@@ -339,7 +339,7 @@ def report(out_dir, fmt, no_plots):
         click.echo(f"{'page' if p.suffix == '.html' else 'plot'}: {p}")
 
 
-@main.command(name="list", short_help="List the scenarios; with SCENARIO, its parameters, settings and outputs.")
+@main.command(name="list", short_help="List the scenarios; with SCENARIO, its params, settings, outputs.")
 @click.argument("scenario", required=False)
 @click.option("--config", "config_file", type=click.Path(path_type=Path), default=None,
               help="A config file (configs/*.toml) of the scenario: show its values beside the defaults "

@@ -21,7 +21,7 @@ __all__ = ["WIDTH", "commands", "help_text", "render", "stale"]
 WIDTH = 100
 START = "<!-- help: {} -->"
 END = "<!-- end help -->"
-_BLOCK = re.compile(r"<!-- help: (mcjax[\w -]*?) -->\n```text\n.*?\n```\n<!-- end help -->", re.S)
+_BLOCK = re.compile(r"<!-- help: (mcjax[\w -]*?) -->\n```text\n(?:.*?\n)?```\n<!-- end help -->", re.S)
 
 
 def commands() -> list[str]:
