@@ -352,3 +352,27 @@ def test_readme_column_list_is_the_datasets_order(ran):
     listed = [c.split()[0].strip("`") for c in listed]
     columns = list(pd.read_parquet(folder / "results" / "default" / "runs").columns)
     assert listed == columns
+
+
+def test_list_shows_a_configs_values_beside_the_defaults(tmp_path):
+    cfg = tmp_path / "mine.toml"
+    cfg.write_text('scenario = "leader_follower"\nseeds = 7\n\n[config]\nplanner = "cem"\n\n'
+                   '[params]\ncomm_radius = 80e3\nsigma_range = 10.0\n')
+    r = CliRunner().invoke(main, ["list", "leader_follower", "--config", str(cfg)])
+    assert r.exit_code == 0, r.output
+    lines = r.output.splitlines()
+
+    def value_line(field: str) -> str:
+        return lines[next(i for i, line in enumerate(lines) if line.startswith(f"  {field} ")
+                          or line.startswith(f"  {field}:")) + 1]
+
+    assert "seeds 7" in lines[1]
+    assert value_line("comm_radius").strip().startswith("default 100000  <- mine.toml: 80000;")
+    assert value_line("sigma_range").strip().startswith("default 10 (mine.toml: the same);")  # set, unchanged
+    assert "<-" not in value_line("sensing_radius") and "mine.toml" not in value_line("sensing_radius")
+    assert value_line("planner").strip().startswith("default 'none'  <- mine.toml: 'cem';")
+    assert "<-" not in value_line("n_agents")
+    # SCENARIO may be left out; a config of another scenario is a one-line error
+    assert CliRunner().invoke(main, ["list", "--config", str(cfg)]).output == r.output
+    bad = CliRunner().invoke(main, ["list", "uuv_imm", "--config", str(cfg)])
+    assert bad.exit_code == 2 and "is a config of scenario 'leader_follower', not 'uuv_imm'" in bad.output
