@@ -73,7 +73,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: Chen & Lu 2013 Table 1, UAV2, printed in 0.1 m/s: (mean, largest) per axis.
 PAPER = {"raw": {"x": (48.6482, 99.7406), "y": (48.6758, 99.0876)},
          "kcf": {"x": (9.51200, 23.4969), "y": (10.7939, 22.9437)}}
-SETTLE_BY = 12        # steps: every run must be in formation by then (a check; measured: see README)
+SETTLE_BY = 12        # steps: every run must be in formation by then (a check; measured: see docs/papers.md)
 
 
 def fmt_ci(values, digits: int = 2) -> str:

@@ -1,4 +1,6 @@
-"""The ``mcjax`` command line: ``mcjax sweep``, ``mcjax run``, ``mcjax report``, ``mcjax list``.
+"""The ``mcjax`` command line: ``mcjax sweep``, ``mcjax run``, ``mcjax report``, ``mcjax list``
+(``mcjax --help`` lists every command with one line each; ``docs/cli.md`` holds every
+command's ``--help``).
 
 click gives us typed options, ``--help`` for every subcommand and clean usage errors;
 tqdm draws the progress bar.
@@ -148,18 +150,20 @@ def _print_summary(df, spec) -> None:
     click.echo(summary_text(df, {**spec.scenario.metadata(spec.config), "spec": spec.source}))
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(package_name="mcjax")
 def main() -> None:
     """mcjax — batched Monte-Carlo simulation of distributed cooperative target tracking.
 
-    Run a sweep spec (sweeps/*.toml) into a Parquet dataset with `mcjax sweep`, run one
-    parameter point for a quick look with `mcjax run`, list scenarios with `mcjax list`.
+    Typical use: `mcjax run configs/sun2011.toml` for a quick look at one paper's set-up,
+    `mcjax sweep sweeps/default.toml` to write a Parquet dataset, `mcjax report
+    results/default` for its tables, plots and results/default/report/index.html.
+    `mcjax COMMAND --help` tells more; docs/cli.md has every option.
     """
     _check_environment()
 
 
-@main.command()
+@main.command(short_help="Run a sweep spec (sweeps/*.toml) into Parquet; print a summary.")
 @click.argument("spec", type=click.Path(path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output folder of the Parquet dataset (default: results/<spec name>).")
@@ -226,8 +230,10 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
     headline = (f"scenario {s.scenario.name}: {s.n_points} point(s) x {s.seeds} seed(s) = {s.n_runs} runs, "
                 f"{len(plan)} chunk(s) of {size}, filters {', '.join(s.config.filters)}")
     if dry_run:
+        from mcjax.tables import format_table
+
         click.echo(headline)
-        click.echo(points(s).to_string(index=False))
+        click.echo(format_table(points(s)), nl=False)  # numbers as in the summary (mcjax.tables)
         for i, (a, b) in enumerate(plan):
             click.echo(f"chunk {i}: runs {a}..{b - 1}")
         if stop.is_set():
@@ -269,7 +275,7 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
     _done(stop)
 
 
-@main.command()
+@main.command(short_help="Run one point of a config (configs/*.toml); print a summary.")
 @click.argument("config", type=click.Path(path_type=Path))
 @click.option("--seeds", type=click.IntRange(min=1), default=None,
               help="Monte-Carlo seeds [default: the config's `seeds` (the paper's run count), else 20].")
@@ -309,18 +315,23 @@ def run(config, seeds, sets):
         _done(stop)
 
 
-@main.command()
+@main.command(short_help="A sweep dataset's tables, plots and OUT_DIR/report/index.html.")
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--format", "fmt", type=click.Choice(["text", "csv", "markdown"]), default="text", show_default=True,
               help="Format of the printed summary table.")
-@click.option("--no-plots", is_flag=True, help="Print the table only; write no PNG files.")
+@click.option("--no-plots", is_flag=True, help="Print the table only; write no PNG or HTML files.")
 def report(out_dir, fmt, no_plots):
-    """Summarise the sweep dataset in OUT_DIR and write plots to OUT_DIR/report/.
+    """Summarise the sweep dataset in OUT_DIR; write plots and one self-contained HTML page
+    (OUT_DIR/report/index.html: description, spec, provenance, tables, every plot with a
+    caption) to OUT_DIR/report/.
 
-    The table groups runs by the swept params and filter: mean RMSE with its 95 % t-interval
+    The table groups runs by the swept params and filter: mean error with its 95 % t-interval
     (all runs and non-divergent runs), divergence rate with its 95 % Wilson interval, lambda2
     statistics and disconnected steps. Plots: each metric against each swept axis (one line
-    per filter), divergence rate with intervals, lambda2, and heatmaps for two-axis grids.
+    per filter, one panel per value of the other axes), divergence rate with intervals,
+    lambda2, and heatmaps for two-axis grids; axes in display units (km, deg). A point
+    resting on fewer than 5 runs is drawn hollow and not joined; where the number of runs
+    varies, each point shows it.
     """
     from mcjax.report import report as make_report
 
@@ -334,40 +345,81 @@ def report(out_dir, fmt, no_plots):
         sys.exit(130)
     click.echo(table)
     for p in plots:
-        click.echo(f"plot: {p}")
+        click.echo(f"{'page' if p.suffix == '.html' else 'plot'}: {p}")
 
 
-@main.command(name="list")
+@main.command(name="list", short_help="List the scenarios; with SCENARIO, its params, settings, outputs.")
 @click.argument("scenario", required=False)
-def list_scenarios(scenario):
+@click.option("--config", "config_file", type=click.Path(path_type=Path), default=None,
+              help="A config file (configs/*.toml) of the scenario: show its values beside the defaults "
+                   "(SCENARIO may then be left out).")
+def list_scenarios(scenario, config_file):
     """List the scenarios (built-in and installed plugins); with SCENARIO, every Params field
-    (unit, default, allowed values, description), every Config field and every output."""
+    (unit, default, allowed values, description), every Config field and every output; with
+    --config FILE, that file's values beside the defaults ("<-" marks the fields it changes)."""
+    import numpy as np
+
     from mcjax import scenarios
 
-    if scenario is None:
+    if scenario is None and config_file is None:
         for name in scenarios.known():
             try:
                 title = scenarios.get(name).title
             except Exception as exc:  # a broken plugin must not hide the others
                 title = f"(cannot be loaded: {exc})"
             click.echo(f"{name:18s} {title}")
-        click.echo("details: mcjax list SCENARIO")
+        click.echo("details: mcjax list SCENARIO (add --config FILE for a config's values)")
         return
+    file = None
+    if config_file is not None:
+        from mcjax.sweep import SpecError, read_config_file
+
+        try:
+            file = read_config_file(config_file)
+        except SpecError as exc:
+            _fail(str(exc))
     try:
-        sc = scenarios.get(scenario, base_dir=Path.cwd())
+        sc = scenarios.get(scenario, base_dir=Path.cwd()) if scenario is not None else file.scenario
     except (ValueError, ImportError) as exc:
         _fail(str(exc))
+    if file is not None and file.scenario.name != sc.name:
+        _fail(f"{config_file} is a config of scenario {file.scenario.name!r}, not {sc.name!r}: "
+              f"`mcjax list {file.scenario.name} --config {shlex.quote(str(config_file))}`")
     cfg = sc.Config()
     defaults = sc.default_params(cfg)
-    click.echo(f"{sc.name}: {sc.title}\n\nParams (sweepable, no recompilation):")
+    mine = sc.default_params(file.config, **file.params) if file is not None else None
+    tag = config_file.name if file is not None else ""
+
+    from mcjax.tables import format_number
+
+    def shown(value):  # numbers as in every table (mcjax.tables.format_number), arrays as lists
+        value = np.asarray(value)
+        if value.size > 48:
+            return f"array{value.shape}"
+        return format_number(value.tolist() if value.ndim else value.item(), 8).replace("(", "[").replace(")", "]")
+
+    def beside(default, value, given: bool) -> str:
+        if file is None:
+            return f"default {shown(default)}"
+        same = (np.shape(default) == np.shape(value) and bool(np.all(np.asarray(default) == np.asarray(value)))
+                if not isinstance(default, (str, tuple)) else default == value)
+        if same:
+            return f"default {shown(default)}" + (f" ({tag}: the same)" if given else "")
+        return f"default {shown(default)}  <- {tag}: {shown(value)}"
+
+    click.echo(f"{sc.name}: {sc.title}")
+    if file is not None:
+        seeds = f"; seeds {file.seeds} (the paper's run count)" if file.seeds is not None else ""
+        click.echo(f"values of {config_file} beside the defaults (\"<-\": the file changes it){seeds}")
+    click.echo("\nParams (sweepable, no recompilation):")
     for name, p in sc.params_table.items():
-        value = getattr(defaults, name)
-        shown = value.tolist() if value.size <= 6 else f"array{value.shape}"
         unit = f" [{p.unit}]" if p.unit else ""
         agent = ", scalar or per agent" if p.per_agent else ""
         if p.shape is not None:
             agent += ", shape " + "x".join("n_agents" if d == "n" else str(d) for d in p.shape)
-        click.echo(f"  {name}{unit}: {p.description}\n      default {shown}; allowed {p.allowed()}{agent}")
+        value = getattr(mine, name) if mine is not None else None
+        text = beside(getattr(defaults, name), value, file is not None and name in file.params)
+        click.echo(f"  {name}{unit}: {p.description}\n      {text}; allowed {p.allowed()}{agent}")
     click.echo("\nConfig (fixes shapes / the program; changing it recompiles):")
     from mcjax.contract import ceiling
 
@@ -375,9 +427,15 @@ def list_scenarios(scenario):
         unit = f" [{st.unit}]" if st.unit else ""
         top = ceiling(name, st)
         most = f" (at most {top})" if top is not None else ""
-        click.echo(f"  {name}{unit}: {st.description}\n      default {st.default!r}; allowed {st.allowed()}{most}")
+        if file is None:
+            text = f"default {st.default!r}"
+        else:
+            value = getattr(file.config, name)
+            text = (f"default {st.default!r}" if value == st.default
+                    else f"default {st.default!r}  <- {tag}: {value!r}")
+        click.echo(f"  {name}{unit}: {st.description}\n      {text}; allowed {st.allowed()}{most}")
     click.echo("\nOutputs (one row per run and filter in OUT/runs):")
-    for name, o in sc.outputs(cfg).items():
+    for name, o in sc.outputs(file.config if file is not None else cfg).items():
         unit = f" [{o.unit}]" if o.unit else ""
         role = f" (role: {o.role})" if o.role else ""
         click.echo(f"  {name}{unit}{'' if o.per_filter else ' per run'}: {o.description}{role}")

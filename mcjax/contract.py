@@ -184,6 +184,40 @@ def setting_problem(name: str, setting: "Setting", value) -> str | None:
     return msg
 
 
+#: Units a value may be shown in: (declared unit, shown unit) -> factor (shown = factor x declared).
+DISPLAY_UNITS = {
+    ("m", "km"): 1e-3,
+    ("rad", "deg"): 180.0 / math.pi,
+    ("rad/s", "deg/s"): 180.0 / math.pi,
+    ("s", "min"): 1.0 / 60.0,
+    ("s", "h"): 1.0 / 3600.0,
+    ("m/s", "km/h"): 3.6,
+}
+#: The shown unit of a declared unit when a Param names none: angles in degrees.
+DEFAULT_DISPLAY = {"rad": "deg", "rad/s": "deg/s"}
+
+
+def display_unit(unit: str, display: str | None = None) -> tuple[str, float]:
+    """``(shown unit, factor)`` for a value declared in ``unit``: ``display`` when given (it
+    must be ``unit`` itself or a pair of :data:`DISPLAY_UNITS`), else :data:`DEFAULT_DISPLAY`,
+    else ``unit`` unchanged (factor 1).
+
+    Raises:
+        ValueError: ``display`` is neither ``unit`` nor a known conversion from it.
+    """
+    unit = unit or ""
+    if display is None:
+        display = DEFAULT_DISPLAY.get(unit, unit)
+    if display == unit:
+        return unit, 1.0
+    try:
+        return display, DISPLAY_UNITS[(unit, display)]
+    except KeyError:
+        known = [b for a, b in DISPLAY_UNITS if a == unit]
+        raise ValueError(f"display unit {display!r} for a value in {unit!r}: allowed "
+                         f"{', '.join(repr(k) for k in [unit, *known])}") from None
+
+
 class Setting(NamedTuple):
     """Declaration of one Config field (changing it recompiles)."""
 
@@ -246,6 +280,7 @@ class Param(NamedTuple):
     per_agent: bool = False
     shape: tuple | None = None
     choices: tuple | None = None  # allowed values, e.g. (0, 1) for an alive flag
+    display: str | None = None    # the unit plots show it in (e.g. "km" for "m"; see DISPLAY_UNITS)
 
     def allowed(self) -> str:
         if self.choices is not None:
@@ -325,9 +360,15 @@ class Param(NamedTuple):
                     return _bad(f"of shape {shown} ({'x'.join(map(str, want))})", value)
         return None
 
+    def display_unit(self) -> tuple[str, float]:
+        """``(unit, factor)``: the unit plots show this field in and the factor from its
+        declared unit to it (:func:`display_unit`)."""
+        return display_unit(self.unit, self.display)
+
     def as_json(self) -> dict:
+        shown, factor = self.display_unit()
         return {"unit": self.unit, "description": self.description, "per_agent": self.per_agent,
-                "allowed": self.allowed()}
+                "allowed": self.allowed(), "display_unit": shown, "display_factor": factor}
 
 
 def config_type(name: str, settings: Mapping[str, Setting], module: str,
@@ -360,6 +401,11 @@ def config_type(name: str, settings: Mapping[str, Setting], module: str,
 def params_type(name: str, table: Mapping[str, Param], module: str) -> type:
     """A NamedTuple (a JAX pytree) with one field per :class:`Param`, in order; the table is
     kept as ``Params.TABLE``."""
+    for k, p in table.items():
+        try:
+            p.display_unit()
+        except ValueError as exc:
+            raise ValueError(f"{name}.{k}: {exc}") from None
     cls = NamedTuple(name, [(k, Any) for k in table])
     cls.__module__ = module
     cls.TABLE = dict(table)

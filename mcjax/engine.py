@@ -137,7 +137,7 @@ def stack_points(points: list) -> object:
 #: between batch sizes and between lanes of one batch (vectorised vs remainder loops,
 #: reduction tiling), so every sweep runs the same B-run program on B-aligned slices of the
 #: run index: results are then bit-identical whatever the chunk size. Per-run cost on the
-#: CPU is flat from about 100 runs per call up (measured; benchmarks/README).
+#: CPU is flat from about 100 runs per call up (measured; docs/benchmarks.md).
 BATCH_SIZE = 100
 
 

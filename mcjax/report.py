@@ -1,7 +1,8 @@
 """Entry points of the report on a sweep's output folder (``OUT/runs/*.parquet``).
 
 * :func:`report` -- reads ``OUT`` with :mod:`mcjax.results` and returns the formatted
-  summary table plus the PNG plots written to ``OUT/report/`` (what ``mcjax report`` prints).
+  summary table plus the files written to ``OUT/report/``: the PNG plots, then
+  ``index.html`` (what ``mcjax report`` prints).
 * :func:`summary_text` -- the same table from an in-memory runs table and its metadata
   dict (what ``mcjax sweep`` and ``mcjax run`` print after running).
 
@@ -95,8 +96,10 @@ def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
 
     Reads ``OUT/runs`` (:func:`mcjax.results.read_table`) and its metadata
     (:func:`mcjax.results.read_metadata`), formats the table of :func:`summary_text` and,
-    unless ``plots=False``, writes the figures of :func:`mcjax.plots.make_plots` to
-    ``OUT/report/``. A dataset with fewer runs than its sweep planned (:func:`completeness`)
+    unless ``plots=False``, writes the figures of :func:`mcjax.plots.write_plots` to
+    ``OUT/report/`` and then the self-contained page ``OUT/report/index.html``
+    (:mod:`mcjax.html_report`: description, spec, provenance, tables, every plot with its
+    caption), whose path is the last of the returned paths. A dataset with fewer runs than its sweep planned (:func:`completeness`)
     gets a ``WARNING:`` line at the top of the table's header (``warn`` is told too: CSV has
     no header) and a note on every plot.
 
@@ -130,7 +133,10 @@ def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
     table = summary_text(df, metadata, fmt, warning=incomplete)
     if not plots:
         return table, []
-    from mcjax.plots import make_plots  # matplotlib only when plotting
+    from mcjax.html_report import write_page
+    from mcjax.plots import write_plots  # matplotlib only when plotting
 
     note = incomplete and incomplete.split(";")[0].replace("incomplete", "INCOMPLETE", 1)
-    return table, make_plots(df, metadata, out, note=note)
+    written, skipped = write_plots(df, metadata, out, note=note)
+    page = write_page(out, df, metadata, written, skipped, warning=incomplete)
+    return table, [p.path for p in written] + [page]

@@ -10,12 +10,14 @@ Everything here is read from the dataset's metadata (the scenario's declarations
   declarations (written by an older mcjax) is a ValueError.
 * :func:`swept_axes` -- the swept parameter columns (keys of the spec's ``grid`` then
   ``zip`` tables that are columns).
-* :func:`unit`, :func:`label` -- a column's declared unit and its ``"name [unit]"`` label.
+* :func:`unit`, :func:`label` -- a column's declared unit and its ``"name [unit]"`` label;
+  :func:`display`, :func:`axis_label` -- the unit a parameter is plotted in (km, deg, ...).
 * :func:`ordered_filters` -- filter values in display order.
 * :func:`summary_columns`, :func:`summarize` -- one row per (swept axes..., filter) with the
   statistics of :mod:`mcjax.statistics`.
 * :func:`legend_lines` -- one line per metric and axis: its unit and description.
-* :func:`format_table`, :func:`format_number` -- rendering.
+* :func:`format_table`, :func:`format_cells`, :func:`format_number` -- rendering (one number
+  format for every table and plot).
 
 Summary columns, with ``<err>`` the error column's name (e.g. ``rmse``), in this order:
 
@@ -44,6 +46,7 @@ from typing import Any, Iterable, Mapping, NamedTuple, Sequence
 import numpy as np
 import pandas as pd
 
+from mcjax.contract import display_unit
 from mcjax.statistics import CONFIDENCE, mean_ci, wilson_interval
 
 __all__ = [
@@ -54,6 +57,8 @@ __all__ = [
     "swept_axes",
     "unit",
     "label",
+    "display",
+    "axis_label",
     "ordered_filters",
     "prepare",
     "resolve_axes",
@@ -62,6 +67,7 @@ __all__ = [
     "legend_lines",
     "check_format",
     "format_number",
+    "format_cells",
     "format_table",
 ]
 
@@ -195,6 +201,32 @@ def unit(name: str, metadata: Mapping[str, Any] | Schema) -> str:
 def label(name: str, metadata: Mapping[str, Any] | Schema) -> str:
     """``"name [unit]"`` for an output or parameter column; just ``name`` without a unit."""
     u = unit(name, metadata)
+    return f"{name} [{u}]" if u else name
+
+
+def display(name: str, metadata: Mapping[str, Any] | Schema) -> tuple[str, float]:
+    """``(unit, factor)`` a parameter column is shown in on plots: the display unit its
+    declaration names (``display_unit`` / ``display_factor`` in the metadata), else
+    :func:`mcjax.contract.display_unit` of its declared unit (degrees for radians); an
+    output column keeps its unit (factor 1)."""
+    _, params = _declarations(metadata)
+    decl = params.get(name) if isinstance(params, Mapping) else None
+    u = unit(name, metadata)
+    if not isinstance(decl, Mapping):
+        return u, 1.0
+    shown, factor = decl.get("display_unit"), decl.get("display_factor")
+    if isinstance(shown, str) and isinstance(factor, (int, float)) and not isinstance(factor, bool) \
+            and math.isfinite(factor) and factor > 0:
+        return shown, float(factor)
+    try:
+        return display_unit(u)
+    except ValueError:
+        return u, 1.0
+
+
+def axis_label(name: str, metadata: Mapping[str, Any] | Schema) -> str:
+    """``"name [display unit]"`` (see :func:`display`); just ``name`` without a unit."""
+    u = display(name, metadata)[0]
     return f"{name} [{u}]" if u else name
 
 
@@ -403,6 +435,25 @@ def format_number(value: Any, digits: int = 4) -> str:
     return str(value)
 
 
+#: Significant digits of a table's key columns (up to ``filter``) and of its statistics.
+KEY_DIGITS, STAT_DIGITS = 6, 4
+
+
+def format_cells(summary: pd.DataFrame) -> tuple[list[str], list[list[str]], list[bool]]:
+    """``(headers, rows of cell texts, numeric column flags)`` of a table, every cell by
+    :func:`format_number`: :data:`KEY_DIGITS` significant digits up to the ``filter``
+    column, :data:`STAT_DIGITS` after. The one number format of the sweep's printed
+    summary, ``mcjax report``'s text and Markdown tables and the HTML report."""
+    columns = list(summary.columns)
+    n_keys = columns.index("filter") + 1 if "filter" in columns else 0
+    headers = [str(c) for c in columns]
+    rows = [[format_number(v, KEY_DIGITS if i < n_keys else STAT_DIGITS) for i, v in enumerate(row)]
+            for row in summary.itertuples(index=False, name=None)]
+    numeric = [pd.api.types.is_numeric_dtype(summary[c]) and not pd.api.types.is_bool_dtype(summary[c])
+               for c in columns]
+    return headers, rows, numeric
+
+
 def format_table(summary: pd.DataFrame, fmt: str = "text", header: Sequence[str] = ()) -> str:
     """Render a :func:`summarize` table (any DataFrame works) as a string.
 
@@ -424,13 +475,7 @@ def format_table(summary: pd.DataFrame, fmt: str = "text", header: Sequence[str]
         raise TypeError(f"summary must be a pandas DataFrame, got {type(summary).__name__}")
     if fmt == "csv":
         return summary.to_csv(index=False)
-    columns = list(summary.columns)
-    n_keys = columns.index("filter") + 1 if "filter" in columns else 0
-    headers = [str(c) for c in columns]
-    rows = [[format_number(v, 6 if i < n_keys else 4) for i, v in enumerate(row)]
-            for row in summary.itertuples(index=False, name=None)]
-    numeric = [pd.api.types.is_numeric_dtype(summary[c]) and not pd.api.types.is_bool_dtype(summary[c])
-               for c in columns]
+    headers, rows, numeric = format_cells(summary)
     if fmt == "markdown":
         def esc(s: str) -> str:
             return s.replace("|", "\\|")

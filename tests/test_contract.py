@@ -117,8 +117,9 @@ def test_dropped_out_agents_count_in_no_team_statistic():
 
 
 def _readme_example(tmp_path):
-    """Write the README's "Writing a scenario" files (scenario, config, sweep) into tmp_path."""
-    text = (ROOT / "README.md").read_text()
+    """Write docs/library.md's "Writing a scenario" files (scenario, config, sweep) into tmp_path
+    (the example moved there from the README)."""
+    text = (ROOT / "docs" / "library.md").read_text()
     section = text.split("## Writing a scenario", 1)[1].split("\n## ", 1)[0]
     files = re.findall(r"`([\w.]+)`:\n\n```(?:python|toml)\n(.*?)```", section, flags=re.S)
     assert [f for f, _ in files] == ["static_sensors.py", "static_sensors.toml", "static_sweep.toml"]

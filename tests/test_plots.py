@@ -40,13 +40,13 @@ def test_single_agent_no_graph_labels_in_m():
     """(a) a single-agent scenario: no connectivity columns, error in m."""
     grid = {"turn_rate": [0.0, 0.05, 0.1]}
     meta = make_metadata(grid, error="rmse", error_unit="m", graph=False)
-    df = synthetic_runs(grid, seeds=4, graph=False)
+    df = synthetic_runs(grid, seeds=6, graph=False)
     figs = dict(plots.figures(df, meta))
     assert sorted(figs) == ["divergence_vs_turn_rate.png", "rmse_nondiverged_vs_turn_rate.png",
                             "rmse_vs_turn_rate.png"]
     ax = figs["rmse_vs_turn_rate.png"].axes[0]
     assert ax.get_ylabel() == "mean rmse [m]"
-    assert ax.get_xlabel() == "turn_rate [rad/s]"
+    assert ax.get_xlabel() == "turn_rate [deg/s]"  # radians are shown in degrees
     assert [t.get_text() for t in ax.get_legend().get_texts()] == list(meta["filters"])
     assert figs["rmse_nondiverged_vs_turn_rate.png"].axes[0].get_ylabel() == "mean rmse, non-divergent runs [m]"
     assert figs["divergence_vs_turn_rate.png"].axes[0].get_ylabel() == "divergence rate (fraction of runs)"

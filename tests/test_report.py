@@ -57,6 +57,7 @@ def _table_lines(text: str) -> list[str]:
 def test_report_one_axis(datasets):
     before = _pyplot_state()
     table, paths = rp.report(datasets["one"], "markdown")
+    assert paths.pop().name == "index.html"  # the page comes last, after the plots
     assert _pyplot_state() == before  # no backend switch, no open pyplot figures
     rows = _table_lines(table)
     assert rows[0].startswith("| comm_radius | filter | n | rmse_mean |")
@@ -73,6 +74,7 @@ def test_report_one_axis(datasets):
 
 def test_report_two_axes(datasets):
     table, paths = rp.report(datasets["two"], "csv")
+    assert paths.pop().name == "index.html"  # the page comes last, after the plots
     s = pd.read_csv(io.StringIO(table))
     assert list(s.columns[:3]) == ["comm_radius", "eps", "filter"]
     assert len(s) == 2 * 4 * len(FILTERS) and set(s["n"]) == {3}
@@ -85,6 +87,7 @@ def test_report_two_axes(datasets):
 
 def test_report_zero_axes(datasets):
     table, paths = rp.report(datasets["zero"])
+    assert paths.pop().name == "index.html"  # the page comes last, after the plots
     assert _table_lines(table)[0].split()[:3] == ["filter", "n", "rmse_mean"]
     assert [p.name for p in paths] == ["summary_bars.png"]
     check_png(paths[0])
@@ -95,6 +98,7 @@ def test_report_zero_axes(datasets):
 def test_report_single_agent_without_graph(datasets):
     """(a): the report works without connectivity columns; no connectivity statistics or plot."""
     table, paths = rp.report(datasets["single"])
+    assert paths.pop().name == "index.html"  # the page comes last, after the plots
     assert "rmse: m — rmse over the run" in table and "turn_rate: rad/s — target turn rate" in table
     header = _table_lines(table)[0].split()
     assert header[:4] == ["turn_rate", "filter", "n", "rmse_mean"]

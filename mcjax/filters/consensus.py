@@ -4,7 +4,7 @@ One call of :func:`filter_step` advances every agent of one run by one step (doc
 §2 timing: the caller passes ``F = I, Q = 0`` at the first measurement time, so step 0
 updates without predicting). Agents sit on the leading axis; nothing loops over agents.
 
-Choices where the papers are silent or ambiguous (documented in README "Filters"):
+Choices where the papers are silent or ambiguous (documented in docs/papers.md, "Filters"):
 
 * ``contribution="component"`` (default) weights an agent's own measurement information by
   ``n_i``, the number of agents in its connected component, before it is averaged by

@@ -87,7 +87,8 @@ _CHAIN = np.array([[0.95, 0.05], [0.05, 0.95]])
 Params = params_type("Params", dict(
     dt=Param(1.0, "s", "sampling = consensus interval (ours)", **_POS),
     comm_radius=Param(450.0, "m", "communication radius (ours: 450 m makes a ring)", **_NONNEG, per_agent=True),
-    sensing_radius=Param(10e3, "m", "sonar range (ours: every UUV always measures)", **_NONNEG, per_agent=True),
+    sensing_radius=Param(10e3, "m", "sonar range (ours: every UUV always measures)", **_NONNEG, per_agent=True,
+                         display="km"),
     sigma_range=Param(float(np.sqrt(5.0)), "m", "range noise std (paper R = diag[5, 0.5] read as variances)",
                       **_POS),
     sigma_bearing=Param(float(np.deg2rad(np.sqrt(0.5))), "rad", "bearing noise std (0.5 deg^2 variance)",

@@ -125,7 +125,8 @@ Params = params_type("Params", dict(
     sigma_wind_process=Param(0.5, "m/s", "the filters' random-walk wind model, std per step (ours)", **_POS),
     sigma_wind_prior=Param(50.0, "m/s", "the filters' prior std about zero wind (ours)", **_POS),
     eta=Param(0.01, "1/s", "formation factor eta of eq. 12 (ours)", low=0.0),
-    comm_radius=Param(1.0e5, "m", "UAVs within this distance exchange estimates (ours: complete graph)", **_POS),
+    comm_radius=Param(1.0e5, "m", "UAVs within this distance exchange estimates (ours: complete graph)", **_POS,
+                      display="km"),
     path_amplitude=Param(2000.0 / 3.0, "m", "path y = amplitude sin(x / scale) (paper: 2000/3)"),
     path_scale=Param(1200.0, "m", "path y = amplitude sin(x / scale) (paper: 1200)", **_POS),
     formation_tolerance=Param(50.0, "m", "pairwise distances count as in formation within this of the "

@@ -1,0 +1,303 @@
+"""``OUT/report/index.html``: one self-contained page per sweep dataset.
+
+The page holds the sweep's description, its spec (as TOML) and config, its provenance
+(package versions, git revision, dates, runs present and planned), the summary tables and
+every plot with its caption. Images are embedded as base64 ``data:`` URIs and the style
+sheet is inline: the page loads nothing from a network or another file, so it can be
+mailed or archived alone. No scripts.
+
+* :func:`page` -- the HTML text; :func:`write_page` -- writes it to ``OUT/report/index.html``.
+* :func:`spec_toml` -- a spec (the dict of a TOML file) written back as TOML.
+
+Numbers are formatted by :mod:`mcjax.tables` (:func:`~mcjax.tables.format_cells`,
+:func:`~mcjax.tables.format_number`), as in the printed tables.  This module does not
+import JAX or matplotlib.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+import os
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import pandas as pd
+
+from mcjax import tables
+from mcjax.statistics import CONFIDENCE
+
+__all__ = ["PAGE_NAME", "page", "write_page", "spec_toml", "glance"]
+
+#: The page's file name inside ``OUT/report/``.
+PAGE_NAME = "index.html"
+
+#: Provenance keys of the dataset's metadata, in the order shown, with their labels.
+PROVENANCE = (
+    ("created_utc", "dataset written (UTC)"),
+    ("git_revision", "git revision of mcjax"),
+    ("git_dirty", "uncommitted changes in the mcjax checkout"),
+    ("mcjax", "mcjax"),
+    ("python", "Python"),
+    ("jax", "jax"),
+    ("jaxlib", "jaxlib"),
+    ("numpy", "numpy"),
+    ("pandas", "pandas"),
+    ("pyarrow", "pyarrow"),
+    ("optax", "optax"),
+    ("seeds", "seeds per point"),
+    ("base_seed", "base seed"),
+    ("chunk_size", "runs per chunk"),
+    ("n_points", "points"),
+)
+
+_STYLE = """
+body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; margin: 0; color: #1b1b1b;
+       background: #fafafa; line-height: 1.45; }
+main { max-width: 1100px; margin: 0 auto; padding: 1.5rem 1.5rem 4rem; background: #fff; }
+h1 { font-size: 1.6rem; margin-bottom: 0.2rem; }
+h2 { border-bottom: 1px solid #ddd; padding-bottom: 0.2rem; margin-top: 2.2rem; }
+.subtitle { color: #555; margin-top: 0; }
+.warning { background: #fde8e8; border-left: 4px solid #b00000; padding: 0.6rem 0.8rem; }
+nav ul { list-style: none; padding: 0; display: flex; gap: 1.2rem; flex-wrap: wrap; }
+pre { background: #f4f4f4; padding: 0.8rem; overflow-x: auto; font-size: 0.85rem; }
+.scroll { overflow-x: auto; }
+table { border-collapse: collapse; font-size: 0.82rem; margin: 0.6rem 0; }
+th, td { border: 1px solid #ddd; padding: 0.2rem 0.45rem; }
+th { background: #f0f0f0; text-align: left; }
+td.num { text-align: right; font-variant-numeric: tabular-nums; }
+figure { margin: 1.4rem 0; }
+figure img { max-width: 100%; height: auto; border: 1px solid #eee; }
+figcaption { color: #333; font-size: 0.9rem; max-width: 900px; }
+.legend li { font-size: 0.88rem; }
+"""
+
+
+def _e(value: Any) -> str:
+    return html.escape(str(value), quote=True)
+
+
+# ------------------------------------------------------------------------------ spec as TOML
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "nan"
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value, ensure_ascii=False)  # a TOML basic string
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, Mapping):
+        return "{" + ", ".join(f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items()) + "}"
+    return json.dumps(str(value))
+
+
+def _toml_key(key: Any) -> str:
+    key = str(key)
+    if key and all(c.isalnum() or c in "_-" for c in key):
+        return key
+    return json.dumps(key, ensure_ascii=False)
+
+
+def spec_toml(spec: Mapping[str, Any]) -> str:
+    """A sweep spec (as read from TOML, with its ``--set`` values applied) as TOML text:
+    the top-level values, then one ``[table]`` per table (nested tables inline)."""
+    lines = [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in spec.items() if not isinstance(v, Mapping)]
+    for k, v in spec.items():
+        if isinstance(v, Mapping):
+            lines += ["", f"[{_toml_key(k)}]"]
+            lines += [f"{_toml_key(kk)} = {_toml_value(vv)}" for kk, vv in v.items()]
+    return "\n".join(lines).strip() + "\n"
+
+
+# ------------------------------------------------------------------------------ tables
+
+
+def _html_table(headers: Sequence[str], rows: Sequence[Sequence[str]], numeric: Sequence[bool],
+                cls: str = "") -> str:
+    head = "".join(f"<th>{_e(h)}</th>" for h in headers)
+    body = "\n".join("<tr>" + "".join(f'<td class="num">{_e(c)}</td>' if num else f"<td>{_e(c)}</td>"
+                                      for c, num in zip(row, numeric)) + "</tr>" for row in rows)
+    return (f'<div class="scroll"><table{f" class={cls!r}" if cls else ""}><thead><tr>{head}</tr></thead>'
+            f"<tbody>\n{body}\n</tbody></table></div>")
+
+
+def _scaled(value: Any, factor: float) -> Any:
+    if isinstance(value, (tuple, list)):
+        return tuple(_scaled(v, factor) for v in value)
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and factor != 1.0:
+        return value * factor
+    return value
+
+
+def glance(summary: pd.DataFrame, sch: tables.Schema, axes: Sequence[str]) -> pd.DataFrame:
+    """The summary's headline columns as text: per point (its axes in their display units)
+    and filter, the runs, the mean error
+    ``mean [low, high]`` and, with a divergence flag, the mean over non-divergent runs and
+    the divergence rate with their intervals (numbers by :func:`mcjax.tables.format_number`)."""
+    e = sch.error
+
+    def interval(row, mean, low, high) -> str:
+        m = tables.format_number(row[mean], tables.STAT_DIGITS)
+        lo, hi = row[low], row[high]
+        if isinstance(lo, float) and math.isnan(lo):
+            return m
+        return (f"{m} [{tables.format_number(lo, tables.STAT_DIGITS)}, "
+                f"{tables.format_number(hi, tables.STAT_DIGITS)}]")
+
+    u = tables.unit(e, sch)
+    out = pd.DataFrame(index=summary.index)
+    for a in axes:  # in the unit the plots use
+        shown, factor = tables.display(a, sch)
+        out[f"{a} [{shown}]" if shown else a] = summary[a].map(lambda v, f=factor: _scaled(v, f))
+    out["filter"] = summary["filter"]
+    out["runs"] = summary["n"]
+    out[f"mean {e}" + (f" [{u}]" if u else "")] = [interval(r, f"{e}_mean", f"{e}_ci_low", f"{e}_ci_high")
+                                                    for _, r in summary.iterrows()]
+    if sch.divergence:
+        out["non-divergent runs"] = summary["n_ok"]
+        out[f"mean {e}, non-divergent" + (f" [{u}]" if u else "")] = [
+            interval(r, f"{e}_ok_mean", f"{e}_ok_ci_low", f"{e}_ok_ci_high") for _, r in summary.iterrows()]
+        out["divergence rate"] = [interval(r, "div_rate", "div_ci_low", "div_ci_high") for _, r in summary.iterrows()]
+    return out
+
+
+# ------------------------------------------------------------------------------ the page
+
+
+def _image(path: Path) -> str:
+    return "data:image/png;base64," + base64.b64encode(Path(path).read_bytes()).decode("ascii")
+
+
+def _png_size(path: Path) -> tuple[int, int] | None:
+    head = Path(path).read_bytes()[:24]
+    if head[:8] != b"\x89PNG\r\n\x1a\n":
+        return None
+    return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+
+
+def page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, Any], plots: Sequence[Any],
+         skipped: Sequence[Any] = (), warning: str | None = None, now: datetime | None = None) -> str:
+    """The HTML text of the report on the dataset in ``out_dir``.
+
+    Args:
+        out_dir: the sweep's output folder (named on the page).
+        df: its runs table; metadata: its metadata (:func:`mcjax.results.read_metadata`).
+        plots: written figures, each with ``.path`` (a PNG file) and ``.caption``
+            (:class:`mcjax.plots.PlotFile`); embedded in this order.
+        skipped: plots left out on purpose, each with ``.name`` and ``.reason``.
+        warning: a line shown at the top (e.g. the dataset is incomplete).
+        now: the time the report is written (default: now, UTC).
+    """
+    sch = tables.schema(metadata, df.columns)
+    axes = tables.swept_axes(metadata, df.columns)
+    summary = tables.summarize(df, metadata, axes)
+    spec = metadata.get("spec") if isinstance(metadata.get("spec"), Mapping) else {}
+    out = Path(out_dir)
+    now = now or datetime.now(timezone.utc)
+    title = f"{sch.scenario}: {out.name}" if sch.scenario else out.name
+    description = spec.get("description") if isinstance(spec.get("description"), str) else None
+
+    parts = [f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
+             f'<meta name="viewport" content="width=device-width, initial-scale=1">\n'
+             f"<title>mcjax report — {_e(title)}</title>\n<style>{_STYLE}</style>\n</head>\n<body>\n<main>"]
+    parts.append(f"<h1>mcjax report — {_e(title)}</h1>")
+    if sch.title:
+        parts.append(f'<p class="subtitle">{_e(sch.title)}</p>')
+    parts.append('<section id="description"><h2>Description</h2>')
+    parts.append(f"<p>{_e(description)}</p>" if description else "<p>(The spec gives no description.)</p>")
+    runs = (len(df[["point_id", "seed_index"]].drop_duplicates()) if {"point_id", "seed_index"} <= set(df.columns)
+            else None)
+    planned = metadata.get("n_runs")
+    filters = ", ".join(tables.ordered_filters(df["filter"], sch.filters)) if "filter" in df.columns else ""
+    axes_text = ", ".join(f"{a} (plotted in {tables.display(a, sch)[0] or 'no unit'})" for a in axes)
+    facts = [f"Dataset: <code>{_e(out)}</code>",
+             f"Filters: {_e(filters)}",
+             f"Swept: {_e(axes_text) if axes else 'nothing (a single point)'}",
+             f"Runs: {_e(runs if runs is not None else '?')} present of {_e(planned if planned is not None else '?')} "
+             f"planned ({len(df)} rows, one per run and filter)"]
+    parts.append("<ul>" + "".join(f"<li>{f}</li>" for f in facts) + "</ul>")
+    if warning:
+        parts.append(f'<p class="warning">WARNING: {_e(warning)}</p>')
+    parts.append("</section>")
+    parts.append('<nav><ul><li><a href="#spec">Spec</a></li><li><a href="#provenance">Provenance</a></li>'
+                 '<li><a href="#summary">Summary</a></li><li><a href="#plots">Plots</a></li></ul></nav>')
+
+    # spec and config
+    parts.append('<section id="spec"><h2>Spec</h2>')
+    parts.append(f"<pre>{_e(spec_toml(spec))}</pre>" if spec else "<p>(No spec in the dataset's metadata.)</p>")
+    config = metadata.get("config")
+    if isinstance(config, Mapping) and config:
+        parts.append("<h3>Config (as run)</h3>")
+        rows = [[str(k), tables.format_number(v, tables.KEY_DIGITS) if not isinstance(v, str) else v]
+                for k, v in config.items()]
+        parts.append(_html_table(["field", "value"], rows, [False, False]))
+    parts.append("</section>")
+
+    # provenance
+    parts.append('<section id="provenance"><h2>Provenance</h2>')
+    rows = [["runs present / planned", f"{runs if runs is not None else '?'} / "
+                                        f"{planned if planned is not None else '?'}"]]
+    for key, name in PROVENANCE:
+        if key in metadata:
+            value = metadata[key]
+            rows.append([name, str(value).lower() if isinstance(value, bool) else str(value)])
+    rows.append(["report written (UTC)", now.astimezone(timezone.utc).isoformat(timespec="seconds")])
+    parts.append(_html_table(["what", "value"], rows, [False, False]))
+    parts.append("</section>")
+
+    # summary
+    pct = f"{100 * CONFIDENCE:g} %"
+    parts.append('<section id="summary"><h2>Summary</h2>')
+    parts.append(f"<p>Per point (in the plots' units) and filter: the runs, the mean {_e(sch.error)} with its "
+                 f"{pct} Student-t "
+                 f"interval" + (f", the same over the non-divergent runs and the divergence rate with its {pct} "
+                                f"Wilson interval" if sch.divergence else "") + ".</p>")
+    g = glance(summary, sch, axes)
+    parts.append(_html_table(*tables.format_cells(g)))
+    parts.append("<h3>Every statistic</h3><p>As <code>mcjax report</code> prints it (the dataset's units).</p>")
+    parts.append('<ul class="legend">' + "".join(f"<li>{_e(line)}</li>"
+                                                for line in tables.legend_lines(sch, axes)) + "</ul>")
+    parts.append(_html_table(*tables.format_cells(summary)))
+    parts.append("</section>")
+
+    # plots
+    parts.append('<section id="plots"><h2>Plots</h2>')
+    if not plots:
+        parts.append("<p>(No plots.)</p>")
+    for p in plots:
+        path = Path(p.path)
+        size = _png_size(path)
+        dims = f' width="{size[0]}" height="{size[1]}"' if size else ""
+        parts.append(f'<figure id="{_e(path.stem)}"><img src="{_image(path)}" alt="{_e(path.name)}"{dims}>'
+                     f"<figcaption><strong>{_e(path.name)}</strong> — {_e(p.caption)}</figcaption></figure>")
+    if skipped:
+        parts.append("<h3>Not plotted</h3><ul>" + "".join(f"<li><code>{_e(s.name)}</code>: {_e(s.reason)}.</li>"
+                                                         for s in skipped) + "</ul>")
+    parts.append("</section>")
+    parts.append("</main>\n</body>\n</html>\n")
+    return "\n".join(parts)
+
+
+def write_page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, Any], plots: Sequence[Any],
+               skipped: Sequence[Any] = (), warning: str | None = None) -> Path:
+    """Write :func:`page` to ``OUT/report/index.html`` (atomically: a temporary name, then a
+    rename) and return its path."""
+    report_dir = Path(out_dir) / "report"
+    report_dir.mkdir(parents=True, exist_ok=True)
+    path = report_dir / PAGE_NAME
+    tmp = report_dir / f".{PAGE_NAME}.tmp"
+    tmp.write_text(page(out_dir, df, metadata, plots, skipped, warning), encoding="utf-8")
+    os.replace(tmp, path)
+    return path
