@@ -43,7 +43,8 @@ def common_settings(*, filter_kinds: tuple[str, ...], filters: tuple[str, ...] |
                                      low=0, low_open=True),
         warmup_steps=Setting(warmup_steps, "first steps left out of the error statistics", "steps",
                              low=0, integer=True),
-        dtype=Setting("float64", "float type of the simulation", choices=DTYPES),
+        dtype=Setting("float64", "float type of the simulation (float32: for speed studies only; it changes "
+                      "divergence statistics, see docs/benchmarks.md)", choices=DTYPES),
     )
 
 
