@@ -6,6 +6,7 @@ value), with a host callback the tests steer through flag files in the scenario'
 and wait to be killed, and the point r = 13.0 raises (a bad point).
 """
 
+import importlib
 import os
 import shlex
 import signal
@@ -78,6 +79,8 @@ SCENARIO = Scenario(name="probe", title="one agent, steerable by flag files", Co
 '''
 
 CLI = [sys.executable, "-m", "mcjax.cli"]
+# all on one pytest-xdist worker (pyproject: --dist loadgroup), so the module starts one cluster
+pytestmark = pytest.mark.xdist_group("dask")
 
 
 class Lab(NamedTuple):
@@ -107,8 +110,12 @@ def lab(tmp_path_factory):
     root = tmp_path_factory.mktemp("dask")
     good, bad = _write(root)
     with local_cluster(2) as cluster, distributed.Client(cluster, set_as_default=False) as client:
+        # the workers import mcjax while this process computes the reference
+        warm = threading.Thread(target=client.run, args=(lambda: importlib.import_module("mcjax.cluster").__name__,))
+        warm.start()
         spec = load_spec(good)
         run_sweep(spec, root / "local")
+        warm.join()
         yield Lab(root, client, cluster.scheduler_address, good, bad, spec, read_table(root / "local"))
 
 
@@ -158,7 +165,77 @@ def test_same_bytes_as_local_and_one_compilation_per_worker(lab, tmp_path):
     assert sorted(counts.values()) == [(1, 1, 1), (1, 1, 1)], counts
 
 
+def test_client_killed_then_resumed_locally(lab, tmp_path):
+    out = tmp_path / "out"
+    (lab.root / "slow").touch()
+    try:
+        proc = subprocess.Popen([*CLI, "sweep", str(lab.good), "--out", str(out), *_dask(lab)],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        _wait_for(lambda: proc.poll() is not None or _parts(out))
+        proc.kill()
+        proc.wait()
+    finally:
+        (lab.root / "slow").unlink()
+    assert 1 <= len(_parts(out)) < 6, _parts(out)
+    r = CliRunner().invoke(main, ["sweep", str(lab.good), "--out", str(out), "--resume"])
+    assert r.exit_code == 0, r.output
+    assert "chunk(s) already written" in r.output
+    _same(out, lab)
+
+
+def test_started_locally_ctrl_c_on_dask_then_finished_on_dask(lab, tmp_path, monkeypatch, capfd):
+    """Ctrl-C in this process (the command's own handler hears it): the chunks in flight are
+    cancelled, exit 130, only whole parts, and the printed resume command finishes the sweep."""
+    from mcjax import cli
+
+    monkeypatch.setattr(cli, "_exit_now", sys.exit)  # exit 130 without leaving pytest
+    out = tmp_path / "out"
+    prepare_output(lab.spec, out, spec_file=lab.good)
+    run_sweep(lab.spec, out, chunks=[0])  # a local sweep that stopped after one chunk
+
+    def ctrl_c():
+        _wait_for(lambda: len(_parts(out)) > 1)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    (lab.root / "slow").touch()
+    try:
+        thread = threading.Thread(target=ctrl_c, daemon=True)
+        thread.start()
+        r = CliRunner().invoke(main, ["sweep", str(lab.good), "--out", str(out), "--resume", *_dask(lab)])
+        thread.join()
+    finally:
+        (lab.root / "slow").unlink()
+    assert r.exit_code == 130, r.output
+    assert ACK_DASK in capfd.readouterr().err and "Traceback" not in r.stderr, r.stderr  # said at once, on fd 2
+    assert 2 <= len(_parts(out)) < 6
+    problems = check_parts(lab.spec, out)[1]
+    assert problems and all("is missing" in p for p in problems), problems  # only whole parts
+    _wait_for(lambda: not lab.client.run_on_scheduler(
+        lambda dask_scheduler: [k for k in dask_scheduler.tasks if "mcjax-chunk" in str(k)]), timeout=30)
+    hint = next(line for line in r.stderr.splitlines() if "finish with: " in line).split("finish with: ")[1]
+    words = shlex.split(hint)
+    assert words[-4:] == _dask(lab), words
+    r = CliRunner().invoke(main, words[1:])
+    assert r.exit_code == 0, r.output
+    _same(out, lab)
+
+
+def test_a_worker_that_raises_names_the_point_and_the_chunk(lab, tmp_path):
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["sweep", str(lab.bad), "--out", str(out), *_dask(lab)])
+    assert r.exit_code == 1, r.output
+    lines = [line for line in r.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, r.stderr
+    assert lines[0].startswith("error: chunk 3 (runs 300..399; point_id 3: r = 13.0) failed on a Dask worker: "
+                               "ValueError: bad point: r = 13.0"), lines[0]
+    todo, problems = check_parts(load_spec(lab.bad), out)
+    assert 3 in todo and all("is missing" in p for p in problems), problems  # complete parts kept, none damaged
+    assert f"{4 - len(todo)} of 4 chunk(s) written" in lines[0] and len(_parts(out)) == 4 - len(todo)
+    assert not (out / "_staging").exists()
+
+
 def test_a_worker_killed_mid_chunk_changes_nothing(lab, tmp_path):
+    # last of the tests on the cluster: the worker started in place of the killed one is then never used
     from mcjax.cluster import DaskExecutor
 
     killed = []
@@ -179,64 +256,6 @@ def test_a_worker_killed_mid_chunk_changes_nothing(lab, tmp_path):
     thread.join(timeout=10)
     assert killed, "no worker was killed"
     _same(out, lab)  # the chunk was run again elsewhere: nothing lost, nothing twice
-
-
-def test_client_killed_then_resumed_locally(lab, tmp_path):
-    out = tmp_path / "out"
-    (lab.root / "slow").touch()
-    try:
-        proc = subprocess.Popen([*CLI, "sweep", str(lab.good), "--out", str(out), *_dask(lab)],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-        _wait_for(lambda: proc.poll() is not None or _parts(out))
-        proc.kill()
-        proc.wait()
-    finally:
-        (lab.root / "slow").unlink()
-    assert 1 <= len(_parts(out)) < 6, _parts(out)
-    r = CliRunner().invoke(main, ["sweep", str(lab.good), "--out", str(out), "--resume"])
-    assert r.exit_code == 0, r.output
-    assert "chunk(s) already written" in r.output
-    _same(out, lab)
-
-
-def test_started_locally_ctrl_c_on_dask_then_finished_on_dask(lab, tmp_path):
-    out = tmp_path / "out"
-    prepare_output(lab.spec, out)
-    run_sweep(lab.spec, out, chunks=[0])  # a local sweep that stopped after one chunk
-    (lab.root / "slow").touch()
-    try:
-        proc = subprocess.Popen([*CLI, "sweep", str(lab.good), "--out", str(out), "--resume", *_dask(lab)],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-        _wait_for(lambda: proc.poll() is not None or len(_parts(out)) > 1)
-        proc.send_signal(signal.SIGINT)
-        _, stderr = proc.communicate(timeout=60)
-    finally:
-        (lab.root / "slow").unlink()
-    assert proc.returncode == 130, stderr
-    assert ACK_DASK in stderr and "Traceback" not in stderr, stderr
-    assert 2 <= len(_parts(out)) < 6
-    problems = check_parts(lab.spec, out)[1]
-    assert problems and all("is missing" in p for p in problems), problems  # only whole parts
-    hint = next(line for line in stderr.splitlines() if "finish with: " in line).split("finish with: ")[1]
-    words = shlex.split(hint)
-    assert words[-4:] == _dask(lab), words
-    r = CliRunner().invoke(main, words[1:])
-    assert r.exit_code == 0, r.output
-    _same(out, lab)
-
-
-def test_a_worker_that_raises_names_the_point_and_the_chunk(lab, tmp_path):
-    out = tmp_path / "out"
-    r = CliRunner().invoke(main, ["sweep", str(lab.bad), "--out", str(out), *_dask(lab)])
-    assert r.exit_code == 1, r.output
-    lines = [line for line in r.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1, r.stderr
-    assert lines[0].startswith("error: chunk 3 (runs 300..399; point_id 3: r = 13.0) failed on a Dask worker: "
-                               "ValueError: bad point: r = 13.0"), lines[0]
-    todo, problems = check_parts(load_spec(lab.bad), out)
-    assert 3 in todo and all("is missing" in p for p in problems), problems  # complete parts kept, none damaged
-    assert f"{4 - len(todo)} of 4 chunk(s) written" in lines[0] and len(_parts(out)) == 4 - len(todo)
-    assert not (out / "_staging").exists()
 
 
 def test_without_dask_the_dask_executor_says_how_to_install_it(tmp_path, monkeypatch):
