@@ -299,31 +299,33 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
     if stop.is_set():
         click.echo(hint(), err=True)
         _exit_now(130)
-    base = (spec.parent / s.source["base"]).resolve()
-    try:
-        todo = prepare_output(s, out_dir, resume=resume, force=force, keep=[spec, base], spec_file=spec,
-                              note=lambda line: click.echo(f"resume: {line}", err=True))
-    except OutputError as exc:
-        _fail(str(exc))
-    click.echo(headline)
-    state["plan"] = len(plan)
-    state["done"] = 0 if todo is None else len(plan) - len(todo)
-    if todo is not None:
-        click.echo(f"resuming: {len(plan) - len(todo)} of {len(plan)} chunk(s) already written")
-    from tqdm import tqdm
-
-    from mcjax.sweep import ChunkError
-
-    remaining = s.n_runs if todo is None else sum(plan[i][1] - plan[i][0] for i in todo)
-    t0 = time.perf_counter()
-
-    def progress(n: int) -> None:
-        state["done"] += 1
-        bar.update(1)
-
     failure = None
-    with tqdm(total=len(plan) if todo is None else len(todo), unit="chunk", desc="sweep", disable=None) as bar:
-        with _executor(remote) as executor:
+    with contextlib.ExitStack() as session:
+        # the cluster first: a scheduler that cannot be reached leaves the output folder untouched
+        executor = session.enter_context(_executor(remote))
+        base = (spec.parent / s.source["base"]).resolve()
+        try:
+            todo = prepare_output(s, out_dir, resume=resume, force=force, keep=[spec, base], spec_file=spec,
+                                  note=lambda line: click.echo(f"resume: {line}", err=True))
+        except OutputError as exc:
+            _fail(str(exc))
+        click.echo(headline)
+        state["plan"] = len(plan)
+        state["done"] = 0 if todo is None else len(plan) - len(todo)
+        if todo is not None:
+            click.echo(f"resuming: {len(plan) - len(todo)} of {len(plan)} chunk(s) already written")
+        from tqdm import tqdm
+
+        from mcjax.sweep import ChunkError
+
+        remaining = s.n_runs if todo is None else sum(plan[i][1] - plan[i][0] for i in todo)
+        t0 = time.perf_counter()
+
+        def progress(n: int) -> None:
+            state["done"] += 1
+            bar.update(1)
+
+        with tqdm(total=len(plan) if todo is None else len(todo), unit="chunk", desc="sweep", disable=None) as bar:
             try:
                 run_sweep(s, out_dir, chunks=todo, progress=progress, should_stop=stop.is_set, executor=executor)
             except ChunkError as exc:

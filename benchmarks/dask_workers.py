@@ -1,0 +1,91 @@
+"""A sweep on a Dask cluster of 1 and of 2 worker processes, against this process; and the cost per chunk.
+
+What is run (everything with one JAX CPU device per process, ``MCJAX_CPU_DEVICES=1``, so a
+worker is one core and "2 workers" means twice the cores of "1 worker"):
+
+1. **Speed.** The spec (default ``sweeps/default.toml``, seeds and chunk size as given) in
+   this process (the local executor), then on a ``LocalCluster`` of 1 worker and of 2 workers
+   (:func:`mcjax.cluster.local_cluster`). For each cluster the sweep runs twice: *cold* (the
+   workers import mcjax and compile the batch program: what one ``mcjax sweep --executor
+   dask --workers N`` costs, less starting the cluster, which is printed on its own) and
+   *warm* (programs already compiled: what each further sweep of the same spec on a running
+   cluster costs). Checks that every run gave the same bytes as the local one.
+2. **Cost per chunk.** A sweep of many small chunks (the same config, open loop, few steps:
+   ``--overhead-points`` points x 100 seeds, one chunk of 100 runs per point) warm, locally and
+   on 1 worker: the difference divided by the number of chunks is what Dask adds per chunk
+   (sending the task, computing nothing more, sending the rows back, writing nothing:
+   no ``--out``).
+
+How to run::
+
+    python benchmarks/dask_workers.py                        # ~10 min on a 2-core machine
+    python benchmarks/dask_workers.py --seeds 50 --chunk-size 100
+
+Needs Dask (``pip install -e ".[dask]"``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+os.environ["MCJAX_CPU_DEVICES"] = "1"  # before mcjax starts JAX: one core per process
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _timed(fn):
+    t0 = time.perf_counter()
+    out = fn()
+    return out, time.perf_counter() - t0
+
+
+def main() -> None:
+    import distributed
+    import pandas as pd
+
+    from mcjax.cluster import DaskExecutor, local_cluster
+    from mcjax.sweep import load_spec, run_sweep
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--spec", default=str(ROOT / "sweeps" / "default.toml"))
+    ap.add_argument("--seeds", type=int, default=None)
+    ap.add_argument("--chunk-size", type=int, default=100)
+    ap.add_argument("--overhead-points", type=int, default=40)
+    args = ap.parse_args()
+
+    spec = load_spec(args.spec, seeds=args.seeds, chunk_size=args.chunk_size)
+    small = load_spec(args.spec, chunk_size=100, overrides={
+        "config.planner": "none", "config.n_steps": 10, "config.warmup_steps": 2, "seeds": 100,
+        "grid.comm_radius": [40e3 + 1e3 * i for i in range(args.overhead_points)]})
+    n_chunks = -(-spec.n_runs // args.chunk_size)
+    print(f"spec {args.spec}: {spec.n_points} points x {spec.seeds} seeds = {spec.n_runs} runs, "
+          f"{n_chunks} chunks of {args.chunk_size}; small: {small.n_runs} runs in {small.n_points} chunks")
+
+    ref, cold = _timed(lambda: run_sweep(spec))
+    _, warm = _timed(lambda: run_sweep(spec))
+    _, small_local = _timed(lambda: run_sweep(small))
+    _, small_local = _timed(lambda: run_sweep(small))
+    print(f"local (this process, 1 core): cold {cold:.1f} s, warm {warm:.1f} s; small sweep warm {small_local:.2f} s")
+    for n in (1, 2):
+        (cluster, start) = _timed(lambda: local_cluster(n))
+        with cluster, distributed.Client(cluster, set_as_default=False) as client:
+            ex = DaskExecutor(client)
+            df, cold = _timed(lambda: run_sweep(spec, executor=ex))
+            pd.testing.assert_frame_equal(df, ref, check_exact=True)
+            df, warm = _timed(lambda: run_sweep(spec, executor=ex))
+            pd.testing.assert_frame_equal(df, ref, check_exact=True)
+            line = f"dask, {n} worker(s): cluster start {start:.1f} s, cold {cold:.1f} s, warm {warm:.1f} s"
+            if n == 1:
+                run_sweep(small, executor=ex)
+                _, small_dask = _timed(lambda: run_sweep(small, executor=ex))
+                per_chunk = (small_dask - small_local) / small.n_points
+                line += (f"; small sweep warm {small_dask:.2f} s = {1e3 * per_chunk:.0f} ms per chunk more than "
+                         f"local")
+            print(line + "; same bytes as local", flush=True)
+
+
+if __name__ == "__main__":
+    main()
