@@ -10,16 +10,17 @@ worker is one core and "2 workers" means twice the cores of "1 worker"):
    dask --workers N`` costs, less starting the cluster, which is printed on its own) and
    *warm* (programs already compiled: what each further sweep of the same spec on a running
    cluster costs). Checks that every run gave the same bytes as the local one.
-2. **Cost per chunk.** A sweep of many small chunks (the same config, open loop, few steps:
+2. **Cost per chunk.** A sweep of many small chunks (the same config, open loop, 10 steps:
    ``--overhead-points`` points x 100 seeds, one chunk of 100 runs per point) warm, locally and
-   on 1 worker: the difference divided by the number of chunks is what Dask adds per chunk
-   (sending the task, computing nothing more, sending the rows back, writing nothing:
-   no ``--out``).
+   on 1 worker, each the least of ``--repeat`` timings: the difference divided by the number
+   of chunks is what Dask adds per chunk (the task sent, the rows pickled and sent back; no
+   ``--out``, so nothing is written). Also prints the size of one chunk's rows as sent.
 
 How to run::
 
     python benchmarks/dask_workers.py                        # ~10 min on a 2-core machine
     python benchmarks/dask_workers.py --seeds 50 --chunk-size 100
+    python benchmarks/dask_workers.py --overhead-only          # the cost per chunk only (~1 min)
 
 Needs Dask (``pip install -e ".[dask]"``).
 """
@@ -28,12 +29,18 @@ from __future__ import annotations
 
 import argparse
 import os
+import pickle
 import time
 from pathlib import Path
 
 os.environ["MCJAX_CPU_DEVICES"] = "1"  # before mcjax starts JAX: one core per process
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def _echo(rows):
+    """A task that returns its input (Dask's round trip, nothing computed)."""
+    return rows
 
 
 def _timed(fn):
@@ -47,13 +54,15 @@ def main() -> None:
     import pandas as pd
 
     from mcjax.cluster import DaskExecutor, local_cluster
-    from mcjax.sweep import load_spec, run_sweep
+    from mcjax.sweep import chunk_rows, load_spec, run_sweep
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--spec", default=str(ROOT / "sweeps" / "default.toml"))
     ap.add_argument("--seeds", type=int, default=None)
     ap.add_argument("--chunk-size", type=int, default=100)
     ap.add_argument("--overhead-points", type=int, default=40)
+    ap.add_argument("--repeat", type=int, default=5, help="small sweeps timed this many times (the least counts)")
+    ap.add_argument("--overhead-only", action="store_true", help="only the cost per chunk")
     args = ap.parse_args()
 
     spec = load_spec(args.spec, seeds=args.seeds, chunk_size=args.chunk_size)
@@ -64,27 +73,38 @@ def main() -> None:
     print(f"spec {args.spec}: {spec.n_points} points x {spec.seeds} seeds = {spec.n_runs} runs, "
           f"{n_chunks} chunks of {args.chunk_size}; small: {small.n_runs} runs in {small.n_points} chunks")
 
-    ref, cold = _timed(lambda: run_sweep(spec))
-    _, warm = _timed(lambda: run_sweep(spec))
-    _, small_local = _timed(lambda: run_sweep(small))
-    _, small_local = _timed(lambda: run_sweep(small))
-    print(f"local (this process, 1 core): cold {cold:.1f} s, warm {warm:.1f} s; small sweep warm {small_local:.2f} s")
-    for n in (1, 2):
+    def least(fn):
+        fn()  # compiles
+        return min(_timed(fn)[1] for _ in range(args.repeat))
+
+    small_local = least(lambda: run_sweep(small))
+    rows = next(chunk_rows(small, [0]))
+    size = len(pickle.dumps(rows, protocol=5))
+    if not args.overhead_only:
+        ref, cold = _timed(lambda: run_sweep(spec))
+        _, warm = _timed(lambda: run_sweep(spec))
+        print(f"local (this process, 1 core): cold {cold:.1f} s, warm {warm:.1f} s", flush=True)
+    print(f"small sweep, local: {small_local:.2f} s; one chunk's rows: {size} bytes pickled", flush=True)
+    for n in ((1,) if args.overhead_only else (1, 2)):
         (cluster, start) = _timed(lambda: local_cluster(n))
         with cluster, distributed.Client(cluster, set_as_default=False) as client:
             ex = DaskExecutor(client)
-            df, cold = _timed(lambda: run_sweep(spec, executor=ex))
-            pd.testing.assert_frame_equal(df, ref, check_exact=True)
-            df, warm = _timed(lambda: run_sweep(spec, executor=ex))
-            pd.testing.assert_frame_equal(df, ref, check_exact=True)
-            line = f"dask, {n} worker(s): cluster start {start:.1f} s, cold {cold:.1f} s, warm {warm:.1f} s"
+            line = f"dask, {n} worker(s): cluster start {start:.1f} s"
+            if not args.overhead_only:
+                df, cold = _timed(lambda: run_sweep(spec, executor=ex))
+                pd.testing.assert_frame_equal(df, ref, check_exact=True)
+                df, warm = _timed(lambda: run_sweep(spec, executor=ex))
+                pd.testing.assert_frame_equal(df, ref, check_exact=True)
+                line += f", cold {cold:.1f} s, warm {warm:.1f} s (same bytes as local)"
             if n == 1:
-                run_sweep(small, executor=ex)
-                _, small_dask = _timed(lambda: run_sweep(small, executor=ex))
+                small_dask = least(lambda: run_sweep(small, executor=ex))
                 per_chunk = (small_dask - small_local) / small.n_points
-                line += (f"; small sweep warm {small_dask:.2f} s = {1e3 * per_chunk:.0f} ms per chunk more than "
-                         f"local")
-            print(line + "; same bytes as local", flush=True)
+                line += f"; small sweep {small_dask:.2f} s = {1e3 * per_chunk:.0f} ms per chunk more than local"
+                # one task at a time that returns a chunk's rows: Dask's own cost per chunk, nothing computed
+                trip = min(_timed(lambda: client.submit(_echo, rows, pure=False).result())[1]
+                           for _ in range(20 * args.repeat))
+                line += f"; a task returning one chunk's rows: {1e3 * trip:.1f} ms"
+            print(line, flush=True)
 
 
 if __name__ == "__main__":

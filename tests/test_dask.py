@@ -171,7 +171,7 @@ def test_client_killed_then_resumed_locally(lab, tmp_path):
     (lab.root / "slow").touch()
     try:
         proc = subprocess.Popen([*CLI, "sweep", str(lab.good), "--out", str(out), *_dask(lab)],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         _wait_for(lambda: proc.poll() is not None or _parts(out))
         proc.kill()
         proc.wait()
