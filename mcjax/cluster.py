@@ -25,7 +25,7 @@ How the work is shared:
   (:func:`software_fingerprint`); machines of a different CPU kind may still differ in the
   last bit (XLA compiles for the CPU it runs on).
 * A worker that dies (killed, out of memory) has its chunk re-run by Dask on another worker
-  (up to Dask's ``distributed.scheduler.allowed-failures``, 3 by default); nothing is
+  (up to Dask's ``distributed.scheduler.allowed-failures`` times, 3 by default); nothing is
   written twice since only whole chunks are published. A chunk that raises stops the sweep
   with :class:`mcjax.sweep.ChunkError` (one line: the chunk, its points, the error); the
   chunks already written stay.
