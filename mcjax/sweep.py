@@ -747,7 +747,8 @@ def chunk_rows(spec: SweepSpec, chunks: list[int] | None = None) -> Iterator[Chu
     table = points(spec)
     for idx, start, stop, out in engine.run_chunks(spec.scenario, spec.config, point_params(spec), spec.seeds,
                                                    base_seed=spec.base_seed, chunk_size=spec.chunk_size,
-                                                   chunks=chunks, timeseries=spec.timeseries):
+                                                   chunks=None if chunks is None else set(chunks),
+                                                   timeseries=spec.timeseries):
         series = None
         if spec.timeseries:
             out, series = out

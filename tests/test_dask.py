@@ -199,12 +199,15 @@ def test_started_locally_ctrl_c_on_dask_then_finished_on_dask(lab, tmp_path, mon
         os.kill(os.getpid(), signal.SIGINT)
 
     (lab.root / "slow").touch()
+    calm = signal.signal(signal.SIGINT, lambda *_: None)  # the command restores this: a late signal lands here
     try:
         thread = threading.Thread(target=ctrl_c, daemon=True)
         thread.start()
         r = CliRunner().invoke(main, ["sweep", str(lab.good), "--out", str(out), "--resume", *_dask(lab)])
         thread.join()
+        time.sleep(0.1)
     finally:
+        signal.signal(signal.SIGINT, calm)
         (lab.root / "slow").unlink()
     assert r.exit_code == 130, r.output
     assert ACK_DASK in capfd.readouterr().err and "Traceback" not in r.stderr, r.stderr  # said at once, on fd 2
@@ -233,6 +236,17 @@ def test_a_worker_that_raises_names_the_point_and_the_chunk(lab, tmp_path):
     assert 3 in todo and all("is missing" in p for p in problems), problems  # complete parts kept, none damaged
     assert f"{4 - len(todo)} of 4 chunk(s) written" in lines[0] and len(_parts(out)) == 4 - len(todo)
     assert not (out / "_staging").exists()
+
+
+def test_a_worker_with_other_software_refuses_the_chunk(lab, tmp_path, monkeypatch):
+    from mcjax import cluster
+    from mcjax.sweep import ChunkError
+
+    monkeypatch.setattr(cluster, "software_fingerprint", lambda: "another mcjax")  # as a client of another version
+    with pytest.raises(ChunkError, match=r"^chunk \d .* failed on a Dask worker: RuntimeError: this worker runs "
+                                         r"other software than the client"):
+        run_sweep(lab.spec, tmp_path / "out", executor=cluster.DaskExecutor(lab.client))
+    assert not list((tmp_path / "out").glob("runs/*/*.parquet"))
 
 
 def test_a_worker_killed_mid_chunk_changes_nothing(lab, tmp_path):
