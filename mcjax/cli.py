@@ -333,7 +333,9 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
     if failure is not None:
         click.echo(f"error: {failure}; {state['done']} of {state['plan']} chunk(s) written to {out_dir} (they stay)",
                    err=True)
-        _exit_now(1) if _own_process() else sys.exit(1)
+        if _own_process():
+            _exit_now(1)
+        sys.exit(1)
     if stop.is_set():
         click.echo(hint(), err=True)
         _exit_now(130)

@@ -780,7 +780,7 @@ class LocalExecutor:
             yield from chunk_rows(spec, chunks)
 
 
-def publish_chunk(spec: SweepSpec, out_dir: str | Path, rows: ChunkRows, metadata: dict) -> None:
+def publish_chunk(out_dir: str | Path, rows: ChunkRows, metadata: dict) -> None:
     """Write a chunk's rows as its part files (one per point it touches, in ``runs/`` and, with
     per-step rows, ``timeseries/``), each atomically (:func:`mcjax.results.write_part`:
     staging file, fsync, rename). The chunk counts as done once all its parts exist."""
@@ -833,14 +833,16 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path | None = None, *, chunks: lis
             if out_dir is not None:
                 if metadata is None:
                     metadata = part_metadata(spec, plan[0][1] - plan[0][0])
-                publish_chunk(spec, out_dir, rows, metadata)
+                publish_chunk(out_dir, rows, metadata)
             done[rows.index] = rows.runs
             if progress is not None:
                 progress(rows.stop - rows.start)
             if stop():
                 break
     finally:
-        work.close()  # a remote executor cancels what is still queued or running
+        close = getattr(work, "close", None)
+        if close is not None:
+            close()  # a remote executor cancels what is still queued or running
         if out_dir is not None:
             from mcjax import results
 
