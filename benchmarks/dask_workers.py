@@ -4,12 +4,13 @@ What is run (everything with one JAX CPU device per process, ``MCJAX_CPU_DEVICES
 worker is one core and "2 workers" means twice the cores of "1 worker"):
 
 1. **Speed.** The spec (default ``sweeps/default.toml``, seeds and chunk size as given) in
-   this process (the local executor), then on a ``LocalCluster`` of 1 worker and of 2 workers
-   (:func:`mcjax.cluster.local_cluster`). For each cluster the sweep runs twice: *cold* (the
-   workers import mcjax and compile the batch program: what one ``mcjax sweep --executor
-   dask --workers N`` costs, less starting the cluster, which is printed on its own) and
-   *warm* (programs already compiled: what each further sweep of the same spec on a running
-   cluster costs). Checks that every run gave the same bytes as the local one.
+   this process (the local executor), then on a ``LocalCluster`` of 1 worker and one of 2
+   workers (:func:`mcjax.cluster.local_cluster`), both kept running. On each cluster the
+   sweep runs once *cold* (the workers import mcjax and compile the batch program: what one
+   ``mcjax sweep --executor dask --workers N`` costs, less starting the cluster, printed on
+   its own), then ``--rounds`` times *warm* (programs compiled: what each further sweep of
+   the same spec costs), the two clusters in turn so that both see the same load on a shared
+   machine. Checks that every run gave the same bytes as the local one.
 2. **Cost per chunk.** A sweep of many small chunks (the same config, open loop, 10 steps:
    ``--overhead-points`` points x 100 seeds, one chunk of 100 runs per point) warm, locally and
    on 1 worker, each the least of ``--repeat`` timings: the difference divided by the number
@@ -28,8 +29,10 @@ Needs Dask (``pip install -e ".[dask]"``).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import pickle
+import statistics
 import time
 from pathlib import Path
 
@@ -63,6 +66,7 @@ def main() -> None:
     ap.add_argument("--overhead-points", type=int, default=40)
     ap.add_argument("--repeat", type=int, default=5, help="small sweeps timed this many times (the least counts)")
     ap.add_argument("--overhead-only", action="store_true", help="only the cost per chunk")
+    ap.add_argument("--rounds", type=int, default=3, help="warm sweeps on each cluster, in turn")
     args = ap.parse_args()
 
     spec = load_spec(args.spec, seeds=args.seeds, chunk_size=args.chunk_size)
@@ -85,17 +89,17 @@ def main() -> None:
         _, warm = _timed(lambda: run_sweep(spec))
         print(f"local (this process, 1 core): cold {cold:.1f} s, warm {warm:.1f} s", flush=True)
     print(f"small sweep, local: {small_local:.2f} s; one chunk's rows: {size} bytes pickled", flush=True)
-    for n in ((1,) if args.overhead_only else (1, 2)):
-        (cluster, start) = _timed(lambda: local_cluster(n))
-        with cluster, distributed.Client(cluster, set_as_default=False) as client:
-            ex = DaskExecutor(client)
+    clusters = {}
+    with contextlib.ExitStack() as stack:
+        for n in ((1,) if args.overhead_only else (1, 2)):
+            cluster, start = _timed(lambda: stack.enter_context(local_cluster(n)))
+            client = stack.enter_context(distributed.Client(cluster, set_as_default=False))
+            ex = clusters[n] = DaskExecutor(client)
             line = f"dask, {n} worker(s): cluster start {start:.1f} s"
             if not args.overhead_only:
                 df, cold = _timed(lambda: run_sweep(spec, executor=ex))
                 pd.testing.assert_frame_equal(df, ref, check_exact=True)
-                df, warm = _timed(lambda: run_sweep(spec, executor=ex))
-                pd.testing.assert_frame_equal(df, ref, check_exact=True)
-                line += f", cold {cold:.1f} s, warm {warm:.1f} s (same bytes as local)"
+                line += f", cold {cold:.1f} s (same bytes as local)"
             if n == 1:
                 small_dask = least(lambda: run_sweep(small, executor=ex))
                 per_chunk = (small_dask - small_local) / small.n_points
@@ -105,6 +109,20 @@ def main() -> None:
                            for _ in range(20 * args.repeat))
                 line += f"; a task returning one chunk's rows: {1e3 * trip:.1f} ms"
             print(line, flush=True)
+        if args.overhead_only:
+            return
+        # warm sweeps, 1 and 2 workers in turn, so both see the same load on a shared machine
+        warm = {1: [], 2: []}
+        for _ in range(args.rounds):
+            for n in (1, 2):
+                df, t = _timed(lambda: run_sweep(spec, executor=clusters[n]))
+                pd.testing.assert_frame_equal(df, ref, check_exact=True)
+                warm[n].append(t)
+        for n in (1, 2):
+            print(f"dask, {n} worker(s), warm: least {min(warm[n]):.1f} s, median {statistics.median(warm[n]):.1f} s "
+                  f"of {args.rounds} (same bytes as local)", flush=True)
+        print(f"2 workers vs 1: {min(warm[1]) / min(warm[2]):.2f}x (least), "
+              f"{statistics.median(warm[1]) / statistics.median(warm[2]):.2f}x (median)")
 
 
 if __name__ == "__main__":

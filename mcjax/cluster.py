@@ -42,6 +42,7 @@ import os
 import sys
 import time
 import uuid
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -276,4 +277,6 @@ def local_cluster(workers: int, **kwargs):
     env = {**kwargs.pop("env", {}), "MCJAX_CPU_DEVICES": devices}
     options = dict(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                    silence_logs=logging.CRITICAL, env=env)
-    return distributed.LocalCluster(**{**options, **kwargs})
+    with warnings.catch_warnings():  # the scheduler's small web server takes another port if 8787 is busy: fine
+        warnings.filterwarnings("ignore", message=r"Port \d+ is already in use")
+        return distributed.LocalCluster(**{**options, **kwargs})
