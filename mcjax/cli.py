@@ -17,11 +17,14 @@ import threading
 import time
 import tomllib
 from pathlib import Path
+from typing import NamedTuple
 
 import click
 
 #: What the first Ctrl-C of a sweep or run prints, at once.
 ACK = "stopping after the chunk in flight; press Ctrl-C again to stop now"
+#: The same for a sweep on a Dask cluster, which cancels its chunks in flight.
+ACK_DASK = "stopping: cancelling the chunks in flight (the chunks written stay); press Ctrl-C again to stop now"
 
 
 def _set_value(raw: str):
@@ -85,8 +88,8 @@ def _done(stop: threading.Event) -> None:
 
 
 @contextlib.contextmanager
-def _ctrl_c(last_words):
-    """Ctrl-C during a sweep or run. The first one is acknowledged at once (``ACK``) and sets
+def _ctrl_c(last_words, ack: str = ACK):
+    """Ctrl-C during a sweep or run. The first one is acknowledged at once (``ack``) and sets
     the yielded Event: the sweep stops after the chunk in flight. The second stops now:
     ``last_words()`` is printed and the process exits with 130. A watcher thread hears the
     signal through Python's wakeup fd, so the acknowledgement comes even while XLA holds the
@@ -117,7 +120,7 @@ def _ctrl_c(last_words):
                 os._exit(130)
             if count == 1 and not stop.is_set():
                 stop.set()
-                say(f"\n{ACK}")
+                say(f"\n{ack}")
 
     old_handler = signal.signal(signal.SIGINT, lambda signum, frame: None)
     old_fd = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
@@ -180,7 +183,14 @@ def main() -> None:
                    "are missing or damaged. Seeds, chunk size and --set values come from OUT/sweep.json.")
 @click.option("--force", is_flag=True,
               help="Replace an existing output folder that holds a previous sweep (OUT/sweep.json).")
-def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force):
+@click.option("--executor", type=click.Choice(["local", "dask"]), default="local", show_default=True,
+              help="Who computes the chunks: this process, or the workers of a Dask cluster (docs/cluster.md; "
+                   "needs pip install -e \".[dask]\"). Same results either way; --resume works across them.")
+@click.option("--scheduler", default=None, metavar="ADDRESS",
+              help="With --executor dask: the scheduler of a running cluster, e.g. tcp://10.0.0.5:8786.")
+@click.option("--workers", default=None, type=int, metavar="N",
+              help="With --executor dask: start a cluster of N worker processes on this machine for the sweep.")
+def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, executor, scheduler, workers):
     """Run the sweep SPEC: every grid point x every seed, results to OUT/runs/*.parquet.
 
     Each chunk of runs is written as one Parquet part file (atomically: temporary name,
@@ -189,24 +199,86 @@ def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force):
     flight, a second one at once (exit code 130); both print the command that resumes.
     Prints the report's summary per point and filter (the scenario's error metric with its
     interval, divergences, graph statistics).
+
+    With --executor dask the chunks are computed by the workers of a Dask cluster (an
+    existing one with --scheduler, or N local worker processes with --workers) and written
+    here as they complete; the first Ctrl-C cancels the chunks in flight. A chunk that fails
+    on a worker stops the sweep with a one-line error naming the chunk and its points (exit
+    code 1); the chunks written stay, for --resume.
     """
-    state = {"done": 0, "plan": None, "out": out_dir}
+    state = {"done": 0, "plan": None, "out": out_dir, "words": ""}
 
     def hint() -> str:
         done = f"{state['done']} of {state['plan']} chunk(s)" if state["plan"] is not None else "no chunk"
         if state["plan"] is None:
             return "interrupted before the sweep started; nothing was written"
         return (f"interrupted: {done} written to {state['out']}; finish with: mcjax sweep "
-                f"{shlex.quote(str(spec))} --out {shlex.quote(str(state['out']))} --resume")
+                f"{shlex.quote(str(spec))} --out {shlex.quote(str(state['out']))} --resume{state['words']}")
 
-    with _ctrl_c(hint) as stop:
+    with _ctrl_c(hint, ACK_DASK if executor == "dask" else ACK) as stop:
+        remote = _executor_options(executor, scheduler, workers)
+        state["words"] = remote.words
         from mcjax.sweep import default_out_dir
 
         state["out"] = out_dir = out_dir or default_out_dir(spec)
-        _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state, stop, hint)
+        _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state, stop, hint, remote)
 
 
-def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state, stop, hint):
+class _Remote(NamedTuple):
+    """Where a sweep's chunks are computed: ``dask`` False (this process), or a Dask cluster at
+    ``scheduler`` or of ``workers`` local processes; ``words``: the options, for the resume hint."""
+
+    dask: bool = False
+    scheduler: str | None = None
+    workers: int | None = None
+    words: str = ""
+
+
+def _executor_options(executor: str, scheduler: str | None, workers: int | None) -> _Remote:
+    """Check --executor, --scheduler and --workers together (a one-line error and exit 2 for
+    a combination that makes no sense, or for --executor dask without Dask installed)."""
+    if executor != "dask":
+        if scheduler is not None or workers is not None:
+            _fail(f"{'--scheduler' if scheduler is not None else '--workers'} needs --executor dask")
+        return _Remote()
+    if scheduler is not None and workers is not None:
+        _fail("--scheduler and --workers exclude each other: --scheduler uses a running cluster, --workers starts "
+              "one on this machine")
+    if scheduler is None and workers is None:
+        _fail("--executor dask needs --scheduler ADDRESS (a running cluster, e.g. tcp://10.0.0.5:8786) or --workers N "
+              "(a cluster of N processes on this machine)")
+    if workers is not None and workers < 1:
+        _fail(f"--workers must be at least 1; got {workers}")
+    if scheduler is not None and not scheduler.strip():
+        _fail("--scheduler must be an address such as tcp://10.0.0.5:8786")
+    from mcjax.cluster import DaskMissing, _distributed
+
+    try:
+        _distributed()
+    except DaskMissing as exc:
+        _fail(str(exc))
+    words = f" --executor dask --scheduler {shlex.quote(scheduler)}" if scheduler else f" --executor dask --workers {workers}"
+    return _Remote(True, scheduler, workers, words)
+
+
+@contextlib.contextmanager
+def _executor(remote: _Remote):
+    """The executor of a sweep: None (this process), or one on a Dask cluster, connected here
+    (a one-line error and exit 2 when the scheduler cannot be reached) and closed after."""
+    if not remote.dask:
+        yield None
+        return
+    from mcjax.cluster import connect
+
+    with contextlib.ExitStack() as stack:
+        try:
+            executor = stack.enter_context(connect(remote.scheduler, remote.workers))
+        except OSError as exc:
+            _fail(str(exc))
+        yield executor
+
+
+def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state, stop, hint, remote=_Remote()):
     overrides = _parse_set(sets)
     from mcjax import results
     from mcjax.engine import chunk_plan
@@ -242,28 +314,43 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
     if stop.is_set():
         click.echo(hint(), err=True)
         _exit_now(130)
-    base = (spec.parent / s.source["base"]).resolve()
-    try:
-        todo = prepare_output(s, out_dir, resume=resume, force=force, keep=[spec, base], spec_file=spec,
-                              note=lambda line: click.echo(f"resume: {line}", err=True))
-    except OutputError as exc:
-        _fail(str(exc))
-    click.echo(headline)
-    state["plan"] = len(plan)
-    state["done"] = 0 if todo is None else len(plan) - len(todo)
-    if todo is not None:
-        click.echo(f"resuming: {len(plan) - len(todo)} of {len(plan)} chunk(s) already written")
-    from tqdm import tqdm
+    failure = None
+    with contextlib.ExitStack() as session:
+        # the cluster first: a scheduler that cannot be reached leaves the output folder untouched
+        executor = session.enter_context(_executor(remote))
+        base = (spec.parent / s.source["base"]).resolve()
+        try:
+            todo = prepare_output(s, out_dir, resume=resume, force=force, keep=[spec, base], spec_file=spec,
+                                  note=lambda line: click.echo(f"resume: {line}", err=True))
+        except OutputError as exc:
+            _fail(str(exc))
+        click.echo(headline)
+        state["plan"] = len(plan)
+        state["done"] = 0 if todo is None else len(plan) - len(todo)
+        if todo is not None:
+            click.echo(f"resuming: {len(plan) - len(todo)} of {len(plan)} chunk(s) already written")
+        from tqdm import tqdm
 
-    remaining = s.n_runs if todo is None else sum(plan[i][1] - plan[i][0] for i in todo)
-    t0 = time.perf_counter()
+        from mcjax.sweep import ChunkError
 
-    def progress(n: int) -> None:
-        state["done"] += 1
-        bar.update(n)
+        remaining = s.n_runs if todo is None else sum(plan[i][1] - plan[i][0] for i in todo)
+        t0 = time.perf_counter()
 
-    with tqdm(total=remaining, unit="run", desc="sweep", disable=None) as bar:
-        run_sweep(s, out_dir, chunks=todo, progress=progress, should_stop=stop.is_set)
+        def progress(n: int) -> None:
+            state["done"] += 1
+            bar.update(1)
+
+        with tqdm(total=len(plan) if todo is None else len(todo), unit="chunk", desc="sweep", disable=None) as bar:
+            try:
+                run_sweep(s, out_dir, chunks=todo, progress=progress, should_stop=stop.is_set, executor=executor)
+            except ChunkError as exc:
+                failure = exc
+    if failure is not None:
+        click.echo(f"error: {failure}; {state['done']} of {state['plan']} chunk(s) written to {out_dir} (they stay)",
+                   err=True)
+        if _own_process():
+            _exit_now(1)
+        sys.exit(1)
     if stop.is_set():
         click.echo(hint(), err=True)
         _exit_now(130)

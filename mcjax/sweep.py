@@ -41,7 +41,7 @@ import shutil
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping, NamedTuple
+from typing import Any, Callable, Iterator, Mapping, NamedTuple, Protocol
 
 import numpy as np
 import pandas as pd
@@ -723,50 +723,136 @@ def part_metadata(spec: SweepSpec, chunk_size: int) -> dict:
             "n_points": spec.n_points, "n_runs": spec.n_runs, **results.environment_metadata()}
 
 
-def run_sweep(spec: SweepSpec, out_dir: str | Path | None = None, *, chunks: list[int] | None = None,
-              progress: Callable[[int], None] | None = None,
-              should_stop: Callable[[], bool] | None = None) -> pd.DataFrame:
-    """Run every chunk (or only ``chunks``) of a sweep; write each as a part file when
-    ``out_dir`` is given; return the rows of the chunks run. ``should_stop()`` is asked
-    before each chunk: True stops the sweep there (the chunks done stay written). No empty
-    staging folder is left behind."""
-    from mcjax import engine, results
+# ------------------------------------------------------------------ executors: who computes the chunks
+
+
+class ChunkRows(NamedTuple):
+    """What one chunk of a sweep produced, ready to be published as part files: its index in
+    the chunk plan, its runs ``start … stop−1``, its tidy rows (:func:`run_rows`) and, when
+    the spec asks for them, its per-step rows (:func:`timeseries_rows`; else None)."""
+
+    index: int
+    start: int
+    stop: int
+    runs: pd.DataFrame
+    timeseries: pd.DataFrame | None
+
+
+class ChunkError(RuntimeError):
+    """A chunk failed while it was computed (on a Dask worker); the message, one line, names
+    the chunk, the points it covers and the error."""
+
+
+def chunk_rows(spec: SweepSpec, chunks: list[int] | None = None) -> Iterator[ChunkRows]:
+    """Compute every chunk (or only ``chunks``) of a sweep in this process, in plan order, and
+    yield each one's rows. The batch program is compiled once per process and Config
+    (:func:`mcjax.engine.run_chunks`), so later calls for other chunks reuse it."""
+    from mcjax import engine
 
     table = points(spec)
-    params = point_params(spec)
+    for idx, start, stop, out in engine.run_chunks(spec.scenario, spec.config, point_params(spec), spec.seeds,
+                                                   base_seed=spec.base_seed, chunk_size=spec.chunk_size,
+                                                   chunks=None if chunks is None else set(chunks),
+                                                   timeseries=spec.timeseries):
+        series = None
+        if spec.timeseries:
+            out, series = out
+        rows = run_rows(spec.scenario, spec.config, out, chunk_keys(spec, table, start, stop - start))
+        yield ChunkRows(idx, start, stop, rows, None if series is None else timeseries_rows(spec, start, series))
+
+
+class Executor(Protocol):
+    """Computes the chunks of a sweep somewhere and hands their rows back to the caller, which
+    publishes them (:func:`run_sweep`). Implementations: :class:`LocalExecutor` (this process,
+    the default) and :class:`mcjax.cluster.DaskExecutor` (the workers of a Dask cluster)."""
+
+    def map_chunks(self, spec: SweepSpec, chunks: list[int],
+                   should_stop: Callable[[], bool]) -> Iterator[ChunkRows]:
+        """Yield the rows of every chunk of ``chunks`` once, in any order, as each completes.
+        Stop early (leaving the rest undone) when ``should_stop()`` turns True, or when the
+        caller closes the iterator. A failed chunk raises (the Dask executor raises
+        :class:`ChunkError`)."""
+        ...
+
+
+class LocalExecutor:
+    """Computes the chunks in this process, one after the other, in plan order (the default;
+    a chunk's batches are spread over this machine's CPU devices by the engine)."""
+
+    def map_chunks(self, spec: SweepSpec, chunks: list[int],
+                   should_stop: Callable[[], bool]) -> Iterator[ChunkRows]:
+        if not should_stop():
+            yield from chunk_rows(spec, chunks)
+
+
+def publish_chunk(out_dir: str | Path, rows: ChunkRows, metadata: dict) -> None:
+    """Write a chunk's rows as its part files (one per point it touches, in ``runs/`` and, with
+    per-step rows, ``timeseries/``), each atomically (:func:`mcjax.results.write_part`:
+    staging file, fsync, rename). The chunk counts as done once all its parts exist."""
+    from mcjax import results
+
+    tables = [("runs", rows.runs)] + ([("timeseries", rows.timeseries)] if rows.timeseries is not None else [])
+    for name, frame in tables:
+        for pid, part in frame.groupby("point_id", sort=True):  # hive layout: OUT/<table>/point_id=P/
+            results.write_part(out_dir, name, part, f"part-{rows.index:06d}", metadata,
+                               partition={"point_id": int(pid)})
+
+
+def describe_chunk(spec: SweepSpec, index: int) -> str:
+    """Chunk ``index`` in words: its runs and the points it covers, with their swept values
+    (``chunk 3 (runs 300..399; point_id 3: r = 13.0)``)."""
+    from mcjax.engine import chunk_plan
+
+    start, stop = chunk_plan(spec.n_runs, spec.chunk_size)[index]
+    first, last = start // spec.seeds, (stop - 1) // spec.seeds
+    table = points(spec)
+    shown = []
+    for pid in range(first, min(last, first + 2) + 1):
+        values = ", ".join(f"{axis} = {_show(np.asarray(table.at[pid, axis]).tolist())}" for axis in spec.axes)
+        shown.append(f"point_id {pid}" + (f": {values}" if values else ""))
+    if last > first + 2:
+        shown.append(f"… point_id {last}")
+    return f"chunk {index} (runs {start}..{stop - 1}; {'; '.join(shown)})"
+
+
+def run_sweep(spec: SweepSpec, out_dir: str | Path | None = None, *, chunks: list[int] | None = None,
+              progress: Callable[[int], None] | None = None,
+              should_stop: Callable[[], bool] | None = None, executor: Executor | None = None) -> pd.DataFrame:
+    """Run every chunk (or only ``chunks``) of a sweep with ``executor`` (default: this
+    process, :class:`LocalExecutor`); write each chunk as its part files as soon as it
+    completes, when ``out_dir`` is given (this process writes every file, whoever computed
+    the rows); return the rows of the chunks run, in chunk order. ``progress(runs)`` is told
+    after each chunk is written. ``should_stop()`` is asked before the first chunk and after
+    each one: True stops the sweep there (the chunks done stay written). No empty staging
+    folder is left behind."""
+    from mcjax import engine
+
+    plan = engine.chunk_plan(spec.n_runs, spec.chunk_size)
+    todo = list(range(len(plan))) if chunks is None else [i for i in chunks if 0 <= i < len(plan)]
+    stop = should_stop or (lambda: False)
     metadata = None
-    frames = []
+    done = {}
+    work = (executor or LocalExecutor()).map_chunks(spec, todo, stop)
     try:
-        if should_stop is not None and should_stop():
-            return pd.DataFrame()
-        for idx, start, stop, out in engine.run_chunks(spec.scenario, spec.config, params, spec.seeds,
-                                                       base_seed=spec.base_seed, chunk_size=spec.chunk_size,
-                                                       chunks=chunks, timeseries=spec.timeseries):
-            if spec.timeseries:
-                out, series = out
-            df = run_rows(spec.scenario, spec.config, out, chunk_keys(spec, table, start, stop - start))
+        for rows in work:
             if out_dir is not None:
                 if metadata is None:
-                    plan = engine.chunk_plan(spec.n_runs, spec.chunk_size)
                     metadata = part_metadata(spec, plan[0][1] - plan[0][0])
-                # one file per point of the chunk (hive layout); the chunk is done when all exist
-                for pid, part in df.groupby("point_id", sort=True):
-                    results.write_part(out_dir, "runs", part, f"part-{idx:06d}", metadata,
-                                       partition={"point_id": int(pid)})
-                if spec.timeseries:
-                    ts = timeseries_rows(spec, start, series)
-                    for pid, part in ts.groupby("point_id", sort=True):
-                        results.write_part(out_dir, "timeseries", part, f"part-{idx:06d}", metadata,
-                                           partition={"point_id": int(pid)})
-            frames.append(df)
+                publish_chunk(out_dir, rows, metadata)
+            done[rows.index] = rows.runs
             if progress is not None:
-                progress(stop - start)
-            if should_stop is not None and should_stop():
+                progress(rows.stop - rows.start)
+            if stop():
                 break
     finally:
+        close = getattr(work, "close", None)
+        if close is not None:
+            close()  # a remote executor cancels what is still queued or running
         if out_dir is not None:
+            from mcjax import results
+
             results.remove_empty_staging(out_dir)
-    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+    return pd.concat([done[i] for i in sorted(done)], ignore_index=True) if done else pd.DataFrame()
 
 
 # ------------------------------------------------------------------ output folder and resume
