@@ -79,6 +79,9 @@ def _rows(curve: str, args, sc, base, values) -> list[dict]:
             out.append(("open", n, open_loop, values, n))
             n *= 10
     elif curve == "agents":
+        # the config lists the paper's five UAVs; larger teams take the scenario's default
+        # layout (the paper's five, the rest on a line behind the leader) and all alive
+        values = {k: v for k, v in values.items() if k not in ("initial_positions", "alive")}
         for n in args.agents:
             for loop, cfg in (("open", open_loop), ("closed", closed)):
                 if loop == "closed" and n > args.max_closed_agents:
