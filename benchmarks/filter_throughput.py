@@ -21,7 +21,9 @@ component's scale, must be ≤ 1e-9).
     python benchmarks/filter_throughput.py                      # local, modified_icf; B = 1000, 10000
     python benchmarks/filter_throughput.py --filters cif icf modified_icf kcf local --batches 1000
 
-Prints a markdown table: ns per agent-step for each engine, the speed ratios
+Prints a markdown table: ns per agent-step for each engine (mcjax also on one CPU device, and
+through the general vmap path that ran these filters before the structure-of-arrays kernels), the
+speed ratios
 (filterpy time / mcjax time, mcjax time / numba time), the floating-point operations per
 agent-step counted by hand (docs/filter_speed.md) and mcjax's resulting GFLOP/s, and the load
 average (``os.getloadavg()``) at the end of each row.
@@ -148,11 +150,13 @@ def main(argv=None) -> None:
     ap.add_argument("--distinct", type=int, default=200, help="distinct simulated runs (tiled up to B)")
     ap.add_argument("--repeats", type=int, default=3, help="timed calls per engine (median reported)")
     ap.add_argument("--threads", type=int, default=2, help="numba threads")
+    ap.add_argument("--no-variants", action="store_true",
+                    help="skip the mcjax variants: one CPU device, and the general (vmap) path of before")
     args = ap.parse_args(argv)
 
     import jax
 
-    from mcjax.filters import run_filter
+    from mcjax.filters import recorded, run_filter
     try:
         import numba
         import numba_peer
@@ -175,9 +179,9 @@ def main(argv=None) -> None:
 
     print(f"# filter throughput: {n_agents} agents x {args.steps} steps per run, float64; ns per agent-step, "
           f"median of {args.repeats}")
-    print("| filter | B | mcjax ns | filterpy ns | numpy ns | numba ns | filterpy/mcjax | mcjax/numba | "
+    print("| filter | B | mcjax ns | mcjax 1 device ns | mcjax general path ns | filterpy ns | numpy ns | numba ns | filterpy/mcjax | mcjax/numba | "
           "flops peers / mcjax | mcjax GFLOP/s | numba GFLOP/s | load |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for kind in args.filters:
         r_ = range(args.peer_runs)
         ns_numpy = median_time(lambda: [numpy_peer.run_filter_numpy(kind, z[r], s[r], a[r], x0, **common)
@@ -193,6 +197,20 @@ def main(argv=None) -> None:
             run_filter(kind, **batch, x0=x0, **common)
             compile_s = time.perf_counter() - t
             ns_mcjax = median_time(lambda: run_filter(kind, **batch, x0=x0, **common), args.repeats) / (B * per_run) * 1e9
+            ns_one = ns_general = math.nan
+            if not args.no_variants and kind in recorded.BATCHED_KINDS:
+                saved = recorded.MIN_RUNS_PER_DEVICE, recorded.BATCHED_KINDS
+                try:
+                    recorded.MIN_RUNS_PER_DEVICE = 10**12  # everything on one device
+                    run_filter(kind, **batch, x0=x0, **common)
+                    ns_one = median_time(lambda: run_filter(kind, **batch, x0=x0, **common),
+                                         args.repeats) / (B * per_run) * 1e9
+                    recorded.BATCHED_KINDS = ()  # the general path (vmap of consensus.filter_step)
+                    run_filter(kind, **batch, x0=x0, **common)
+                    ns_general = median_time(lambda: run_filter(kind, **batch, x0=x0, **common),
+                                             args.repeats) / (B * per_run) * 1e9
+                finally:
+                    recorded.MIN_RUNS_PER_DEVICE, recorded.BATCHED_KINDS = saved
             ns_numba = math.nan
             if numba_peer is not None and kind in NUMBA_FILTERS:
                 numba_peer.run_filter_numba(kind, *(v[:2] for v in batch.values()), x0, **common)
@@ -204,7 +222,7 @@ def main(argv=None) -> None:
             fmt = lambda v: "–" if math.isnan(v) else f"{v:,.0f}"  # noqa: E731
             ratio_fp = "–" if math.isnan(ns_fp) else f"{ns_fp / ns_mcjax:,.0f}"
             ratio_nb = "–" if math.isnan(ns_numba) else f"{ns_mcjax / ns_numba:.2f}"
-            print(f"| {kind} | {B:,} | {fmt(ns_mcjax)} | {fmt(ns_fp)} | {fmt(ns_numpy)} | {fmt(ns_numba)} | "
+            print(f"| {kind} | {B:,} | {fmt(ns_mcjax)} | {fmt(ns_one)} | {fmt(ns_general)} | {fmt(ns_fp)} | {fmt(ns_numpy)} | {fmt(ns_numba)} | "
                   f"{ratio_fp} | {ratio_nb} | {f_peer} / {f_mcjax} | {gflops} | {gflops_nb} | {os.getloadavg()[0]:.1f} |", flush=True)
             print(f"#   {kind} B={B}: first mcjax call (compilation included) {compile_s:.1f} s", flush=True)
             del batch
