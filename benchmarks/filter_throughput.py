@@ -21,7 +21,8 @@ component's scale, must be ≤ 1e-9).
     python benchmarks/filter_throughput.py                      # local, modified_icf; B = 1000, 10000
     python benchmarks/filter_throughput.py --filters cif icf modified_icf kcf local --batches 1000
 
-Prints a markdown table: ns per agent-step for each engine (mcjax also on one CPU device, and
+Prints a markdown table: ns per agent-step for each engine (mcjax also with the batch split over
+every CPU device (``recorded.SPLIT_OVER_DEVICES``; off by default), and
 through the general vmap path that ran these filters before the structure-of-arrays kernels), the
 speed ratios
 (filterpy time / mcjax time, mcjax time / numba time), the floating-point operations per
@@ -49,7 +50,7 @@ NUMBA_FILTERS = ("local", "modified_icf")
 #: Floating-point operations per agent-step (t > 0, a valid measurement, n = 5, L = 1, dense F
 #: and Q), counted by hand in docs/filter_speed.md: (the peers' information-form equations, the
 #: equations mcjax computes); ``~`` marks an estimate. mcjax's local EKF is in moment form.
-FLOPS = {"local": (506, 357), "modified_icf": (653, 653), "cif": ("~150", "~150"),
+FLOPS = {"local": (506, 357), "modified_icf": (656, 656), "cif": ("~150", "~150"),
          "icf": ("~650", "~650"), "kcf": ("~750", "~750")}
 
 
@@ -151,7 +152,10 @@ def main(argv=None) -> None:
     ap.add_argument("--repeats", type=int, default=3, help="timed calls per engine (median reported)")
     ap.add_argument("--threads", type=int, default=2, help="numba threads")
     ap.add_argument("--no-variants", action="store_true",
-                    help="skip the mcjax variants: one CPU device, and the general (vmap) path of before")
+                    help="skip the mcjax variants: the other device choice (split over every CPU device, "
+                         "or one device), and the general (vmap) path of before")
+    ap.add_argument("--general-max-batch", type=int, default=1000,
+                    help="largest B timed through the general path (it is slow)")
     args = ap.parse_args(argv)
 
     import jax
@@ -167,7 +171,7 @@ def main(argv=None) -> None:
 
     n_agents = 5
     print(f"# {time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} CPUs, load average {os.getloadavg()}, "
-          f"mcjax on {len(jax.local_devices())} CPU device(s), numba threads "
+          f"{len(jax.local_devices())} CPU device(s), numba threads "
           f"{args.threads if numba_peer else '-'}, jax {jax.__version__}")
     if not check_peers(args.filters, numba_peer, run_filter):
         raise SystemExit("a peer disagrees with mcjax beyond 1e-9")
@@ -179,7 +183,10 @@ def main(argv=None) -> None:
 
     print(f"# filter throughput: {n_agents} agents x {args.steps} steps per run, float64; ns per agent-step, "
           f"median of {args.repeats}")
-    print("| filter | B | mcjax ns | mcjax 1 device ns | mcjax general path ns | filterpy ns | numpy ns | numba ns | filterpy/mcjax | mcjax/numba | "
+    from mcjax.filters.recorded import SPLIT_OVER_DEVICES as split
+    other = "1 device" if split else f"{len(jax.local_devices())} devices"
+    print(f"| filter | B | mcjax ns | mcjax {other} ns | mcjax general path ns | filterpy ns | numpy ns | "
+          "numba ns | filterpy/mcjax | mcjax/numba | "
           "flops peers / mcjax | mcjax GFLOP/s | numba GFLOP/s | load |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for kind in args.filters:
@@ -199,18 +206,20 @@ def main(argv=None) -> None:
             ns_mcjax = median_time(lambda: run_filter(kind, **batch, x0=x0, **common), args.repeats) / (B * per_run) * 1e9
             ns_one = ns_general = math.nan
             if not args.no_variants and kind in recorded.BATCHED_KINDS:
-                saved = recorded.MIN_RUNS_PER_DEVICE, recorded.BATCHED_KINDS
+                saved = recorded.SPLIT_OVER_DEVICES, recorded.BATCHED_KINDS
                 try:
-                    recorded.MIN_RUNS_PER_DEVICE = 10**12  # everything on one device
+                    recorded.SPLIT_OVER_DEVICES = not saved[0]  # the other device choice
                     run_filter(kind, **batch, x0=x0, **common)
                     ns_one = median_time(lambda: run_filter(kind, **batch, x0=x0, **common),
                                          args.repeats) / (B * per_run) * 1e9
+                    recorded.SPLIT_OVER_DEVICES = saved[0]
                     recorded.BATCHED_KINDS = ()  # the general path (vmap of consensus.filter_step)
-                    run_filter(kind, **batch, x0=x0, **common)
-                    ns_general = median_time(lambda: run_filter(kind, **batch, x0=x0, **common),
-                                             args.repeats) / (B * per_run) * 1e9
+                    if B <= args.general_max_batch:
+                        run_filter(kind, **batch, x0=x0, **common)
+                        ns_general = median_time(lambda: run_filter(kind, **batch, x0=x0, **common),
+                                                 args.repeats) / (B * per_run) * 1e9
                 finally:
-                    recorded.MIN_RUNS_PER_DEVICE, recorded.BATCHED_KINDS = saved
+                    recorded.SPLIT_OVER_DEVICES, recorded.BATCHED_KINDS = saved
             ns_numba = math.nan
             if numba_peer is not None and kind in NUMBA_FILTERS:
                 numba_peer.run_filter_numba(kind, *(v[:2] for v in batch.values()), x0, **common)

@@ -73,14 +73,19 @@ def _run_one(kind, opts, z, sensors, adjacency, x0, P0, F, Q, R, kcf_epsilon):
 
 #: Filters run by the structure-of-arrays kernels of :mod:`mcjax.filters.batched`.
 BATCHED_KINDS = ("local", "modified_icf")
+#: Split a batch over the CPU devices (one contiguous chunk each, then one copy into the result).
+#: Off: on the shared 2-core VM the copy of the halves cost more than the second core gave
+#: (docs/filter_speed.md, 2026-12-01: 1.5x slower at B = 10,000).
+SPLIT_OVER_DEVICES = False
 #: Fewest runs per CPU device when a batch is split over the devices.
 MIN_RUNS_PER_DEVICE = 64
 
 
 def _run_batched(kind, opts, z, s, a, consts, dt):
-    """The local EKF / modified ICF through :func:`batched.run_batch`, the batch split into
-    contiguous chunks over the CPU devices (every run is computed independently, so the
-    split does not change any bit). Returns numpy arrays with ``z``'s leading axes."""
+    """The local EKF / modified ICF through :func:`batched.run_batch` on one CPU device, or with
+    ``SPLIT_OVER_DEVICES`` the batch split into contiguous chunks over the devices (every run is
+    computed independently, so the split does not change any bit). Returns numpy arrays with
+    ``z``'s leading axes."""
     single = z.ndim == 3
     if single:
         z, s, a = z[None], s[None], a[None]
@@ -88,7 +93,7 @@ def _run_batched(kind, opts, z, s, a, consts, dt):
     if B == 1:  # XLA compiles a batch of one differently (last-bit changes): run two copies
         xs, Ps = _run_batched(kind, opts, *(np.concatenate([v, v]) for v in (z, s, a)), consts, dt)
         return (xs[0], Ps[0]) if single else (xs[:1], Ps[:1])
-    devices = jax.local_devices()
+    devices = jax.local_devices() if SPLIT_OVER_DEVICES else jax.local_devices()[:1]
     k = max(1, min(len(devices), B // MIN_RUNS_PER_DEVICE))
     bounds = np.linspace(0, B, k + 1).astype(int)
     pending = []
