@@ -1,23 +1,40 @@
-"""Filter throughput: mcjax (one batched, compiled call) vs a per-run numpy loop.
+"""Filter throughput: mcjax (one batched, compiled call) vs three peers, side by side.
 
 The five filters of docs/equations.md run on the open-loop leader–follower data of Sun et al. 2011
-(5 UAVs, 200 steps, range–bearing, comm range 100 km) over B runs. mcjax runs the B runs in
-one call of :func:`mcjax.filters.run_filter` (float64, every run with its own
-measurements, sensor positions and graph); the peer is ``benchmarks/numpy_peer.py``, a
-plain-numpy implementation of the same equations, looping over runs as a MATLAB-style
-study would. Both are timed in this one process; the peer's cost per run does not depend
-on B, so it is measured on ``--peer-runs`` runs and reported per agent-step.
+(5 UAVs, 200 steps, range–bearing, comm range 100 km) over B runs, float64. mcjax runs the B
+runs in one call of :func:`mcjax.filters.run_filter` (every run with its own measurements,
+sensor positions and graph). The peers, all timed in this one process:
 
-    python benchmarks/filter_throughput.py                 # B = 1, 100, 1000, 10000
-    python benchmarks/filter_throughput.py --batches 1 100 --filters modified_icf
+* ``filterpy``: a per-run loop of filterpy's ``ExtendedKalmanFilter``, one object per agent
+  (local filter only; filterpy has no consensus filters);
+* ``numpy``: ``benchmarks/numpy_peer.py``, plain numpy, one run at a time;
+* ``numba``: ``benchmarks/numba_peer.py``, an ``@njit(parallel=True)`` kernel with ``prange``
+  over runs (local filter and modified ICF), ``--threads`` threads (default 2). numba is a
+  benchmark-only dependency: ``pip install -e .[bench]``.
 
-Prints a markdown table: agent-steps per second for each, the ratio, and compile time
-(first call minus second call).
+The loop peers' cost per run does not depend on B, so they are timed on ``--peer-runs`` runs.
+Every timing is the median of ``--repeats`` calls (after a first, compiling call for mcjax
+and numba), with outputs allocated inside the timed call for every engine. Before timing, the
+filterpy and numba peers are checked against mcjax on a tiny batch (max error relative to each
+component's scale, must be ≤ 1e-9).
+
+    python benchmarks/filter_throughput.py                      # local, modified_icf; B = 1000, 10000
+    python benchmarks/filter_throughput.py --filters cif icf modified_icf kcf local --batches 1000
+
+Prints a markdown table: ns per agent-step for each engine (mcjax also with the batch split over
+every CPU device (``recorded.SPLIT_OVER_DEVICES``; off by default), and
+through the general vmap path that ran these filters before the structure-of-arrays kernels), the
+speed ratios
+(filterpy time / mcjax time, mcjax time / numba time), the floating-point operations per
+agent-step counted by hand (docs/filter_speed.md) and mcjax's resulting GFLOP/s, and the load
+average (``os.getloadavg()``) at the end of each row.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -29,6 +46,12 @@ import numpy_peer  # noqa: E402
 
 KM = 1e3
 FILTERS = ("cif", "icf", "modified_icf", "kcf", "local")
+NUMBA_FILTERS = ("local", "modified_icf")
+#: Floating-point operations per agent-step (t > 0, a valid measurement, n = 5, L = 1, dense F
+#: and Q), counted by hand in docs/filter_speed.md: (the peers' information-form equations, the
+#: equations mcjax computes); ``~`` marks an estimate. mcjax's local EKF is in moment form.
+FLOPS = {"local": (506, 357), "modified_icf": (656, 656), "cif": ("~150", "~150"),
+         "icf": ("~650", "~650"), "kcf": ("~750", "~750")}
 
 
 def make_runs(n_runs: int, steps: int, seed: int = 0):
@@ -45,42 +68,173 @@ def make_runs(n_runs: int, steps: int, seed: int = 0):
     return z, s, a, truth, common
 
 
+def filterpy_local(z, s, x0, P0, F, Q, R):
+    """filterpy's ``ExtendedKalmanFilter``, one object per agent, over one run (T, n, ·):
+    predict from step 1 on, update when both components of z are finite (bearing residual
+    wrapped). Returns ``(estimates (T, n, 4), covariances (T, n, 4, 4))``."""
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    def hx(x, sensor):
+        dx, dy = x[0, 0] - sensor[0], x[2, 0] - sensor[1]
+        return np.array([[math.hypot(dx, dy)], [math.atan2(dy, dx)]])
+
+    def jac(x, sensor):
+        dx, dy = x[0, 0] - sensor[0], x[2, 0] - sensor[1]
+        r2 = dx * dx + dy * dy
+        r = math.sqrt(r2)
+        return np.array([[dx / r, 0.0, dy / r, 0.0], [-dy / r2, 0.0, dx / r2, 0.0]])
+
+    def residual(a, b):
+        y = a - b
+        y[1, 0] = (y[1, 0] + math.pi) % (2 * math.pi) - math.pi
+        return y
+
+    T, n = z.shape[:2]
+    xs, Ps = np.empty((T, n, 4)), np.empty((T, n, 4, 4))
+    for i in range(n):
+        ekf = ExtendedKalmanFilter(dim_x=4, dim_z=2)
+        ekf.x, ekf.P, ekf.F, ekf.Q, ekf.R = x0.reshape(4, 1).copy(), P0.copy(), F, Q, R
+        for t in range(T):
+            if t > 0:
+                ekf.predict()
+            if np.isfinite(z[t, i, 0]) and np.isfinite(z[t, i, 1]):
+                ekf.update(z[t, i].reshape(2, 1), jac, hx, args=(s[t, i],), hx_args=(s[t, i],),
+                           residual=residual)
+            xs[t, i], Ps[t, i] = ekf.x[:, 0], ekf.P
+    return xs, Ps
+
+
+def max_relative_error(est, cov, ref_est, ref_cov):
+    """Largest error relative to each component's scale: estimates by the largest |value| of
+    the state component, covariances by ``sqrt(max P_ii) sqrt(max P_jj)``."""
+    scale = np.abs(ref_est).reshape(-1, 4).max(axis=0)
+    d = np.sqrt(np.abs(np.diagonal(ref_cov, axis1=-2, axis2=-1)).reshape(-1, 4).max(axis=0))
+    return max(np.max(np.abs(est - ref_est) / scale), np.max(np.abs(cov - ref_cov) / np.outer(d, d)))
+
+
+def median_time(fn, repeats):
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return float(np.median(times))
+
+
+def check_peers(kinds, numba_peer, run_filter, tol=1e-9):
+    """filterpy and numba against mcjax on 3 runs x 60 steps; prints the errors, returns ok."""
+    z, s, a, truth, common = make_runs(3, 60, seed=1)
+    x0 = truth[0, 0]
+    ok = True
+    for kind in kinds:
+        xm, Pm = run_filter(kind, measurements=z, sensor_positions=s, adjacency=a, x0=x0, **common)
+        peers = {}
+        if kind == "local":
+            ref = [filterpy_local(z[r], s[r], x0, **common) for r in range(len(z))]
+            peers["filterpy"] = (np.stack([r[0] for r in ref]), np.stack([r[1] for r in ref]))
+        if numba_peer is not None and kind in NUMBA_FILTERS:
+            peers["numba"] = numba_peer.run_filter_numba(kind, z, s, a, x0, **common)
+        for name, (xp, Pp) in peers.items():
+            err = max_relative_error(xp, Pp, xm, Pm)
+            ok &= err <= tol
+            print(f"# check {kind:13s} {name:8s} vs mcjax: max relative error {err:.1e} "
+                  f"({'ok' if err <= tol else 'FAIL'}, tolerance {tol:g})")
+    return ok
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--batches", type=int, nargs="+", default=[1, 100, 1000, 10000], help="batch sizes B")
-    ap.add_argument("--filters", nargs="+", default=list(FILTERS), choices=FILTERS)
+    ap.add_argument("--batches", type=int, nargs="+", default=[1000, 10000], help="batch sizes B")
+    ap.add_argument("--filters", nargs="+", default=list(NUMBA_FILTERS), choices=FILTERS)
     ap.add_argument("--steps", type=int, default=200, help="time steps per run (paper: 200)")
-    ap.add_argument("--peer-runs", type=int, default=20, help="runs timed for the numpy peer")
+    ap.add_argument("--peer-runs", type=int, default=10, help="runs timed for the numpy and filterpy loops")
     ap.add_argument("--distinct", type=int, default=200, help="distinct simulated runs (tiled up to B)")
+    ap.add_argument("--repeats", type=int, default=3, help="timed calls per engine (median reported)")
+    ap.add_argument("--threads", type=int, default=2, help="numba threads")
+    ap.add_argument("--no-variants", action="store_true",
+                    help="skip the mcjax variants: the other device choice (split over every CPU device, "
+                         "or one device), and the general (vmap) path of before")
+    ap.add_argument("--general-max-batch", type=int, default=1000,
+                    help="largest B timed through the general path (it is slow)")
     args = ap.parse_args(argv)
 
-    from mcjax.filters import run_filter
+    import jax
+
+    from mcjax.filters import recorded, run_filter
+    try:
+        import numba
+        import numba_peer
+        numba.set_num_threads(args.threads)
+    except ImportError:
+        numba_peer = None
+        print("# numba not installed (pip install -e .[bench]): no numba column")
 
     n_agents = 5
+    print(f"# {time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} CPUs, load average {os.getloadavg()}, "
+          f"{len(jax.local_devices())} CPU device(s), numba threads "
+          f"{args.threads if numba_peer else '-'}, jax {jax.__version__}")
+    if not check_peers(args.filters, numba_peer, run_filter):
+        raise SystemExit("a peer disagrees with mcjax beyond 1e-9")
+
     distinct = max(args.peer_runs, min(args.distinct, max(args.batches)))
     z, s, a, truth, common = make_runs(distinct, args.steps)
-    x0 = truth[0, 0]  # every run starts from the same true state (Sun et al. 2011 §5)
+    x0 = truth[0, 0]
+    per_run = args.steps * n_agents
 
-    print(f"# filter throughput: {n_agents} agents x {args.steps} steps per run, float64")
-    print("| filter | B | mcjax agent-steps/s | numpy loop agent-steps/s | ratio | mcjax compile s |")
-    print("|---|---:|---:|---:|---:|---:|")
+    print(f"# filter throughput: {n_agents} agents x {args.steps} steps per run, float64; ns per agent-step, "
+          f"median of {args.repeats}")
+    from mcjax.filters.recorded import SPLIT_OVER_DEVICES as split
+    other = "1 device" if split else f"{len(jax.local_devices())} devices"
+    print(f"| filter | B | mcjax ns | mcjax {other} ns | mcjax general path ns | filterpy ns | numpy ns | "
+          "numba ns | filterpy/mcjax | mcjax/numba | "
+          "flops peers / mcjax | mcjax GFLOP/s | numba GFLOP/s | load |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for kind in args.filters:
-        t = time.perf_counter()
-        for r in range(args.peer_runs):
-            numpy_peer.run_filter_numpy(kind, z[r], s[r], a[r], x0, **common)
-        peer_rate = args.peer_runs * args.steps * n_agents / (time.perf_counter() - t)
+        r_ = range(args.peer_runs)
+        ns_numpy = median_time(lambda: [numpy_peer.run_filter_numpy(kind, z[r], s[r], a[r], x0, **common)
+                                        for r in r_], args.repeats) / (args.peer_runs * per_run) * 1e9
+        ns_fp = math.nan
+        if kind == "local":
+            ns_fp = median_time(lambda: [filterpy_local(z[r], s[r], x0, **common) for r in r_],
+                                args.repeats) / (args.peer_runs * per_run) * 1e9
         for B in args.batches:
             idx = np.arange(B) % distinct
             batch = dict(measurements=z[idx], sensor_positions=s[idx], adjacency=a[idx])
             t = time.perf_counter()
             run_filter(kind, **batch, x0=x0, **common)
-            first = time.perf_counter() - t
-            t = time.perf_counter()
-            run_filter(kind, **batch, x0=x0, **common)
-            second = time.perf_counter() - t
-            rate = B * args.steps * n_agents / second
-            print(f"| {kind} | {B} | {rate:,.0f} | {peer_rate:,.0f} | {rate / peer_rate:,.1f} | "
-                  f"{max(first - second, 0.0):.2f} |", flush=True)
+            compile_s = time.perf_counter() - t
+            ns_mcjax = median_time(lambda: run_filter(kind, **batch, x0=x0, **common), args.repeats) / (B * per_run) * 1e9
+            ns_one = ns_general = math.nan
+            if not args.no_variants and kind in recorded.BATCHED_KINDS:
+                saved = recorded.SPLIT_OVER_DEVICES, recorded.BATCHED_KINDS
+                try:
+                    recorded.SPLIT_OVER_DEVICES = not saved[0]  # the other device choice
+                    run_filter(kind, **batch, x0=x0, **common)
+                    ns_one = median_time(lambda: run_filter(kind, **batch, x0=x0, **common),
+                                         args.repeats) / (B * per_run) * 1e9
+                    recorded.SPLIT_OVER_DEVICES = saved[0]
+                    recorded.BATCHED_KINDS = ()  # the general path (vmap of consensus.filter_step)
+                    if B <= args.general_max_batch:
+                        run_filter(kind, **batch, x0=x0, **common)
+                        ns_general = median_time(lambda: run_filter(kind, **batch, x0=x0, **common),
+                                                 args.repeats) / (B * per_run) * 1e9
+                finally:
+                    recorded.SPLIT_OVER_DEVICES, recorded.BATCHED_KINDS = saved
+            ns_numba = math.nan
+            if numba_peer is not None and kind in NUMBA_FILTERS:
+                numba_peer.run_filter_numba(kind, *(v[:2] for v in batch.values()), x0, **common)
+                ns_numba = median_time(lambda: numba_peer.run_filter_numba(kind, *batch.values(), x0, **common),
+                                       args.repeats) / (B * per_run) * 1e9
+            f_peer, f_mcjax = FLOPS[kind]
+            gflops = f"{f_mcjax / ns_mcjax:.2f}" if isinstance(f_mcjax, int) else "–"
+            gflops_nb = "–" if math.isnan(ns_numba) else f"{f_peer / ns_numba:.2f}"
+            fmt = lambda v: "–" if math.isnan(v) else f"{v:,.0f}"  # noqa: E731
+            ratio_fp = "–" if math.isnan(ns_fp) else f"{ns_fp / ns_mcjax:,.0f}"
+            ratio_nb = "–" if math.isnan(ns_numba) else f"{ns_mcjax / ns_numba:.2f}"
+            print(f"| {kind} | {B:,} | {fmt(ns_mcjax)} | {fmt(ns_one)} | {fmt(ns_general)} | {fmt(ns_fp)} | {fmt(ns_numpy)} | {fmt(ns_numba)} | "
+                  f"{ratio_fp} | {ratio_nb} | {f_peer} / {f_mcjax} | {gflops} | {gflops_nb} | {os.getloadavg()[0]:.1f} |", flush=True)
+            print(f"#   {kind} B={B}: first mcjax call (compilation included) {compile_s:.1f} s", flush=True)
+            del batch
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ from mcjax.filters.consensus import (
     init_states,
     per_agent,
 )
+from mcjax.filters import batched
 from mcjax.filters.gaussian import first_step_model
 from mcjax.models.sensors import range_bearing
 
@@ -68,6 +69,44 @@ def _run_one(kind, opts, z, sensors, adjacency, x0, P0, F, Q, R, kcf_epsilon):
     ts = jnp.arange(z.shape[0])
     _, (xs, Ps) = jax.lax.scan(body, states, (ts, z, sensors, adjacency))
     return xs, Ps
+
+
+#: Filters run by the structure-of-arrays kernels of :mod:`mcjax.filters.batched`.
+BATCHED_KINDS = ("local", "modified_icf")
+#: Split a batch over the CPU devices (one contiguous chunk each, then one copy into the result).
+#: Off: on the shared 2-core VM the copy of the halves cost more than the second core gave
+#: (docs/filter_speed.md, 2026-12-01: 1.5x slower at B = 10,000).
+SPLIT_OVER_DEVICES = False
+#: Fewest runs per CPU device when a batch is split over the devices.
+MIN_RUNS_PER_DEVICE = 64
+
+
+def _run_batched(kind, opts, z, s, a, consts, dt):
+    """The local EKF / modified ICF through :func:`batched.run_batch` on one CPU device, or with
+    ``SPLIT_OVER_DEVICES`` the batch split into contiguous chunks over the devices (every run is
+    computed independently, so the split does not change any bit). Returns numpy arrays with
+    ``z``'s leading axes."""
+    single = z.ndim == 3
+    if single:
+        z, s, a = z[None], s[None], a[None]
+    B = z.shape[0]
+    if B == 1:  # XLA compiles a batch of one differently (last-bit changes): run two copies
+        xs, Ps = _run_batched(kind, opts, *(np.concatenate([v, v]) for v in (z, s, a)), consts, dt)
+        return (xs[0], Ps[0]) if single else (xs[:1], Ps[:1])
+    devices = jax.local_devices() if SPLIT_OVER_DEVICES else jax.local_devices()[:1]
+    k = max(1, min(len(devices), B // MIN_RUNS_PER_DEVICE))
+    bounds = np.linspace(0, B, k + 1).astype(int)
+    pending = []
+    for d, lo, hi in zip(devices, bounds[:-1], bounds[1:]):
+        args = [jax.device_put(np.asarray(v[lo:hi], dt), d) for v in (z, s, a)]
+        cst = [jax.device_put(np.asarray(v, dt), d) for v in consts]
+        pending.append(batched.run_batch(kind, opts, range_bearing, _ANGLE_MASK_RB, *args, *cst))
+    if k == 1:
+        xs, Ps = (np.asarray(v) for v in pending[0])
+    else:
+        xs = np.concatenate([np.asarray(p[0]) for p in pending])
+        Ps = np.concatenate([np.asarray(p[1]) for p in pending])
+    return (xs[0], Ps[0]) if single else (xs, Ps)
 
 
 def run_filter(
@@ -160,6 +199,8 @@ def run_filter(
         raise ValueError(f"kcf_epsilon must be a finite number >= 0; got {kcf_epsilon!r}")
 
     dt = jnp.float64 if dtype == "float64" else jnp.float32
+    if kind in BATCHED_KINDS:
+        return _run_batched(kind, opts, z, s, a, (x0a, P0a, Fa, Qa, Ra), dt)
     args = [jnp.asarray(v, dt) for v in (z, s, a)]
     consts = [jnp.asarray(v, dt) for v in (x0a, P0a, Fa, Qa, Ra, kcf_epsilon)]
     fn = partial(_run_one, kind, opts)
