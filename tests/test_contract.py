@@ -325,6 +325,7 @@ LAYERS = [
     {"scenarios"},
     {"engine", "statistics"},
     {"sweep", "tables", "plots"},
+    {"cluster"},
     {"report"},
     {"cli"},
 ]
