@@ -326,6 +326,7 @@ LAYERS = [
     {"scenarios"},
     {"engine", "statistics"},
     {"sweep", "tables", "plots"},
+    {"cluster"},
     {"report"},
     {"cli"},
 ]
