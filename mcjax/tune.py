@@ -218,12 +218,12 @@ def _bound(scenario, cfg, base_params, name: str, table) -> Bound:
         raise SpecError(f"{where}.low: must be > 0 for scale = \"log\"; got {low:g}")
     if "initial" in table:
         initial = _number(f"{where}.initial", table["initial"])
-        origin = f"{where}.initial"
+        origin = f"{where}.initial: must lie"
     else:
         initial = float(getattr(base_params, name))
-        origin = f"{where}: the initial value (params.{name} or the base config's)"
+        origin = f"{where}: the initial value (params.{name} or the base config's) must lie"
     if not low < initial < high:
-        raise SpecError(f"{origin} must lie strictly inside (low, high) = ({low:g}, {high:g}); got {initial:g}")
+        raise SpecError(f"{origin} strictly inside (low, high) = ({low:g}, {high:g}); got {initial:g}")
     return Bound(name, low, high, scale, initial)
 
 
@@ -262,7 +262,7 @@ def build_tune_spec(data: dict, base_dir: str | Path) -> TuneSpec:
     if heldout_base == train_base:
         raise SpecError(f"tune.heldout_base_seed: must differ from tune.train_base_seed = {train_base} (held-out "
                         f"seeds are not training seeds)")
-    block = _count("tune.checkpoint_every", tune.get("checkpoint_every", 10), 1, cfg.n_steps)
+    block = _count("tune.checkpoint_every", tune.get("checkpoint_every", min(10, cfg.n_steps)), 1, cfg.n_steps)
     mode = tune.get("gradient", "forward")
     if mode not in GRADIENT_MODES:
         raise SpecError(f"tune.gradient: must be one of {', '.join(GRADIENT_MODES)}; got {_show(mode)}")
@@ -311,13 +311,12 @@ def load_tune_spec(path: str | Path) -> TuneSpec:
 # ------------------------------------------------------------------ loss and gradient
 
 
-def params_at(spec: TuneSpec, x):
-    """The base Params with the tuned fields set to ``x`` (P,) (traceable)."""
+def params_at(bounds, base, x):
+    """The Params ``base`` with the tuned fields (``bounds``) set to ``x`` (P,) (traceable)."""
     import jax.numpy as jnp
 
-    base = spec.sweep.base_params
     values = {k: jnp.asarray(v) for k, v in base._asdict().items()}
-    for i, b in enumerate(spec.bounds):
+    for i, b in enumerate(bounds):
         values[b.name] = x[i]
     return type(base)(**values)
 
@@ -376,18 +375,43 @@ def run_loss(scenario, cfg, loss: Loss, smoothing, block: int, params, key):
     return rmse / c + loss.divergence_weight * soft_div, (rmse, soft_div)
 
 
+#: Jitted batch functions per program (:func:`program_key`), so evaluators of the same program
+#: in one process share their compiled code.
+_FUNCTIONS: dict = {}
+
+
+def program_key(spec: TuneSpec) -> str:
+    """What fixes a tune's compiled program: scenario and Config, the tuned Params and their
+    bounds, the loss, the smoothing, the gradient mode and blocks (not the Params' values,
+    which the program takes as an argument)."""
+    s = spec.sweep
+    return json.dumps([s.scenario.name, repr(s.config), [[b.name, b.low, b.high, b.scale] for b in spec.bounds],
+                       list(spec.loss), list(spec.smoothing), spec.checkpoint_every, spec.gradient],
+                      sort_keys=True, default=str)
+
+
 def batch_function(spec: TuneSpec) -> Callable:
-    """``f(z, keys) -> (losses (R,), grads (R, P), soft RMSE (R,), soft divergence (R,))``: every
-    run's training loss and its gradient with respect to ``z``, jitted (one program; the
-    caller spreads batches over devices)."""
+    """``f(z, keys, base) -> (losses (R,), grads (R, P), soft RMSE (R,), soft divergence (R,))``:
+    every run's training loss at the base Params ``base`` with the tuned ones at ``z``, and its
+    gradient with respect to ``z``, jitted (one program; the caller spreads batches over
+    devices). One function per :func:`program_key`."""
+    key = program_key(spec)
+    if key not in _FUNCTIONS:
+        _FUNCTIONS[key] = _batch_function(spec)
+    return _FUNCTIONS[key]
+
+
+def _batch_function(spec: TuneSpec) -> Callable:
     import jax
 
     s = spec.sweep
+    scenario, cfg, loss, smoothing, block, bounds = (s.scenario, s.config, spec.loss, spec.smoothing,
+                                                     spec.checkpoint_every, spec.bounds)
 
-    def one(z, key):
+    def one(z, key, base):
         def of_z(z):
-            return run_loss(s.scenario, s.config, spec.loss, spec.smoothing, spec.checkpoint_every,
-                            params_at(spec, from_unconstrained(spec.bounds, z)), key)
+            return run_loss(scenario, cfg, loss, smoothing, block, params_at(bounds, base, from_unconstrained(bounds, z)),
+                            key)
 
         if spec.gradient == "reverse":
             (value, (rmse, div)), g = jax.value_and_grad(of_z, has_aux=True)(z)
@@ -400,20 +424,7 @@ def batch_function(spec: TuneSpec) -> Callable:
         g, (value, (rmse, div)) = jax.jacfwd(pushed, has_aux=True)(z)
         return value, g, rmse, div
 
-    return jax.jit(jax.vmap(one, in_axes=(None, 0)))
-
-
-def loss_only_function(spec: TuneSpec) -> Callable:
-    """``f(x, keys) -> losses (R,)`` at Params values ``x`` (no gradient; for finite differences)."""
-    import jax
-
-    s = spec.sweep
-
-    def one(x, key):
-        return run_loss(s.scenario, s.config, spec.loss, spec.smoothing, spec.checkpoint_every,
-                        params_at(spec, x), key)[0]
-
-    return jax.jit(jax.vmap(one, in_axes=(None, 0)))
+    return jax.jit(jax.vmap(one, in_axes=(None, 0, None)))
 
 
 def train_keys(spec: TuneSpec):
@@ -437,6 +448,28 @@ class Evaluation(NamedTuple):
     dropped: int              # runs whose loss or gradient was not finite
 
 
+_PROGRAMS: dict = {}
+
+
+def _compiled_programs(fn, args, devs) -> list:
+    """``fn`` compiled for the shapes of ``args`` on each device of ``devs`` (in parallel
+    threads), kept per (function, shapes, devices) for the process."""
+    import jax
+    from concurrent.futures import ThreadPoolExecutor
+
+    shapes = tuple((np.shape(a), np.asarray(a).dtype.str) for a in jax.tree.leaves(args))
+    sig = (fn, shapes, tuple(devs))
+    if sig not in _PROGRAMS:
+        lowered = [fn.lower(*jax.device_put(args, d)) for d in devs]
+        with ThreadPoolExecutor(len(devs)) as pool:
+            _PROGRAMS[sig] = list(pool.map(lambda lo: lo.compile(), lowered))
+    return _PROGRAMS[sig]
+
+
+#: Fewest training runs per device before a second device is used.
+RUNS_PER_DEVICE = 16
+
+
 class Evaluator:
     """The training batch's loss and gradient at any ``z``: the batch is cut into one slice
     per device, each compiled once (in parallel) and run side by side."""
@@ -450,7 +483,8 @@ class Evaluator:
         self.fn = batch_function(spec)
         keys = train_keys(spec)
         n = spec.train_seeds
-        self.devs = engine.devices()[:max(1, min(len(engine.devices()), n))]
+        # one device per RUNS_PER_DEVICE runs at least (a small batch compiles once)
+        self.devs = engine.devices()[:max(1, min(len(engine.devices()), n // RUNS_PER_DEVICE))]
         size = -(-n // len(self.devs))
         self.slices = [(i * size, min(n, (i + 1) * size)) for i in range(len(self.devs)) if i * size < n]
         self.devs = self.devs[:len(self.slices)]
@@ -469,9 +503,10 @@ class Evaluator:
         from mcjax import engine
 
         z = np.asarray(z, np.float64)
+        base = self.spec.sweep.base_params
         if self.programs is None:
-            self.programs = engine._programs(self.fn, z, self.keys[0], self.devs)
-        outs = [prog(jax.device_put(z, d), jax.device_put(k, d))
+            self.programs = _compiled_programs(self.fn, (z, self.keys[0], base), self.devs)
+        outs = [prog(jax.device_put(z, d), jax.device_put(k, d), jax.device_put(base, d))
                 for prog, d, k in zip(self.programs, self.devs, self.keys)]
         parts = [[np.asarray(x)[:b - a] for x in o] for o, (a, b) in zip(outs, self.slices)]
         loss, grad, rmse, div = (np.concatenate([p[i] for p in parts]) for i in range(4))
