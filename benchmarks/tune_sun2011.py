@@ -18,6 +18,8 @@ the training seeds, at the grid's α_C nearest the tuned one). ``summary.md`` ho
 
     python benchmarks/tune_sun2011.py                                   # 128 training, 1,000 held-out seeds
     python benchmarks/tune_sun2011.py --train-seeds 32 --heldout-seeds 200 --steps 4   # a quick look
+    python benchmarks/tune_sun2011.py --train-seeds 64 --n-steps 100 --steps 10 --heldout-seeds 500 \
+        --gradient-window 10 --out results/tune_sun2011_w10          # the run in docs/tune.md
 """
 
 from __future__ import annotations
@@ -57,6 +59,9 @@ def main() -> None:
     ap.add_argument("--train-seeds", type=int, default=128)
     ap.add_argument("--heldout-seeds", type=int, default=1000)
     ap.add_argument("--steps", type=int, default=None, help="optimisation steps (default: the spec's)")
+    ap.add_argument("--n-steps", type=int, default=None, help="simulation steps per run (default: the config's)")
+    ap.add_argument("--gradient-window", type=int, default=None,
+                    help="truncate the gradient to windows of this many steps (default: the spec's)")
     ap.add_argument("--out", default="results/tune_sun2011_benchmark")
     args = ap.parse_args()
 
@@ -72,8 +77,15 @@ def main() -> None:
     raw["tune"]["heldout_seeds"] = args.heldout_seeds
     if args.steps is not None:
         raw["tune"]["steps"] = args.steps
+    if args.n_steps is not None:
+        raw.setdefault("config", {})["n_steps"] = args.n_steps
+        raw["tune"]["checkpoint_every"] = min(raw["tune"].get("checkpoint_every", 10), args.n_steps)
+    if args.gradient_window is not None:
+        raw["tune"]["gradient_window"] = args.gradient_window
     spec = tune.build_tune_spec(raw, Path(args.spec).parent)
-    log = {"date": str(date.today()), "command": "python benchmarks/tune_sun2011.py " + " ".join(
+    import os
+
+    log = {"date": str(date.today()), "load_average_start": list(os.getloadavg()), "command": "python benchmarks/tune_sun2011.py " + " ".join(
         f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items() if v is not None and k != "spec")}
 
     # ---- tune (resumes from OUT/tune when it was interrupted)
@@ -202,9 +214,11 @@ def main() -> None:
               "grid_points": len(g), "grid_runs": len(g) * spec.train_seeds, "tune_wall_s": tune_wall,
               "grid_wall_s": grid_wall, "heldout_wall_s": held_wall, "exact_batch_wall_s": exact_wall,
               "grad_pass_wall_s": grad_wall, "devices": n_dev}
+    log["load_average_end"] = list(os.getloadavg())
     summary = {**log, "budget": budget, "results": rows}
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
     lines = [f"# tune_sun2011 ({log['date']})", "", f"`{log['command']}`", "",
+             f"Load average (1, 5, 15 min) at start {log['load_average_start']}, at end {log['load_average_end']}", "",
              "| weights | alpha_I | alpha_L | alpha_C | held-out runs | divergence rate [95 % Wilson] | "
              "mean RMSE, m [95 % t] | mean RMSE of non-divergent runs, m |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:

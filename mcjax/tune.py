@@ -12,6 +12,7 @@ A tune spec is a sweep spec (``base``, ``[config]``, ``[params]``, ``chunk_size`
     heldout_seeds = 1000        # evaluation of the initial and the final Params (exact simulation)
     heldout_base_seed = 0       #   must differ from train_base_seed
     checkpoint_every = 10       # simulation steps per jax.checkpoint block (memory vs recompute)
+    gradient_window = 0         # truncate the gradient to windows of this many steps (0: the whole run)
     [tune.params.alpha_I]       # one table per tuned Param: bounds, scale, optional initial value
     low = 10.0
     high = 1e5
@@ -70,7 +71,7 @@ OPTIMIZERS = ("adam", "adamw", "sgd", "rmsprop", "adagrad", "adabelief", "lamb",
               "yogi", "adamax", "amsgrad", "novograd")
 SCALES = ("linear", "log")
 TUNE_KEYS = ("optimizer", "learning_rate", "steps", "train_seeds", "train_base_seed", "heldout_seeds",
-             "heldout_base_seed", "gradient", "checkpoint_every", "params", "loss", "smoothing")
+             "heldout_base_seed", "gradient", "gradient_window", "checkpoint_every", "params", "loss", "smoothing")
 #: How the gradient is computed: forward mode (one tangent per tuned Param, memory independent
 #: of the number of steps) or reverse mode (one backward pass, memory bounded by jax.checkpoint).
 GRADIENT_MODES = ("forward", "reverse")
@@ -124,6 +125,7 @@ class TuneSpec:
     heldout_base_seed: int = 0
     checkpoint_every: int = 10
     gradient: str = "forward"
+    gradient_window: int = 0
     source: dict = dataclasses.field(default_factory=dict)
     base_dir: str = "."
 
@@ -266,6 +268,7 @@ def build_tune_spec(data: dict, base_dir: str | Path) -> TuneSpec:
     mode = tune.get("gradient", "forward")
     if mode not in GRADIENT_MODES:
         raise SpecError(f"tune.gradient: must be one of {', '.join(GRADIENT_MODES)}; got {_show(mode)}")
+    window = _count("tune.gradient_window", tune.get("gradient_window", 0), 0, cfg.n_steps)
     params_table = _tune_table("tune.", tune, "params")
     if not params_table:
         raise SpecError("tune.params: must name at least one Param to tune ([tune.params.NAME] with low, high)")
@@ -295,7 +298,7 @@ def build_tune_spec(data: dict, base_dir: str | Path) -> TuneSpec:
                     if name == b.name:
                         raise SpecError(f"tune.params.{b.name}: must be {allowed} over its bounds")
     return TuneSpec(spec, bounds, loss, smoothing, optimizer, lr, steps, train_seeds, train_base, heldout,
-                    heldout_base, block, mode, data, str(Path(base_dir).resolve()))
+                    heldout_base, block, mode, window, data, str(Path(base_dir).resolve()))
 
 
 def load_tune_spec(path: str | Path) -> TuneSpec:
@@ -321,11 +324,17 @@ def params_at(bounds, base, x):
     return type(base)(**values)
 
 
-def run_loss(scenario, cfg, loss: Loss, smoothing, block: int, params, key):
+def run_loss(scenario, cfg, loss: Loss, smoothing, block: int, params, key, window: int = 0):
     """The training loss of one run (module docstring) with its parts:
     ``(loss, (soft RMSE, soft divergence))``. The closed loop runs the scenario's surrogate
     step over ``ceil(T / block)`` blocks of ``block`` steps, each block under
-    ``jax.checkpoint`` (steps past T in the last block leave the state as it is)."""
+    ``jax.checkpoint`` (steps past T in the last block leave the state as it is).
+
+    ``window = K > 0`` truncates the gradient (not the value): at steps ``K, 2K, …`` the state
+    enters the next step through ``stop_gradient``, so the derivative counts how the Params act
+    on the errors within each window of K steps from the state the window starts in, and not
+    how a change carries over from earlier windows (truncated differentiation through time).
+    The loss's value is the same for every K."""
     import jax
     import jax.numpy as jnp
 
@@ -341,6 +350,10 @@ def run_loss(scenario, cfg, loss: Loss, smoothing, block: int, params, key):
 
     def body(carry, t):
         state, (sq, count, lse) = carry
+
+        if window > 0:  # a new window: the state's derivative is dropped (the value is kept)
+            cut = (t % window == 0) & (t > 0)
+            state = jax.tree.map(lambda a: jnp.where(cut, jax.lax.stop_gradient(a), a), state)
 
         def advance(state):
             return sur.step(cfg, params, state, jax.random.fold_in(key, t), smoothing)
@@ -386,7 +399,8 @@ def program_key(spec: TuneSpec) -> str:
     which the program takes as an argument)."""
     s = spec.sweep
     return json.dumps([s.scenario.name, repr(s.config), [[b.name, b.low, b.high, b.scale] for b in spec.bounds],
-                       list(spec.loss), list(spec.smoothing), spec.checkpoint_every, spec.gradient],
+                       list(spec.loss), list(spec.smoothing), spec.checkpoint_every, spec.gradient,
+                       spec.gradient_window],
                       sort_keys=True, default=str)
 
 
@@ -407,11 +421,12 @@ def _batch_function(spec: TuneSpec) -> Callable:
     s = spec.sweep
     scenario, cfg, loss, smoothing, block, bounds = (s.scenario, s.config, spec.loss, spec.smoothing,
                                                      spec.checkpoint_every, spec.bounds)
+    window = spec.gradient_window
 
     def one(z, key, base):
         def of_z(z):
             return run_loss(scenario, cfg, loss, smoothing, block, params_at(bounds, base, from_unconstrained(bounds, z)),
-                            key)
+                            key, window)
 
         if spec.gradient == "reverse":
             (value, (rmse, div)), g = jax.value_and_grad(of_z, has_aux=True)(z)
