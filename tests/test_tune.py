@@ -65,9 +65,9 @@ scale = "log"
 low = 1.0
 high = 500.0
 scale = "log"
-[tune.params.heading_cmd]
-low = -3.0
-high = 0.0
+[tune.params.uav_speed]
+low = 500.0
+high = 1200.0
 [tune.loss]
 filter = "modified_icf"
 divergence_temperature = 200.0
@@ -199,7 +199,7 @@ def test_gradient_matches_central_differences(spec, evaluator):
     assert scale > 0
     for name, g, f in zip(spec.names, ev.grad, fd):
         assert abs(g - f) <= 1e-3 * max(abs(g), 1e-2 * scale), (name, g, f)
-    assert np.count_nonzero(np.abs(ev.grad) > 1e-3 * scale) >= 3  # at least 3 Params carry gradient
+    assert np.all(np.abs(ev.grad) > 1e-3 * scale)  # every Param carries gradient (none is checked as 0 = 0)
 
 
 @pytest.mark.parametrize("case", ["uav_on_target", "coincident_uavs", "graph_breaks"])
@@ -217,7 +217,7 @@ def test_gradients_finite_for_degenerate_runs(spec, evaluator, case):
     s = _with_base(spec, **values)
     ev = tune.Evaluator(s)  # the same program (Params are its argument): no compilation
     assert ev.fn is evaluator.fn
-    out = ev(tune.to_unconstrained(s.bounds, np.array([60.5e3, 120e3, 50.0, -1.37])))
+    out = ev(tune.to_unconstrained(s.bounds, np.array([60.5e3, 120e3, 50.0, 800.0])))
     assert out.dropped == 0 and np.isfinite(out.loss) and np.all(np.isfinite(out.grad)), out
 
 
@@ -274,7 +274,10 @@ def test_gradient_window_is_the_derivative_with_the_state_held_at_each_window_st
         return lambda theta, pinned: tune.run_loss(scen, cfg, loss, None, 3, _ToyParams(theta, pinned), key,
                                                    window)[0]
 
-    value, cut_value = jax.jit(loss_of(0)), jax.jit(loss_of(K))
+    # two programs: the full gradient in reverse mode, the truncated one in forward mode (the
+    # default of mcjax tune); each also gives the loss's value
+    full_vg = jax.jit(jax.value_and_grad(loss_of(0)))
+    cut_gv = jax.jit(jax.jacfwd(lambda th, p: (loss_of(K)(th, p),) * 2, has_aux=True))
     theta = jnp.asarray(5.0)
 
     @jax.jit
@@ -284,18 +287,17 @@ def test_gradient_window_is_the_derivative_with_the_state_held_at_each_window_st
         return jax.lax.scan(body, scen.init(cfg, None, key), jnp.arange(T))[1]
 
     pinned = jnp.where((jnp.arange(T) % K == 0) & (jnp.arange(T) > 0), states(theta), jnp.nan)
-    full = jax.jit(jax.grad(value))(theta, free)
-    cut = jax.jit(jax.grad(cut_value))(theta, free)
-    assert float(cut_value(theta, free)) == pytest.approx(float(value(theta, free)), rel=1e-14)
-    assert float(value(theta, pinned)) == pytest.approx(float(value(theta, free)), rel=1e-12)
+    value = lambda th, p: full_vg(jnp.asarray(th), p)[0]  # noqa: E731
+    v0, full = full_vg(theta, free)
+    cut, v_cut = cut_gv(theta, free)
+    assert float(v_cut) == pytest.approx(float(v0), rel=1e-14)
+    assert float(value(theta, pinned)) == pytest.approx(float(v0), rel=1e-12)
     h = 1e-5
     fd_cut = (value(theta + h, pinned) - value(theta - h, pinned)) / (2 * h)
     fd_full = (value(theta + h, free) - value(theta - h, free)) / (2 * h)
     assert abs(cut - fd_cut) <= 1e-6 * abs(fd_cut), (cut, fd_cut)
     assert abs(full - fd_full) <= 1e-6 * abs(fd_full), (full, fd_full)
     assert abs(full - cut) > 1e-2 * abs(full)  # the truncation changes the gradient here
-    fwd = jax.jit(jax.jacfwd(cut_value))(theta, free)  # forward mode (mcjax tune's default) agrees
-    assert float(fwd) == pytest.approx(float(cut), rel=1e-10)
 
 
 # ------------------------------------------------------------------ optimisation, resume after a kill, CLI
