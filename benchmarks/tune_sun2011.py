@@ -53,6 +53,56 @@ def _stats(df: pd.DataFrame) -> dict:
     return out
 
 
+def path_heatmap(g: pd.DataFrame, trace: pd.DataFrame, best, final, n_seeds: int, path: Path) -> Path:
+    """The tune's path through (α_I, α_L) over two heat maps of the grid (training seeds, exact
+    simulation) at the grid's α_C nearest the tuned one: divergence rate and mean RMSE."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cs = sorted(g["alpha_C"].unique())
+    c_near = min(cs, key=lambda c: abs(math.log(c) - math.log(final[2])))
+
+    def edges(v):
+        lv = np.log10(v)
+        d = np.diff(lv).mean() if len(lv) > 1 else 1.0
+        return 10 ** np.concatenate([lv - d / 2, [lv[-1] + d / 2]])
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5))
+    for ax, col, label, cmap in [(axes[0], "div", "divergence rate", "viridis_r"),
+                                 (axes[1], "rmse", "mean RMSE, m", "viridis")]:
+        sl = g[g["alpha_C"] == c_near].pivot(index="alpha_L", columns="alpha_I", values=col)
+        I, L = np.array(sl.columns), np.array(sl.index)
+        mesh = ax.pcolormesh(edges(I), edges(L), sl.to_numpy(), cmap=cmap, shading="flat")
+        fig.colorbar(mesh, ax=ax, label=f"grid {label} ({n_seeds} training seeds, exact)")
+        ax.plot(trace["alpha_I"], trace["alpha_L"], "w.-", lw=1.5, label="tune path")
+        ax.plot(trace["alpha_I"].iloc[0], trace["alpha_L"].iloc[0], "ws", label="initial")
+        ax.plot(trace["alpha_I"].iloc[-1], trace["alpha_L"].iloc[-1], "r*", ms=12, label="tuned")
+        ax.plot(best["alpha_I"], best["alpha_L"], "o", mfc="none", mec="orange", ms=12, label="grid best")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("alpha_I")
+        ax.set_ylabel("alpha_L [1/m]")
+        ax.set_title(f"comm radius 70 km; grid slice alpha_C = {c_near:.3g} (tuned {final[2]:.3g})", fontsize=9)
+        ax.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def replot(out: Path) -> None:
+    """Redraw path_heatmap.png from a finished run's files (no simulation)."""
+    trace = pd.read_parquet(out / "tune" / "trace.parquet")
+    gdf = pd.read_parquet(out / "grid_runs.parquet")
+    g = gdf.groupby(["alpha_I", "alpha_L", "alpha_C"]).agg(div=("diverged", "mean"), rmse=("rmse", "mean")).reset_index()
+    best = g.sort_values(["div", "rmse"]).iloc[0]
+    final = trace.iloc[-1][["alpha_I", "alpha_L", "alpha_C"]].to_numpy(float)
+    n_seeds = int(gdf["seed_index"].max()) + 1
+    print(path_heatmap(g, trace, best, final, n_seeds, out / "path_heatmap.png"))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--spec", default=str(ROOT / "sweeps" / "tune_sun2011.toml"))
@@ -63,7 +113,10 @@ def main() -> None:
     ap.add_argument("--gradient-window", type=int, default=None,
                     help="truncate the gradient to windows of this many steps (default: the spec's)")
     ap.add_argument("--out", default="results/tune_sun2011_benchmark")
+    ap.add_argument("--replot", action="store_true", help="only redraw path_heatmap.png of a finished --out")
     args = ap.parse_args()
+    if args.replot:
+        return replot(Path(args.out))
 
     import jax
 
@@ -86,7 +139,7 @@ def main() -> None:
     import os
 
     log = {"date": str(date.today()), "load_average_start": list(os.getloadavg()), "command": "python benchmarks/tune_sun2011.py " + " ".join(
-        f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items() if v is not None and k != "spec")}
+        f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items() if v is not None and k not in ("spec", "replot"))}
 
     # ---- tune (resumes from OUT/tune when it was interrupted)
     tdir = out / "tune"
@@ -177,38 +230,8 @@ def main() -> None:
         rows.append({"weights": name, **{n: float(cand[name][i]) for i, n in enumerate(spec.names)}, **st})
     table = pd.DataFrame(rows)
 
-    # ---- figure: the path over the grid's divergence heat map
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    cs = sorted(g["alpha_C"].unique())
-    c_near = min(cs, key=lambda c: abs(math.log(c) - math.log(final[2])))
-    sl = g[g["alpha_C"] == c_near].pivot(index="alpha_L", columns="alpha_I", values="div")
-    fig, ax = plt.subplots(figsize=(6.4, 5))
-    I, L = np.array(sl.columns), np.array(sl.index)
-
-    def edges(v):
-        lv = np.log10(v)
-        d = np.diff(lv).mean() if len(lv) > 1 else 1.0
-        return 10 ** np.concatenate([lv - d / 2, [lv[-1] + d / 2]])
-
-    mesh = ax.pcolormesh(edges(I), edges(L), sl.to_numpy(), cmap="viridis_r", shading="flat")
-    fig.colorbar(mesh, label=f"grid divergence rate ({spec.train_seeds} training seeds, exact)")
-    ax.plot(trace["alpha_I"], trace["alpha_L"], "w.-", lw=1.5, label="tune path")
-    ax.plot(trace["alpha_I"].iloc[0], trace["alpha_L"].iloc[0], "ws", label="initial")
-    ax.plot(trace["alpha_I"].iloc[-1], trace["alpha_L"].iloc[-1], "r*", ms=12, label="tuned")
-    ax.plot(best["alpha_I"], best["alpha_L"], "o", mfc="none", mec="orange", ms=12, label="grid best")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("alpha_I")
-    ax.set_ylabel("alpha_L [1/m]")
-    ax.set_title(f"comm radius 70 km; grid slice alpha_C = {c_near:.3g} (tuned {final[2]:.3g})", fontsize=9)
-    ax.legend(fontsize=7, loc="best")
-    fig.tight_layout()
-    fig.savefig(out / "path_heatmap.png", dpi=110)
-    plt.close(fig)
+    # ---- figure: the path over the grid's heat maps (divergence rate, mean RMSE)
+    path_heatmap(g, trace, best, final, spec.train_seeds, out / "path_heatmap.png")
 
     budget = {"exact_runs_per_grad_pass": pass_cost, "grad_passes": n_passes, "tune_cost_runs": tune_cost,
               "grid_points": len(g), "grid_runs": len(g) * spec.train_seeds, "tune_wall_s": tune_wall,
