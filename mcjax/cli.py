@@ -1,4 +1,4 @@
-"""The ``mcjax`` command line: ``mcjax sweep``, ``mcjax run``, ``mcjax report``, ``mcjax list``
+"""The ``mcjax`` command line: ``mcjax sweep``, ``mcjax run``, ``mcjax report``, ``mcjax tune``, ``mcjax list``
 (``mcjax --help`` lists every command with one line each; ``docs/cli.md`` holds every
 command's ``--help``).
 
@@ -433,6 +433,109 @@ def report(out_dir, fmt, no_plots):
     click.echo(table)
     for p in plots:
         click.echo(f"{'page' if p.suffix == '.html' else 'plot'}: {p}")
+
+
+@main.command(short_help="Tune Params by gradient through the closed loop ([tune] table).")
+@click.argument("spec", type=click.Path(path_type=Path))
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Output folder (default: results/<spec name>): trace.parquet, trace.png, the held-out "
+                   "evaluation in the sweep's format (runs/, sweep.json; `mcjax report OUT` reads it).")
+@click.option("--resume", is_flag=True,
+              help="Continue an interrupted tune in OUT from its last completed optimisation step (and finish "
+                   "its evaluation).")
+@click.option("--force", is_flag=True, help="Replace an existing output folder that holds a previous tune (OUT/tune.json).")
+def tune(spec, out_dir, resume, force):
+    """Tune the continuous Params named in SPEC's [tune] table by gradient through the closed loop.
+
+    The training loss (a softly clipped tracking error plus a soft divergence indicator, on the
+    scenario's smooth surrogates, the same training seeds every step) is minimised with an
+    optax optimiser; every step's loss, Params, gradient norm and wall time go to
+    OUT/trace.parquet and OUT/trace.png, and the optimiser's state is saved atomically after
+    every step, so a killed tune resumes (--resume) from its last completed step. Then the
+    initial and the final Params are run on the held-out seeds with the exact simulation,
+    written as a two-point sweep (point 0 = initial, point 1 = tuned) and summarised as by
+    `mcjax report`. The first Ctrl-C stops after the step in flight, a second one at once
+    (exit code 130); both print the command that resumes. See docs/tune.md.
+    """
+    state = {"out": out_dir, "started": False}
+
+    def hint() -> str:
+        if not state["started"]:
+            return "interrupted before the tune started; nothing was written"
+        return (f"interrupted: progress saved in {state['out']}; finish with: mcjax tune "
+                f"{shlex.quote(str(spec))} --out {shlex.quote(str(state['out']))} --resume")
+
+    with _ctrl_c(hint) as stop:
+        from mcjax.sweep import default_out_dir
+
+        state["out"] = out_dir = out_dir or default_out_dir(spec)
+        _tune(spec, out_dir, resume, force, state, stop, hint)
+
+
+def _tune(spec_path, out_dir, resume, force, state, stop, hint):
+    from mcjax import results
+    from mcjax import tune as tuning
+    from mcjax.sweep import OutputError, SpecError
+
+    try:
+        spec = tuning.load_tune_spec(spec_path)
+    except SpecError as exc:
+        _fail(str(exc))
+    try:
+        tuning.prepare_tune_output(spec, out_dir, resume=resume, force=force, spec_file=spec_path,
+                                   keep=[spec_path, (spec_path.parent / spec.source["base"]).resolve()])
+    except OutputError as exc:
+        _fail(str(exc))
+    state["started"] = True
+    if stop.is_set():
+        click.echo(hint(), err=True)
+        _exit_now(130)
+    names = ", ".join(f"{b.name} in ({b.low:g}, {b.high:g}) {b.scale}" for b in spec.bounds)
+    click.echo(f"scenario {spec.sweep.scenario.name}: tuning {names} with {spec.optimizer} (learning rate "
+               f"{spec.learning_rate:g}) for {spec.steps} step(s) on {spec.train_seeds} training seed(s); "
+               f"loss on {spec.loss.filter}")
+    saved = tuning.load_state(out_dir, spec)
+    done = 0 if saved is None else saved[0]
+    if done:
+        click.echo(f"resuming: {min(done, spec.steps + 1)} of {spec.steps + 1} loss evaluation(s) already done")
+    from tqdm import tqdm
+
+    with tqdm(total=spec.steps + 1, initial=min(done, spec.steps + 1), unit="step", desc="tune",
+              disable=None) as bar:
+        def progress(row: dict) -> None:
+            bar.set_postfix(loss=f"{row['loss']:.4g}", grad=f"{row['grad_norm']:.3g}")
+            bar.update(1)
+
+        trace = tuning.optimise(spec, out_dir, progress=progress, should_stop=stop.is_set)
+    if stop.is_set() and not tuning.finished(spec, trace):
+        click.echo(hint(), err=True)
+        _exit_now(130)
+    tuning.plot_trace(spec, trace, out_dir / "trace.png")
+    first, last = trace.iloc[0], trace.iloc[-1]
+    for b in spec.bounds:
+        click.echo(f"{b.name}: {first[b.name]:.6g} -> {last[b.name]:.6g}")
+    click.echo(f"training loss: {first['loss']:.6g} -> {last['loss']:.6g} ({len(trace) - 1} step(s)); trace: "
+               f"{out_dir / tuning.TRACE_FILE}, {out_dir / 'trace.png'}")
+    try:
+        ev = tuning.evaluation_spec(spec, tuning.final_values(spec, trace))
+        todo = tuning.prepare_evaluation(ev, out_dir, spec_file=spec_path)
+    except (SpecError, OutputError) as exc:
+        _fail(str(exc))
+    from mcjax.engine import chunk_plan
+    from mcjax.sweep import run_sweep
+
+    plan = chunk_plan(ev.n_runs, ev.chunk_size)
+    remaining = ev.n_runs if todo is None else sum(plan[i][1] - plan[i][0] for i in todo)
+    click.echo(f"held-out evaluation (exact simulation): {ev.n_points} point(s) x {ev.seeds} seed(s) = "
+               f"{ev.n_runs} runs" + ("" if todo is None else f", {remaining} still to run"))
+    with tqdm(total=remaining, unit="run", desc="evaluate", disable=None) as bar:
+        run_sweep(ev, out_dir, chunks=todo, progress=bar.update, should_stop=stop.is_set)
+    if stop.is_set():
+        click.echo(hint(), err=True)
+        _exit_now(130)
+    _print_summary(results.read_table(out_dir, "runs"), ev)
+    click.echo(f"point 0 = initial, point 1 = tuned Params; report: mcjax report {shlex.quote(str(out_dir))}")
+    _done(stop)
 
 
 @main.command(name="list", short_help="List the scenarios; with SCENARIO, its params, settings, outputs.")

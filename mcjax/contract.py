@@ -412,6 +412,22 @@ def params_type(name: str, table: Mapping[str, Param], module: str) -> type:
     return cls
 
 
+class Surrogate(NamedTuple):
+    """A scenario's smooth stand-in for training by gradient through the closed loop (``mcjax
+    tune``, :mod:`mcjax.tune`): the exact simulation with its hard switches (a sensing gate,
+    the comm graph's links) replaced by smooth forms, so the gradient is informative.
+
+    * ``step(cfg, params, state, key, smoothing) -> (State, errors)``: one step, with the same
+      random draws as ``Scenario.step``; ``errors`` (F, n) the error of every filter and agent;
+    * ``weights(cfg, params) -> (n,)``: each agent's weight in the training loss (alive: 1);
+    * ``Smoothing``: a NamedTuple of the temperatures, with defaults (its fields are the keys
+      of a tune spec's ``[tune.smoothing]`` table)."""
+
+    step: Callable
+    weights: Callable
+    Smoothing: type
+
+
 @dataclass(frozen=True, eq=False)
 class Scenario:
     """One simulated system (see the module docstring). Hashed by identity, so the engine
@@ -428,6 +444,7 @@ class Scenario:
     timeseries: Callable | None = None
     timeseries_outputs: Callable[[Any], Mapping[str, Output]] | None = None
     check_params: Callable[[Any, dict], list] | None = None
+    surrogate: Surrogate | None = None   # smooth stand-in for ``mcjax tune`` (optional)
 
     def __post_init__(self):
         for field in ("n_agents", "n_steps", "filters"):

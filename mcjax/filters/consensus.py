@@ -76,12 +76,15 @@ def _check_choice(name, value, allowed):
 
 class Measurements(NamedTuple):
     """What the filters see at one step: ``z`` (n, m) with NaN where an agent has none,
-    ``sensors`` (n, 2) positions, ``adjacency`` (n, n), ``R_inv`` (n, m, m)."""
+    ``sensors`` (n, 2) positions, ``adjacency`` (n, n), ``R_inv`` (n, m, m), and optionally
+    ``component_sizes`` (n,): the weights ``n_i`` of ``contribution="component"`` when the
+    caller has them (a smooth surrogate for training); None: from the adjacency."""
 
     z: jax.Array
     sensors: jax.Array
     adjacency: jax.Array
     R_inv: jax.Array
+    component_sizes: jax.Array | None = None
 
 
 def consensus(W: jax.Array, values: jax.Array, steps: int) -> jax.Array:
@@ -102,9 +105,12 @@ def _weights(opts: FilterOptions, adjacency):
     return graph.consensus_weights(adjacency, opts.weights)
 
 
-def _scale(opts: FilterOptions, adjacency):
+def _scale(opts: FilterOptions, meas: Measurements):
+    adjacency = meas.adjacency
     if opts.contribution == "one":
         return jnp.ones(adjacency.shape[0], adjacency.dtype)
+    if meas.component_sizes is not None:
+        return meas.component_sizes
     return graph.component_sizes(adjacency)
 
 
@@ -133,7 +139,7 @@ def modified_icf_step(h, angle_mask, opts, post: Gaussian, meas: Measurements, F
     L consensus steps on the information pairs (eq. 11), and recover the estimate (eq. 12)."""
     xb, _, yb, Yb = predict_information(post.x, post.P, F, Q)
     i, I, _ = contributions(h, meas.z, meas.sensors, xb, meas.R_inv, angle_mask)
-    s = _scale(opts, meas.adjacency)
+    s = _scale(opts, meas)
     W = _weights(opts, meas.adjacency)
     y = consensus(W, yb + s[:, None] * i, opts.consensus_steps)
     Y = consensus(W, Yb + s[:, None, None] * I, opts.consensus_steps)
@@ -149,7 +155,7 @@ def icf_step(h, angle_mask, opts, post: Gaussian, meas: Measurements, F, Q) -> G
     predicted pairs, then each agent adds its own contribution at its post-consensus prior.
     """
     xb, _, yb, Yb = predict_information(post.x, post.P, F, Q)
-    s = _scale(opts, meas.adjacency)
+    s = _scale(opts, meas)
     W = _weights(opts, meas.adjacency)
     if opts.icf_variant == "contributions":
         i, I, _ = contributions(h, meas.z, meas.sensors, xb, meas.R_inv, angle_mask)

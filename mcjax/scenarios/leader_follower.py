@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax import graph, metrics
-from mcjax.contract import Output, Param, Scenario, Setting, config_type, params_type
+from mcjax.contract import Output, Param, Scenario, Setting, Surrogate, config_type, params_type
 from mcjax.filters.consensus import (
     CONTRIBUTION_KINDS,
     FILTER_KINDS,
@@ -253,15 +253,55 @@ def _new_plan(cfg, params, state: State, uavs, filters, age, key):
     return plan.u, commands, jnp.zeros_like(age), plan.cost
 
 
-def step(cfg, params, state: State, key) -> tuple[State, Record]:
-    """One 1-s step: move target (eq. 1) and UAVs (eqs. 3–4, exact heading), measure (range-gated),
-    build the comm graph (eq. 13), run every filter, record errors and graph metrics.
+class Smoothing(NamedTuple):
+    """Temperatures (m) of the smooth surrogates a training loop runs (:func:`smooth_step`)."""
 
-    Step 0 is the first measurement time: nothing moves and the filters update their prior
-    without predicting (docs/equations.md).
-    """
+    sensing: float = 1e3   # of the sensing gate sigmoid((R_s − r)/T)
+    comm: float = 1e3      # of the comm links sigmoid((min(R_i, R_j) − l_ij)/T)
+
+
+def smooth_measurements(key, target, sensors, params, sensing_radius, alive, temperature):
+    """Every alive agent's range–bearing measurement (Sun et al. 2011 §1.3, the same noise draws
+    as :func:`mcjax.scenarios.kit.team_measurements`) with the range gate of §5 replaced by a
+    soft gate ``g_i = sigmoid((R_s − r_i)/T)``: returns ``(z (n, 2), g (n,))``; the caller
+    weighs agent i's measurement information (eq. 10) by ``g_i``. Dead agents: NaN, ``g = 0``."""
+    dtype = sensors.dtype
+    z = kit.team_measurements(key, target, sensors, params.sigma_range, params.sigma_bearing,
+                              jnp.full(sensors.shape[0], jnp.inf, dtype), alive)
+    r = jax.vmap(range_bearing, in_axes=(None, 0))(target, sensors)[:, 0]
+    gates = jax.nn.sigmoid((sensing_radius - r) / temperature)
+    return z, jnp.where(alive, gates, 0.0)
+
+
+def smooth_adjacency(sensors, comm_radius, alive, temperature):
+    """The comm graph of Sun et al. 2011, eq. 13 with each link a weight
+    ``a_ij = sigmoid((min(R_i, R_j) − l_ij)/T)`` in (0, 1) instead of the 0/1 test; zero
+    diagonal, dead agents unlinked. Gradients are finite for coincident agents (safe norm)."""
+    n = sensors.shape[0]
+    a = jax.nn.sigmoid(graph.link_margins(sensors, comm_radius) / temperature)
+    keep = ~jnp.eye(n, dtype=bool) & alive[:, None] & alive[None, :]
+    return jnp.where(keep, a, 0.0)
+
+
+def smooth_component_sizes(sensors, comm_radius, alive, temperature):
+    """Smooth size of each agent's connected component (the weight ``n_i`` of the ICF
+    contributions, docs/equations.md): ``1 + Σ_{j≠i} sigmoid(ρ_ij/T)`` with ρ the smooth
+    multi-hop pair robustness (Sun et al. 2011 eq. 14, :func:`mcjax.graph.smooth_pair_robustness`):
+    j is in i's component iff ρ_ij ≥ 0, and sigmoid(ρ/T) is the widest path of the soft links of
+    :func:`smooth_adjacency` (sigmoid is monotone). Paths through dead agents are not excluded."""
+    n = sensors.shape[0]
+    rho = graph.smooth_pair_robustness(sensors, comm_radius, temperature)
+    keep = ~jnp.eye(n, dtype=bool) & alive[:, None] & alive[None, :]
+    reach = jnp.where(keep, jax.nn.sigmoid(jnp.where(keep, rho, 0.0) / temperature), 0.0)
+    return 1.0 + jnp.sum(reach, axis=-1)
+
+
+def _advance(cfg, params, state: State, key, smoothing):
+    """The physics and filters of one step (shared by :func:`step` and :func:`smooth_step`):
+    ``(new State, target, sensors, z, adjacency, filters)``. ``smoothing`` None is the exact
+    simulation; a :class:`Smoothing` swaps the sensing gate and the comm graph for their
+    smooth surrogates (:func:`smooth_step`)."""
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
-    params = kit.cast(params, dtype)
     first = state.t == 0
     k_target, k_meas = jax.random.split(key)
     dt = jnp.asarray(params.dt, dtype)
@@ -280,16 +320,23 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
     sensors = uavs[:, :2]
     alive = kit.agents(params.alive, n, dtype) > 0.5
 
-    z = kit.team_measurements(k_meas, target, sensors, params.sigma_range, params.sigma_bearing,
-                              kit.agents(params.sensing_radius, n, dtype), alive)
-    comm = kit.agents(params.comm_radius, n, dtype)
-    adj = graph.adjacency(sensors, comm, alive)
-
-    F, Q = first_step_model(first, cv_matrices(dt, dtype)[0], cv_process_noise(dt, params.sigma_accel, dtype))
     # R = diag(σ_r², σ_θ²) is diagonal: its inverse needs no LAPACK call on the hot path
     R_inv = jnp.diag(jnp.stack([1.0 / params.sigma_range**2, 1.0 / params.sigma_bearing**2]))
     R_inv = jnp.broadcast_to(R_inv, (n, 2, 2))
-    meas = Measurements(z, sensors, adj, R_inv)
+    comm = kit.agents(params.comm_radius, n, dtype)
+    sensing = kit.agents(params.sensing_radius, n, dtype)
+    if smoothing is None:
+        z = kit.team_measurements(k_meas, target, sensors, params.sigma_range, params.sigma_bearing,
+                                  sensing, alive)
+        adj = graph.adjacency(sensors, comm, alive)
+        meas = Measurements(z, sensors, adj, R_inv)
+    else:
+        z, gates = smooth_measurements(k_meas, target, sensors, params, sensing, alive, smoothing.sensing)
+        adj = smooth_adjacency(sensors, comm, alive, smoothing.comm)
+        meas = Measurements(z, sensors, adj, R_inv * gates[:, None, None],
+                            smooth_component_sizes(sensors, comm, alive, smoothing.comm))
+
+    F, Q = first_step_model(first, cv_matrices(dt, dtype)[0], cv_process_noise(dt, params.sigma_accel, dtype))
     angle_mask = jnp.array([False, True])
     filters = filter_step(cfg.filters, filter_options(cfg), range_bearing, angle_mask,
                           state.filters, meas, F, Q, jnp.asarray(params.kcf_epsilon, dtype))
@@ -297,7 +344,21 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
     plan = (state.plan_u, state.plan_cmd, age, state.plan_cost)
     if cfg.planner != "none":
         plan = _plan(cfg, params, state, uavs, filters, age, jax.random.fold_in(key, 0x9A11))
+    return State(state.t + 1, target, uavs, filters, *plan), target, sensors, z, adj, filters
 
+
+def step(cfg, params, state: State, key) -> tuple[State, Record]:
+    """One 1-s step: move target (eq. 1) and UAVs (eqs. 3–4, exact heading), measure (range-gated),
+    build the comm graph (eq. 13), run every filter, record errors and graph metrics.
+
+    Step 0 is the first measurement time: nothing moves and the filters update their prior
+    without predicting (docs/equations.md).
+    """
+    n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
+    params = kit.cast(params, dtype)
+    new, target, sensors, z, adj, filters = _advance(cfg, params, state, key, None)
+    comm = kit.agents(params.comm_radius, n, dtype)
+    plan = new[4:]
     post = [per_agent(k, f, n) for k, f in zip(cfg.filters, filters)]
     err = jnp.stack([metrics.position_error(g.x, target) for g in post])
     ne = jnp.stack([metrics.nees(g.x, g.Y, target) for g in post])
@@ -314,7 +375,26 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
         adjacency=adj,
         plan_cost=plan[3],
     )
-    return State(state.t + 1, target, uavs, filters, *plan), rec
+    return new, rec
+
+
+def smooth_step(cfg, params, state: State, key, smoothing: Smoothing) -> tuple[State, jax.Array]:
+    """:func:`step` with the smooth surrogates of the sensing gate (:func:`smooth_measurements`)
+    and the comm graph (:func:`smooth_adjacency`, :func:`smooth_component_sizes`), for training
+    by gradient (``mcjax tune``). Dynamics (eqs. 1, 3–4), filters (eqs. 8–12) and the planner
+    (eq. 16) are the exact simulation's, with the same random draws. Returns the new state and
+    the position errors (F, n) of every filter and agent."""
+    n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
+    params = kit.cast(params, dtype)
+    new, target, _, _, _, filters = _advance(cfg, params, state, key, smoothing)
+    post = [per_agent(k, f, n) for k, f in zip(cfg.filters, filters)]
+    return new, jnp.stack([metrics.position_error(g.x, target) for g in post])
+
+
+def training_weights(cfg, params):
+    """What the training loss of ``mcjax tune`` reads: the alive weights (n,) of the errors
+    :func:`smooth_step` returns."""
+    return metrics.alive_weights(params.alive, cfg.n_agents, jnp.dtype(cfg.dtype))
 
 
 def outputs(cfg) -> dict[str, Output]:
@@ -378,5 +458,6 @@ def timeseries(cfg, records: Record, params) -> dict:
 SCENARIO = Scenario(
     name=NAME, title="Sun, Zhou, Zou & Ding 2011: leader-follower UAVs, consensus information filters, "
     "receding-horizon planning", Config=Config, Params=Params, init=init, step=step, reduce=reduce,
-    outputs=outputs, timeseries=timeseries, timeseries_outputs=timeseries_outputs, check_params=check_params)
+    outputs=outputs, timeseries=timeseries, timeseries_outputs=timeseries_outputs, check_params=check_params,
+    surrogate=Surrogate(smooth_step, training_weights, Smoothing))
 default_params = SCENARIO.default_params
