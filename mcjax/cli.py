@@ -1,4 +1,5 @@
-"""The ``mcjax`` command line: ``mcjax sweep``, ``mcjax run``, ``mcjax report``, ``mcjax tune``, ``mcjax list``
+"""The ``mcjax`` command line: ``mcjax sweep``, ``mcjax run``, ``mcjax report``, ``mcjax tune``,
+``mcjax list``
 (``mcjax --help`` lists every command with one line each; ``docs/cli.md`` holds every
 command's ``--help``).
 
