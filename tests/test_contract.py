@@ -326,9 +326,9 @@ LAYERS = [
     {"scenarios"},
     {"engine", "statistics"},
     {"sweep", "tables", "plots"},
-    {"cluster"},
-    {"report"},
-    {"cli"},
+    {"cluster", "tune"},
+    {"report", "html_report"},
+    {"cli", "clidoc"},
 ]
 
 

@@ -25,7 +25,8 @@ from mcjax.sweep import MAX_POINTS, SPEC_KEYS
 
 ROOT = Path(__file__).parents[1]
 CONFIGS = ROOT / "configs"
-SWEEPS = sorted((ROOT / "sweeps").glob("*.toml"))
+# the shipped sweep specs (a spec with a [tune] table is for mcjax tune: tests/test_tune.py)
+SWEEPS = [p for p in sorted((ROOT / "sweeps").glob("*.toml")) if "[tune]" not in p.read_text(encoding="utf-8")]
 #: A tiny point of each shipped config (a real run of a spec that slips through is short).
 TINY = {
     "leader_follower": ("sun2011.toml", {"n_steps": 3, "warmup_steps": 1, "planner": "none",
