@@ -38,7 +38,9 @@ tune has it compiles several times faster than reverse mode on this code (measur
 pass (``jax.grad``) with ``jax.checkpoint`` over blocks of ``checkpoint_every`` steps, so
 memory holds one block's intermediates plus a state per block rather than every step's. Each run's gradient is
 computed on its own; a run whose loss or gradient is not finite is left out of the mean (the
-trace counts them).
+trace counts them). ``gradient_window = K`` truncates the derivative to windows of K steps
+(:func:`run_loss`): biased, but it does not grow exponentially with the run's length as the
+full derivative of the chaotic closed loop does (docs/tune.md).
 
 **Bounds** (:class:`Bound`): a Param ``x`` in ``(low, high)`` is optimised as ``z`` with
 ``x = low + (high − low)·sigmoid(z)`` (``scale = "linear"``) or
