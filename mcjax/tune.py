@@ -430,8 +430,8 @@ def _batch_function(spec: TuneSpec) -> Callable:
 
     def one(z, key, base):
         def of_z(z):
-            return run_loss(scenario, cfg, loss, smoothing, block, params_at(bounds, base, from_unconstrained(bounds, z)),
-                            key, window, spec.gradient == "reverse")
+            params = params_at(bounds, base, from_unconstrained(bounds, z))
+            return run_loss(scenario, cfg, loss, smoothing, block, params, key, window, spec.gradient == "reverse")
 
         if spec.gradient == "reverse":
             (value, (rmse, div)), g = jax.value_and_grad(of_z, has_aux=True)(z)
