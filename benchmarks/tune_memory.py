@@ -59,7 +59,8 @@ def main() -> None:
             if args.run:
                 t = time.perf_counter()
                 out = jax.block_until_ready(compiled(z, keys, spec.sweep.base_params))
-                print(f"{mode:8s} block {block:3d}: one pass {time.perf_counter() - t:.0f} s; peak RSS {before:.2f} GiB "
+                print(f"{mode:8s} block {block:3d}: one pass {time.perf_counter() - t:.0f} s; "
+                      f"peak RSS {before:.2f} GiB "
                       f"before compiling, {compiled_rss:.2f} GiB after, {rss():.2f} GiB after the pass; mean loss "
                       f"{float(np.mean(out[0])):.4f}, finite gradients {int(np.all(np.isfinite(out[1]), 1).sum())}/"
                       f"{args.runs}", flush=True)

@@ -96,7 +96,8 @@ def replot(out: Path) -> None:
     """Redraw path_heatmap.png from a finished run's files (no simulation)."""
     trace = pd.read_parquet(out / "tune" / "trace.parquet")
     gdf = pd.read_parquet(out / "grid_runs.parquet")
-    g = gdf.groupby(["alpha_I", "alpha_L", "alpha_C"]).agg(div=("diverged", "mean"), rmse=("rmse", "mean")).reset_index()
+    g = (gdf.groupby(["alpha_I", "alpha_L", "alpha_C"]).agg(div=("diverged", "mean"), rmse=("rmse", "mean"))
+         .reset_index())
     best = g.sort_values(["div", "rmse"]).iloc[0]
     final = trace.iloc[-1][["alpha_I", "alpha_L", "alpha_C"]].to_numpy(float)
     n_seeds = int(gdf["seed_index"].max()) + 1
@@ -138,7 +139,8 @@ def main() -> None:
     spec = tune.build_tune_spec(raw, Path(args.spec).parent)
     import os
 
-    log = {"date": str(date.today()), "load_average_start": list(os.getloadavg()), "command": "python benchmarks/tune_sun2011.py " + " ".join(
+    log = {"date": str(date.today()), "load_average_start": list(os.getloadavg()),
+           "command": "python benchmarks/tune_sun2011.py " + " ".join(
         f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items() if v is not None and k not in ("spec", "replot"))}
 
     # ---- tune (resumes from OUT/tune when it was interrupted)

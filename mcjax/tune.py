@@ -38,7 +38,9 @@ tune has it compiles several times faster than reverse mode on this code (measur
 pass (``jax.grad``) with ``jax.checkpoint`` over blocks of ``checkpoint_every`` steps, so
 memory holds one block's intermediates plus a state per block rather than every step's. Each run's gradient is
 computed on its own; a run whose loss or gradient is not finite is left out of the mean (the
-trace counts them).
+trace counts them). ``gradient_window = K`` truncates the derivative to windows of K steps
+(:func:`run_loss`): biased, but it does not grow exponentially with the run's length as the
+full derivative of the chaotic closed loop does (docs/tune.md).
 
 **Bounds** (:class:`Bound`): a Param ``x`` in ``(low, high)`` is optimised as ``z`` with
 ``x = low + (high − low)·sigmoid(z)`` (``scale = "linear"``) or
@@ -324,11 +326,12 @@ def params_at(bounds, base, x):
     return type(base)(**values)
 
 
-def run_loss(scenario, cfg, loss: Loss, smoothing, block: int, params, key, window: int = 0):
+def run_loss(scenario, cfg, loss: Loss, smoothing, block: int, params, key, window: int = 0, remat: bool = True):
     """The training loss of one run (module docstring) with its parts:
     ``(loss, (soft RMSE, soft divergence))``. The closed loop runs the scenario's surrogate
     step over ``ceil(T / block)`` blocks of ``block`` steps, each block under
-    ``jax.checkpoint`` (steps past T in the last block leave the state as it is).
+    ``jax.checkpoint`` when ``remat`` (reverse mode; forward mode stores no intermediates and
+    skips it) (steps past T in the last block leave the state as it is).
 
     ``window = K > 0`` truncates the gradient (not the value): at steps ``K, 2K, …`` the state
     enters the next step through ``stop_gradient``, so the derivative counts how the Params act
@@ -373,9 +376,11 @@ def run_loss(scenario, cfg, loss: Loss, smoothing, block: int, params, key, wind
         lse = jnp.logaddexp(lse, jax.nn.logsumexp(jnp.where(mask, e / tm, neg)))
         return (state, (sq, count, lse)), None
 
-    @jax.checkpoint
     def run_block(carry, ts):
         return jax.lax.scan(body, carry, ts)[0]
+
+    if remat:  # reverse mode: keep one state per block, recompute the block's steps backwards
+        run_block = jax.checkpoint(run_block)
 
     def outer(carry, ts):
         return run_block(carry, ts), None
@@ -425,8 +430,8 @@ def _batch_function(spec: TuneSpec) -> Callable:
 
     def one(z, key, base):
         def of_z(z):
-            return run_loss(scenario, cfg, loss, smoothing, block, params_at(bounds, base, from_unconstrained(bounds, z)),
-                            key, window)
+            params = params_at(bounds, base, from_unconstrained(bounds, z))
+            return run_loss(scenario, cfg, loss, smoothing, block, params, key, window, spec.gradient == "reverse")
 
         if spec.gradient == "reverse":
             (value, (rmse, div)), g = jax.value_and_grad(of_z, has_aux=True)(z)
