@@ -98,23 +98,50 @@ def quad(a: jax.Array, p: jax.Array) -> jax.Array:
     return matmul(matmul(a, p), jnp.swapaxes(a, -1, -2))
 
 
-def _cholesky_unrolled(a: jax.Array) -> list[list[jax.Array]]:
-    """Lower Cholesky factor of ``a`` given with the matrix axes FIRST, (n, n, ...), as a
-    nested list of batch-shaped arrays."""
-    n = a.shape[0]
+def cholesky_entries(entry, n: int) -> list[list[jax.Array]]:
+    """Lower Cholesky factor, unrolled, of the n×n SPD matrix whose lower entries are
+    ``entry(i, j)`` (i ≥ j; batch-shaped arrays), as a nested list of batch-shaped arrays."""
     l = [[None] * n for _ in range(n)]
     for j in range(n):
-        s = a[j, j]
+        s = entry(j, j)
         for k in range(j):
             s = s - l[j][k] * l[j][k]
-        d = jnp.sqrt(s)  # NaN if a is not positive definite: surfaced, never hidden
+        d = jnp.sqrt(s)  # NaN if the matrix is not positive definite: surfaced, never hidden
         l[j][j] = d
         for i in range(j + 1, n):
-            s = a[i, j]
+            s = entry(i, j)
             for k in range(j):
                 s = s - l[i][k] * l[j][k]
             l[i][j] = s / d
     return l
+
+
+def lower_inverse(l: list[list]) -> list[list]:
+    """``M = L⁻¹`` of a lower-triangular nested list (forward substitution column by column)."""
+    n = len(l)
+    m = [[None] * n for _ in range(n)]
+    for j in range(n):
+        m[j][j] = 1.0 / l[j][j]
+        for i in range(j + 1, n):
+            s = l[i][j] * m[j][j]
+            for k in range(j + 1, i):
+                s = s + l[i][k] * m[k][j]
+            m[i][j] = -s / l[i][i]
+    return m
+
+
+def inverse_entry(m: list[list], i: int, j: int):
+    """Entry (i, j), i ≤ j, of ``Mᵀ M`` = ``(L Lᵀ)⁻¹`` for ``M = L⁻¹`` (:func:`lower_inverse`)."""
+    s = m[j][i] * m[j][j]
+    for k in range(j + 1, len(m)):
+        s = s + m[k][i] * m[k][j]
+    return s
+
+
+def _cholesky_unrolled(a: jax.Array) -> list[list[jax.Array]]:
+    """Lower Cholesky factor of ``a`` given with the matrix axes FIRST, (n, n, ...), as a
+    nested list of batch-shaped arrays."""
+    return cholesky_entries(lambda i, j: a[i, j], a.shape[0])
 
 
 def _matrix_axes_first(a: jax.Array) -> jax.Array:
@@ -135,23 +162,11 @@ def spd_inverse(a: jax.Array) -> jax.Array:
         eye = jnp.broadcast_to(jnp.eye(n, dtype=a.dtype), a.shape)
         linv = jax.scipy.linalg.solve_triangular(c, eye, lower=True)
         return jnp.swapaxes(linv, -1, -2) @ linv
-    l = _cholesky_unrolled(_matrix_axes_first(a))
-    # m = L⁻¹ (lower triangular), by forward substitution column by column.
-    m = [[None] * n for _ in range(n)]
-    for j in range(n):
-        m[j][j] = 1.0 / l[j][j]
-        for i in range(j + 1, n):
-            s = l[i][j] * m[j][j]
-            for k in range(j + 1, i):
-                s = s + l[i][k] * m[k][j]
-            m[i][j] = -s / l[i][i]
+    m = lower_inverse(_cholesky_unrolled(_matrix_axes_first(a)))
     out = [[None] * n for _ in range(n)]
     for i in range(n):
         for j in range(i, n):
-            s = m[j][i] * m[j][j]
-            for k in range(j + 1, n):
-                s = s + m[k][i] * m[k][j]
-            out[i][j] = out[j][i] = s
+            out[i][j] = out[j][i] = inverse_entry(m, i, j)
     stacked = jnp.stack([jnp.stack(row) for row in out])  # (n, n, ...)
     return jnp.moveaxis(stacked, (0, 1), (-2, -1))
 

@@ -909,10 +909,11 @@ def _inside(path: Path, folder: Path) -> bool:
     return path == folder or folder in path.parents
 
 
-def _check_replaceable(out_dir: Path, keep: list[Path]) -> None:
-    """``--force`` replaces only a folder that is empty or holds a previous sweep
-    (``sweep.json``) and never one that is or holds the current folder, a file of ``keep``
-    (the spec, its base) or ``results/`` itself."""
+def _check_replaceable(out_dir: Path, keep: list[Path], identity_file: str = IDENTITY_FILE,
+                       kind: str = "sweep") -> None:
+    """``--force`` replaces only a folder that is empty or holds a previous ``kind`` of run
+    (its ``identity_file``, ``sweep.json`` for a sweep) and never one that is or holds the
+    current folder, a file of ``keep`` (the spec, its base) or ``results/`` itself."""
     if out_dir.is_symlink():
         raise OutputError(f"--force: {out_dir} is a symbolic link; give the folder itself as --out")
     out = out_dir.resolve()
@@ -922,10 +923,10 @@ def _check_replaceable(out_dir: Path, keep: list[Path]) -> None:
         if _inside(g, out):
             what = ("the current folder" if g == guarded[0] else "results/ itself" if g == guarded[1]
                     else "your home folder" if g == guarded[2] else str(g))
-            raise OutputError(f"--force: {out_dir} is or holds {what}; it replaces only a sweep's own output folder "
+            raise OutputError(f"--force: {out_dir} is or holds {what}; it replaces only a {kind}'s own output folder "
                               f"(choose another --out)")
-    if any(out.iterdir()) and not (out / IDENTITY_FILE).is_file():
-        raise OutputError(f"--force: {out_dir} is not empty and holds no {IDENTITY_FILE}, so it is no sweep's output "
+    if any(out.iterdir()) and not (out / identity_file).is_file():
+        raise OutputError(f"--force: {out_dir} is not empty and holds no {identity_file}, so it is no {kind}'s output "
                           f"folder; --force replaces only those (choose another --out)")
 
 

@@ -735,7 +735,7 @@ def prepare_tune_output(spec: TuneSpec, out_dir: str | Path, *, resume: bool = F
     anything is written."""
     import shutil
 
-    from mcjax.sweep import OutputError, RESULTS_DIR
+    from mcjax.sweep import OutputError, _check_replaceable
 
     out_dir = Path(out_dir)
     state = out_dir / IDENTITY_FILE
@@ -760,17 +760,7 @@ def prepare_tune_output(spec: TuneSpec, out_dir: str | Path, *, resume: bool = F
             if not force:
                 raise OutputError(f"output folder {out_dir} is not empty; pass --resume to finish it, --force to "
                                   f"replace it, or choose another --out")
-            if out_dir.is_symlink():
-                raise OutputError(f"--force: {out_dir} is a symbolic link; give the folder itself as --out")
-            out = out_dir.resolve()
-            for g in [Path.cwd().resolve(), RESULTS_DIR.resolve(), Path.home().resolve(),
-                      *[Path(p).resolve() for p in keep]]:
-                if g == out or out in g.parents:
-                    raise OutputError(f"--force: {out_dir} is or holds {g}; it replaces only a tune's own output "
-                                      f"folder (choose another --out)")
-            if not state.is_file():
-                raise OutputError(f"--force: {out_dir} is not empty and holds no {IDENTITY_FILE}, so it is no tune's "
-                                  f"output folder; --force replaces only those (choose another --out)")
+            _check_replaceable(out_dir, list(keep), IDENTITY_FILE, "tune")
             shutil.rmtree(out_dir)
         out_dir.mkdir(parents=True, exist_ok=True)
         saved = {**identity(spec), "spec_file": None if spec_file is None else str(Path(spec_file).resolve())}

@@ -29,7 +29,7 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 
-from mcjax import graph
+from mcjax import graph, numerics
 from mcjax.numerics import wrap_angle
 
 D = 4  # state dimension [x, ẋ, y, ẏ]
@@ -73,34 +73,8 @@ def _dot(a, b):
 def spd_inverse(S):
     """Inverse of SPD matrices given as upper triangles: Cholesky ``S = L Lᵀ``, ``S⁻¹ = L⁻ᵀ L⁻¹``
     (the unrolled algorithm of :func:`mcjax.numerics.spd_inverse`; NaN if not positive definite)."""
-    n = D
-    l = [[None] * n for _ in range(n)]
-    for j in range(n):
-        s = sym(S, j, j)
-        for k in range(j):
-            s = s - l[j][k] * l[j][k]
-        d = jnp.sqrt(s)
-        l[j][j] = d
-        for i in range(j + 1, n):
-            s = sym(S, i, j)
-            for k in range(j):
-                s = s - l[i][k] * l[j][k]
-            l[i][j] = s / d
-    m = [[None] * n for _ in range(n)]
-    for j in range(n):
-        m[j][j] = 1.0 / l[j][j]
-        for i in range(j + 1, n):
-            s = l[i][j] * m[j][j]
-            for k in range(j + 1, i):
-                s = s + l[i][k] * m[k][j]
-            m[i][j] = -s / l[i][i]
-    out = []
-    for i, j in UPPER:
-        s = m[j][i] * m[j][j]
-        for k in range(j + 1, n):
-            s = s + m[k][i] * m[k][j]
-        out.append(s)
-    return tuple(out)
+    m = numerics.lower_inverse(numerics.cholesky_entries(lambda i, j: sym(S, i, j), D))
+    return tuple(numerics.inverse_entry(m, i, j) for i, j in UPPER)
 
 
 def sym_matvec(S, v):
