@@ -112,12 +112,7 @@ def _innovation(z, hx, angle_mask):
 def local_update(h, angle_mask, xb, Pb, z, sensor, R):
     """Moment-form EKF update (see module docstring). ``z`` a tuple of M arrays (NaN where
     missing), ``R`` (M, M). Returns ``(x, P)``; the prediction where ``z`` is missing."""
-    valid = jnp.isfinite(z[0])
-    for a in range(1, M):
-        valid = valid & jnp.isfinite(z[a])
-    z = tuple(jnp.where(valid, za, 0.0) for za in z)
-    hx, H = linearise(h, xb, sensor)
-    nu = _innovation(z, hx, angle_mask)
+    valid, H, nu = _measured(h, angle_mask, xb, z, sensor)
     PHt = [[_dot([sym(Pb, i, k) for k in range(D)], H[a]) for a in range(M)] for i in range(D)]
     S = {(a, c): _dot(H[a], [PHt[k][c] for k in range(D)]) + R[a, c] for a in range(M) for c in range(a, M)}
     det = S[0, 0] * S[1, 1] - S[0, 1] * S[0, 1]
@@ -129,15 +124,21 @@ def local_update(h, angle_mask, xb, Pb, z, sensor, R):
     return x, P
 
 
-def contribution(h, angle_mask, xb, z, sensor, R_inv):
-    """Information contribution ``i = Hᵀ R⁻¹ (ν + H x̄)``, ``I = Hᵀ R⁻¹ H`` (upper triangle),
-    zero where a component of ``z`` is missing (docs/equations.md §5.1)."""
+def _measured(h, angle_mask, xb, z, sensor):
+    """``(valid, H, ν)``: where every component of ``z`` is finite, the Jacobian at ``xb`` and
+    the innovation (missing measurements zeroed, so they stay finite where masked out)."""
     valid = jnp.isfinite(z[0])
     for a in range(1, M):
         valid = valid & jnp.isfinite(z[a])
     z = tuple(jnp.where(valid, za, 0.0) for za in z)
     hx, H = linearise(h, xb, sensor)
-    nu = _innovation(z, hx, angle_mask)
+    return valid, H, _innovation(z, hx, angle_mask)
+
+
+def contribution(h, angle_mask, xb, z, sensor, R_inv):
+    """Information contribution ``i = Hᵀ R⁻¹ (ν + H x̄)``, ``I = Hᵀ R⁻¹ H`` (upper triangle),
+    zero where a component of ``z`` is missing (docs/equations.md §5.1)."""
+    valid, H, nu = _measured(h, angle_mask, xb, z, sensor)
     pseudo = [nu[a] + _dot(H[a], xb) for a in range(M)]
     G = [[_dot([H[a][i] for a in range(M)], [R_inv[a, c] for a in range(M)]) for c in range(M)] for i in range(D)]
     i_c = tuple(jnp.where(valid, _dot(G[i], pseudo), 0.0) for i in range(D))
