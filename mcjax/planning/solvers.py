@@ -128,7 +128,8 @@ def _cem(cost: PlanCost, warm, key, options, candidates) -> Plan:
         best = _keep_better(Plan(draws[order[0]], costs[order[0]]), best)
         return (jnp.mean(elite, 0), jnp.std(elite, 0) + 0.02, best), None
 
-    start = Plan(warm, exact(warm))
+    c0 = exact(warm)
+    start = Plan(warm, jnp.where(jnp.isnan(c0), jnp.inf, c0))  # a NaN warm start never wins
     std0 = jnp.full_like(warm, 0.5)
     (_, _, best), _ = jax.lax.scan(round_, (warm, std0, start), jax.random.split(key, options.iterations))
     return best
