@@ -30,6 +30,7 @@ def mixed():
     return fn, jax.tree.map(np.asarray, a), jax.tree.map(np.asarray, b)
 
 
+@pytest.mark.xdist_group("test_closed_loop")  # one worker builds the module fixture once
 def test_mixed_horizons_share_one_program(mixed):
     fn, a, b = mixed
     assert fn._cache_size() == 1  # t_r = 3, 5, 8 and three α_I in one compiled program
@@ -40,6 +41,7 @@ def test_mixed_horizons_share_one_program(mixed):
     assert not np.array_equal(a.positions[0], a.positions[1])
 
 
+@pytest.mark.xdist_group("test_closed_loop")  # one worker builds the module fixture once
 def test_replans_every_tau_r_and_respects_the_turn_rate(mixed):
     _, a, _ = mixed
     # the plan in force changes exactly at steps 0, τ_r, 2τ_r, ... (its exact cost is recorded)
@@ -92,6 +94,7 @@ def test_paper_config_icf_reproduces_table_1_case_2():
     assert icf["mean_error"].mean() < 1000.0  # finite and small, as in the paper (39.7 m vs 9.8 m)
 
 
+@pytest.mark.xdist_group("test_closed_loop")  # one worker builds the module fixture once
 def test_fixed_plan_period_plans_only_when_due_and_gives_the_same_bits(mixed):
     """``plan_period = τ_r``: the planner sits in a ``lax.cond`` on the step alone, skipped on
     the other steps — the same records as the every-step program with ``replan_every = τ_r``

@@ -309,12 +309,14 @@ def ran(tmp_path_factory):
     return done
 
 
+@pytest.mark.xdist_group("test_docs")  # one worker builds the module fixture once
 def test_every_command_in_the_readme_and_docs_runs(ran):
     problems = [p for _, _, ps in ran.values() for p in ps]
     assert not problems, "\n".join(problems)
     assert README in ran and len(ran) >= 4
 
 
+@pytest.mark.xdist_group("test_docs")  # one worker builds the module fixture once
 def test_readme_quick_start_writes_a_dataset_and_a_page(ran):
     folder, runner, _ = ran[README]
     assert (folder / "results" / "default" / "runs").is_dir()
@@ -329,6 +331,7 @@ def _python_blocks(doc: Path) -> list[str]:
     return [text for lang, text, skip in fenced(doc) if lang == "python" and skip is None]
 
 
+@pytest.mark.xdist_group("test_docs")  # one worker builds the module fixture once
 @pytest.mark.parametrize("name", ["README.md", "docs/cli.md"])
 def test_python_blocks_run_on_the_datasets(ran, name):
     doc = ROOT / name
@@ -343,6 +346,7 @@ def test_python_blocks_run_on_the_datasets(ran, name):
             exec(compile(code, name, "exec"), {})
 
 
+@pytest.mark.xdist_group("test_docs")  # one worker builds the module fixture once
 def test_readme_column_list_is_the_datasets_order(ran):
     folder, _, _ = ran[README]
     text = README.read_text(encoding="utf-8")

@@ -24,6 +24,7 @@ def tiny():
     return dict(measurements=z, sensor_positions=s, adjacency=a, x0=truth[0, 0], **common)
 
 
+@pytest.mark.xdist_group("test_filter_peers")  # one worker builds the module fixture once
 def test_filterpy_loop_matches_mcjax_local(tiny):
     pytest.importorskip("filterpy")
     x, P = run_filter("local", **tiny)
@@ -41,6 +42,7 @@ def test_filterpy_loop_matches_mcjax_local(tiny):
     ("modified_icf", dict(consensus_steps=3, weights="metropolis")),
     ("modified_icf", dict(consensus_steps=2, weights="max_degree", contribution="one")),
 ])
+@pytest.mark.xdist_group("test_filter_peers")  # one worker builds the module fixture once
 def test_numba_kernel_matches_mcjax(tiny, kind, options):
     pytest.importorskip("numba")
     import numba_peer

@@ -428,6 +428,7 @@ def _split(y):
     return y[: 2 * N5].reshape(N5, 2), y[2 * N5: 4 * N5].reshape(N5, 2), y[4 * N5:].reshape(N5, N5)
 
 
+@pytest.mark.xdist_group("test_flocking")  # one worker builds the module fixture once
 def test_rk4_window_matches_solve_ivp(ivp_window):
     """q, p and b after each of 5 steps: rk4_step with 200 sub-steps per 0.1 s (h = 5e-4,
     RK4 global error ~1e-12 here) equals solve_ivp of the numpy equations to 1e-8 (absolute;
@@ -456,6 +457,7 @@ def test_rk4_window_matches_solve_ivp(ivp_window):
     assert np.max(np.abs(w["static"][-1][0] - w["static"][0][0])) > 0.05
 
 
+@pytest.mark.xdist_group("test_flocking")  # one worker builds the module fixture once
 def test_rk4_margins_are_the_substep_minima(ivp_window):
     """rk4_step's min_link_margin (smallest R − r over links) and min_distance (smallest
     pairwise distance) are the minima over the sub-step ends t0 + m·h, m = 1..200: the
@@ -471,6 +473,7 @@ def test_rk4_margins_are_the_substep_minima(ivp_window):
         assert abs(dmin - np.min(d[:, off])) < 1e-8
 
 
+@pytest.mark.xdist_group("test_flocking")  # one worker builds the module fixture once
 def test_stable_substeps_is_its_documented_formula(ivp_window):
     """stable_substeps = clip(ceil(dt / (safety·min(1/√κ, 1/γ))), 1, max) with
     κ = max_i Σ_{j∈N_i} (ψ″(r_ij) + |ψ′(r_ij)|/r_ij) and γ = max(c2, max_{i∈II} Σ_{j∈N_i} b_ij),
@@ -541,6 +544,7 @@ def _meas(z, A, Rs):
     return Measurements(jnp.asarray(z), jnp.zeros((NK, 2)), jnp.asarray(A), jnp.asarray(np.linalg.inv(np.array(Rs))))
 
 
+@pytest.mark.xdist_group("test_flocking")  # one worker builds the module fixture once
 def test_kcf_on_a_complete_graph_is_the_centralised_kalman_filter(kcf_fns):
     """Every node senses, complete graph, the same prior: with S_i = Σ_j H R_j⁻¹ H and
     y_i = Σ_j H R_j⁻¹ z_j over all nodes and no disagreement, each node's KCF (μP gain) is
@@ -566,6 +570,7 @@ def test_kcf_on_a_complete_graph_is_the_centralised_kalman_filter(kcf_fns):
     assert np.trace(kf.P) < 0.5 * np.trace(P0)
 
 
+@pytest.mark.xdist_group("test_flocking")  # one worker builds the module fixture once
 def test_kcf_on_an_empty_graph_and_local_filters_are_each_nodes_kalman_filter(kcf_fns):
     """No links: each node's KCF is its own Kalman filter (filterpy, its own R_i and prior);
     node 3 misses every other measurement (NaN: predict only). local_step (the paper's
@@ -599,6 +604,7 @@ def test_kcf_on_an_empty_graph_and_local_filters_are_each_nodes_kalman_filter(kc
                 np.testing.assert_allclose(np.asarray(post.P[i]), kf.P, rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.xdist_group("test_flocking")  # one worker builds the module fixture once
 def test_kcf_step_is_algorithm_1_on_a_path_graph(kcf_fns):
     """One KCF step on the path 0–1–2–3 with different priors, node 2 without a measurement:
     Lou et al. 2013 Alg. 1 transcribed in numpy (P̄ = F P Fᵀ + Q, x̄ = F x;
@@ -670,6 +676,7 @@ def scenario_runs():
     return dict(rec=rec, adj0=adj0, q0=q0, adj=adj, flock=flock, out=reduced, params=params)
 
 
+@pytest.mark.xdist_group("test_flocking")  # one worker builds the module fixture once
 def test_scenario_start_is_a_valid_draw(scenario_runs):
     """The start of each ordinary run: its graph (r < R, rule 1) is connected (networkx), no
     pair in [R − start_margin, R), none closer than start_min_distance; the initial adjacency
@@ -771,6 +778,7 @@ def test_default_start_is_the_papers_uniform_draw():
     assert load_config_file(CONFIG)[1].start_layout == "uniform"
 
 
+@pytest.mark.xdist_group("test_flocking")  # one worker builds the module fixture once
 def test_scenario_impossible_start_is_flagged_not_hung(scenario_runs):
     """start_min_distance = 7.9 m for 6 nodes in an 8 m box cannot be met: every one of the 64
     draws fails, the run is flagged (start_failed) and still runs its 40 steps from its last
@@ -783,6 +791,7 @@ def test_scenario_impossible_start_is_flagged_not_hung(scenario_runs):
     assert w["rec"].edges.shape[1] == SCN_CFG.n_steps
 
 
+@pytest.mark.xdist_group("test_flocking")  # one worker builds the module fixture once
 def test_scenario_huge_step_is_flagged(scenario_runs):
     """Run 0 again with dt = 5 s integrated in one RK4 sub-step: the link margin (or the
     estimate) goes bad and the run says so; run 0 itself is clean."""
@@ -792,6 +801,7 @@ def test_scenario_huge_step_is_flagged(scenario_runs):
     assert not bool(out["link_reached_R"][0]) and not np.any(out["nonfinite"][0])
 
 
+@pytest.mark.xdist_group("test_flocking")  # one worker builds the module fixture once
 def test_scenario_graph_records_match_networkx_and_the_hysteresis_rules(scenario_runs):
     """Every step of the ordinary runs: the new adjacency is rules 2–3 applied in numpy to the
     previous one and the step-end positions; λ2 equals networkx's (Laplacian eigenvalues),

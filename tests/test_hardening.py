@@ -69,6 +69,7 @@ def _copy(dataset, tmp_path) -> Path:
     return out
 
 
+@pytest.mark.xdist_group("test_hardening")  # one worker builds the module fixture once
 def test_damaged_parts_are_named_by_report_and_repaired_by_resume(dataset, tmp_path):
     spec, whole = dataset
     out = _copy(dataset, tmp_path)
@@ -92,6 +93,7 @@ def test_damaged_parts_are_named_by_report_and_repaired_by_resume(dataset, tmp_p
     pd.testing.assert_frame_equal(_runs(out), _runs(whole), check_exact=True)
 
 
+@pytest.mark.xdist_group("test_hardening")  # one worker builds the module fixture once
 def test_missing_part_makes_report_warn_and_resume_finish(dataset, tmp_path):
     spec, whole = dataset
     out = _copy(dataset, tmp_path)
@@ -111,6 +113,7 @@ def test_missing_part_makes_report_warn_and_resume_finish(dataset, tmp_path):
     assert r.exit_code == 0 and "WARNING" not in r.output
 
 
+@pytest.mark.xdist_group("test_hardening")  # one worker builds the module fixture once
 def test_damaged_sweep_json_is_one_line_and_report_still_reads(dataset, tmp_path):
     spec, _ = dataset
     out = _copy(dataset, tmp_path)

@@ -49,6 +49,7 @@ def one_axis():
     return df, {i.name: i for i in items}
 
 
+@pytest.mark.xdist_group("test_honest_plots")  # one worker builds the module fixture once
 def test_runs_per_point_shown_where_they_vary(one_axis):
     df, items = one_axis
     fig = items["rmse_nondiverged_vs_comm_radius.png"].figure
@@ -70,6 +71,7 @@ def test_runs_per_point_shown_where_they_vary(one_axis):
     assert "Every point rests on 10 runs" in items["rmse_vs_comm_radius.png"].caption
 
 
+@pytest.mark.xdist_group("test_honest_plots")  # one worker builds the module fixture once
 def test_points_on_fewer_than_five_runs_are_hollow_and_not_joined(one_axis):
     df, items = one_axis
     ax = items["rmse_nondiverged_vs_comm_radius.png"].figure.axes[0]
@@ -88,6 +90,7 @@ def test_points_on_fewer_than_five_runs_are_hollow_and_not_joined(one_axis):
     assert "1 point(s) rest on fewer than 5 runs" in items["rmse_nondiverged_vs_comm_radius.png"].caption
 
 
+@pytest.mark.xdist_group("test_honest_plots")  # one worker builds the module fixture once
 def test_axes_in_display_units(one_axis):
     _, items = one_axis
     fig = items["divergence_vs_comm_radius.png"].figure

@@ -94,6 +94,7 @@ def reported(tmp_path_factory):
     return out, r.output
 
 
+@pytest.mark.xdist_group("test_html_report")  # one worker builds the module fixture once
 def test_report_writes_one_page_and_names_it(reported):
     out, output = reported
     page = out / "report" / "index.html"
@@ -103,6 +104,7 @@ def test_report_writes_one_page_and_names_it(reported):
     assert len(pngs) == 2 * 4 + 3  # per axis: error, non-divergent error, divergence, connectivity; 3 heatmaps
 
 
+@pytest.mark.xdist_group("test_html_report")  # one worker builds the module fixture once
 def test_page_is_self_contained(reported):
     out, _ = reported
     page = parse(out / "report" / "index.html")
@@ -116,6 +118,7 @@ def test_page_is_self_contained(reported):
     assert "url(" not in raw and "@import" not in raw and "http://" not in raw and "https://" not in raw
 
 
+@pytest.mark.xdist_group("test_html_report")  # one worker builds the module fixture once
 def test_every_plot_is_embedded_with_a_caption(reported):
     out, _ = reported
     page = parse(out / "report" / "index.html")
@@ -137,6 +140,7 @@ def test_every_plot_is_embedded_with_a_caption(reported):
     assert "comm_radius [km]" in captions["rmse_vs_comm_radius.png"]
 
 
+@pytest.mark.xdist_group("test_html_report")  # one worker builds the module fixture once
 def test_page_holds_description_spec_provenance_and_tables(reported):
     out, _ = reported
     page = parse(out / "report" / "index.html")
@@ -199,6 +203,7 @@ def _run_browser(browser: str, *args: str) -> subprocess.CompletedProcess:
         capture_output=True, text=True, timeout=120)
 
 
+@pytest.mark.xdist_group("test_html_report")  # one worker builds the module fixture once
 @pytest.mark.skipif(_browser() is None, reason="no headless Chromium on this machine (apt-get install chromium)")
 def test_page_in_a_headless_browser(reported, tmp_path):
     """A screenshot of the page, every image decoded by the browser, no console message."""

@@ -24,6 +24,7 @@ def records():
     return params, {name: np.asarray(v) for name, v in rec._asdict().items()}
 
 
+@pytest.mark.xdist_group("test_leader_follower")  # one worker builds the module fixture once
 def test_initial_geometry_is_the_papers(records):
     params, rec = records
     km = 1e3
@@ -39,6 +40,7 @@ def test_initial_geometry_is_the_papers(records):
     np.testing.assert_allclose(heading, params.heading_cmd, atol=1e-9)
 
 
+@pytest.mark.xdist_group("test_leader_follower")  # one worker builds the module fixture once
 def test_graph_records_match_numpy(records):
     _, rec = records
     pos, adj = rec["positions"], rec["adjacency"]
@@ -52,6 +54,7 @@ def test_graph_records_match_numpy(records):
     np.testing.assert_array_equal(rec["degrees"], expected.sum(-1))
 
 
+@pytest.mark.xdist_group("test_leader_follower")  # one worker builds the module fixture once
 def test_measurements_gated_by_sensing_range(records):
     _, rec = records
     d = rec["target"][..., None, [0, 2]] - rec["positions"]
@@ -63,6 +66,7 @@ def test_measurements_gated_by_sensing_range(records):
     assert abs(resid.std() - 10.0) < 1.5  # σ_r = 10 m
 
 
+@pytest.mark.xdist_group("test_leader_follower")  # one worker builds the module fixture once
 @pytest.mark.parametrize("kind", ["cif", "modified_icf", "kcf"])
 def test_scenario_filters_equal_numpy_peer_on_recorded_data(records, kind):
     params, rec = records

@@ -205,6 +205,7 @@ def cif5(scen5):
     return peer.run_filter_numpy("cif", **scen5)
 
 
+@pytest.mark.xdist_group("test_numpy_peer")  # one worker builds the module fixture once
 def test_scenario_is_nontrivial(scen5):
     valid = np.all(np.isfinite(scen5["measurements"]), axis=-1)
     assert valid.any(axis=0).sum() >= 3  # several agents measure at some point
@@ -212,6 +213,7 @@ def test_scenario_is_nontrivial(scen5):
     assert scen5["adjacency"].sum() > 0
 
 
+@pytest.mark.xdist_group("test_numpy_peer")  # one worker builds the module fixture once
 @pytest.mark.parametrize("weights", peer.WEIGHT_KINDS)
 @pytest.mark.parametrize("steps", [1, 20])
 def test_modified_icf_complete_graph_equals_cif(scen5, cif5, weights, steps):
@@ -223,6 +225,7 @@ def test_modified_icf_complete_graph_equals_cif(scen5, cif5, weights, steps):
     _assert_cov_close(cov, cif5[1], 1e-8)
 
 
+@pytest.mark.xdist_group("test_numpy_peer")  # one worker builds the module fixture once
 @pytest.mark.parametrize("weights", peer.WEIGHT_KINDS)
 @pytest.mark.parametrize("steps", [1, 20])
 def test_icf_contributions_complete_graph_equals_cif(scen5, cif5, weights, steps):
@@ -234,6 +237,7 @@ def test_icf_contributions_complete_graph_equals_cif(scen5, cif5, weights, steps
     _assert_cov_close(cov, cif5[1], 1e-8)
 
 
+@pytest.mark.xdist_group("test_numpy_peer")  # one worker builds the module fixture once
 @pytest.mark.parametrize("gain", peer.KCF_GAINS)
 def test_kcf_complete_graph_equals_cif(scen5, cif5, gain):
     """With everyone a neighbour and identical priors, S_i = Σ_j U_j, the consensus term
@@ -243,6 +247,7 @@ def test_kcf_complete_graph_equals_cif(scen5, cif5, gain):
     _assert_cov_close(cov, cif5[1], 1e-8)
 
 
+@pytest.mark.xdist_group("test_numpy_peer")  # one worker builds the module fixture once
 def test_modified_icf_without_component_weighting_differs_from_cif(scen5, cif5):
     """Sanity: the identities above are not vacuous (s_i = 1 under-weights the data)."""
     est, _ = peer.run_filter_numpy("modified_icf", **_complete(scen5), contribution="one")
@@ -263,6 +268,7 @@ def test_modified_icf_without_component_weighting_differs_from_cif(scen5, cif5):
         ("kcf", dict(kcf_gain="mu_P", kcf_epsilon=0.5)),
     ],
 )
+@pytest.mark.xdist_group("test_numpy_peer")  # one worker builds the module fixture once
 def test_empty_graph_equals_local(scen5, kind, kwargs):
     sc = dict(scen5)
     sc["adjacency"] = np.zeros_like(scen5["adjacency"])

@@ -54,6 +54,7 @@ def _table_lines(text: str) -> list[str]:
     return lines[lines.index("") + 1:]
 
 
+@pytest.mark.xdist_group("test_report")  # one worker builds the module fixture once
 def test_report_one_axis(datasets):
     before = _pyplot_state()
     table, paths = rp.report(datasets["one"], "markdown")
@@ -72,6 +73,7 @@ def test_report_one_axis(datasets):
         check_png(p)
 
 
+@pytest.mark.xdist_group("test_report")  # one worker builds the module fixture once
 def test_report_two_axes(datasets):
     table, paths = rp.report(datasets["two"], "csv")
     assert paths.pop().name == "index.html"  # the page comes last, after the plots
@@ -85,6 +87,7 @@ def test_report_two_axes(datasets):
     assert len(names) == len(paths) == 2 * 4 + 3
 
 
+@pytest.mark.xdist_group("test_report")  # one worker builds the module fixture once
 def test_report_zero_axes(datasets):
     table, paths = rp.report(datasets["zero"])
     assert paths.pop().name == "index.html"  # the page comes last, after the plots
@@ -95,6 +98,7 @@ def test_report_zero_axes(datasets):
     assert table2 == table and none == []
 
 
+@pytest.mark.xdist_group("test_report")  # one worker builds the module fixture once
 def test_report_single_agent_without_graph(datasets):
     """(a): the report works without connectivity columns; no connectivity statistics or plot."""
     table, paths = rp.report(datasets["single"])
@@ -108,6 +112,7 @@ def test_report_single_agent_without_graph(datasets):
     check_png(paths[0])
 
 
+@pytest.mark.xdist_group("test_report")  # one worker builds the module fixture once
 def test_report_error_in_m_per_s(datasets):
     """(b): the legend lines name m/s for the error metric, never [m]."""
     table, paths = rp.report(datasets["wind"], "text", plots=False)
@@ -119,6 +124,7 @@ def test_report_error_in_m_per_s(datasets):
     assert _table_lines(table)[0].split()[:4] == ["sigma_wind", "filter", "n", "wind_rmse_mean"]
 
 
+@pytest.mark.xdist_group("test_report")  # one worker builds the module fixture once
 def test_summary_text_matches_report(datasets):
     out = datasets["two"]
     df, meta = results.read_table(out), results.read_metadata(out)
@@ -133,6 +139,7 @@ def test_summary_text_matches_report(datasets):
         rp.summary_text(synthetic_runs(grid).iloc[:0], make_metadata(grid))
 
 
+@pytest.mark.xdist_group("test_report")  # one worker builds the module fixture once
 def test_report_errors(tmp_path, datasets):
     with pytest.raises(ValueError, match="no runs found in .*empty"):
         rp.report(tmp_path / "empty")

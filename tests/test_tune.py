@@ -131,6 +131,7 @@ def _with_base(spec, **values) -> tune.TuneSpec:
 # ------------------------------------------------------------------ transforms and spec
 
 
+@pytest.mark.xdist_group("test_tune")  # one worker builds the module fixture once
 def test_transform_round_trip_stays_inside_bounds(spec):
     z = tune.to_unconstrained(spec.bounds, spec.initial())
     np.testing.assert_allclose(np.asarray(tune.from_unconstrained(spec.bounds, jnp.asarray(z))), spec.initial(),
@@ -208,6 +209,7 @@ def test_example_spec_reads():
 # ------------------------------------------------------------------ gradients
 
 
+@pytest.mark.xdist_group("test_tune")  # one worker builds the module fixture once
 def test_gradient_matches_central_differences(spec, evaluator):
     """d loss / d z of the forward-mode gradient vs central differences of the same loss (the
     same seeds, float64), for 4 Params, to a relative 1e-3."""
@@ -223,6 +225,7 @@ def test_gradient_matches_central_differences(spec, evaluator):
     assert np.all(np.abs(ev.grad) > 1e-3 * scale)  # every Param carries gradient (none is checked as 0 = 0)
 
 
+@pytest.mark.xdist_group("test_tune")  # one worker builds the module fixture once
 @pytest.mark.parametrize("case", ["uav_on_target", "coincident_uavs", "graph_breaks"])
 def test_gradients_finite_for_degenerate_runs(spec, evaluator, case):
     pos = np.array(spec.sweep.base_params.initial_positions)
@@ -324,6 +327,7 @@ def test_gradient_window_is_the_derivative_with_the_state_held_at_each_window_st
 # ------------------------------------------------------------------ optimisation, resume after a kill, CLI
 
 
+@pytest.mark.xdist_group("test_tune")  # one worker builds the module fixture once
 def test_cli_resume_after_a_kill_gives_the_same_trace_end_to_end_and_report(spec_file, spec, evaluator, exact_warm,
                                                                            tmp_path):
     """One uninterrupted optimisation; one killed in its second step (the evaluator raises)

@@ -395,6 +395,7 @@ def closed_loop():
     return cfg, params, jax.tree.map(np.asarray, recs)
 
 
+@pytest.mark.xdist_group("test_urban")  # one worker builds the module fixture once
 def test_closed_loop_respects_the_limits_and_eq_1(closed_loop):
     cfg, params, r = closed_loop
     p = S.default_params(cfg)
@@ -429,6 +430,7 @@ def test_closed_loop_respects_the_limits_and_eq_1(closed_loop):
     np.testing.assert_allclose(r.mu.sum(-1), 1.0, atol=1e-12)
 
 
+@pytest.mark.xdist_group("test_urban")  # one worker builds the module fixture once
 def test_closed_loop_shadow_flag_is_the_blocked_segment(closed_loop):
     """records.shadow = the segment emitter → UAV meets a building, recomputed with shapely:
     with the emitter on the ground the segment's height grows linearly, so it meets box j
@@ -447,6 +449,7 @@ def test_closed_loop_shadow_flag_is_the_blocked_segment(closed_loop):
     assert 0 < blocked.sum() < len(blocked)  # teeth: both cases occur
 
 
+@pytest.mark.xdist_group("test_urban")  # one worker builds the module fixture once
 def test_closed_loop_reduce_counts(closed_loop):
     cfg, params, r = closed_loop
     out = jax.jit(jax.vmap(lambda rec, p: S.reduce(cfg, rec, p)))(S.Record(*r), params)

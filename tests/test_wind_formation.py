@@ -135,6 +135,7 @@ def paper_runs():
     return _run(S.Config(n_steps=60), runs=40)
 
 
+@pytest.mark.xdist_group("test_wind_formation")  # one worker builds the module fixture once
 def test_paper_setup_table1_raw_row_formation_and_limits(paper_runs):
     out, rec = paper_runs
     kcf = S.Config().filters.index("kcf")
