@@ -3,6 +3,7 @@
 import dataclasses
 
 import numpy as np
+import pytest
 
 from mcjax import engine
 from mcjax.scenarios import leader_follower as lf
@@ -26,6 +27,7 @@ def test_chunk_plan_covers_every_run_once():
     assert all(b - a == 100 for a, b in plan[:-1]) and plan[-1] == (1000, 1003)
 
 
+@pytest.mark.xdist_group("test_engine.batch100")  # one worker compiles the 100-run program once
 def test_1000_runs_bit_identical_for_chunk_sizes_100_and_1000():
     points = _points({"comm_radius": 80e3}, {"comm_radius": 100e3})  # 2 points x 500 seeds
     a = _collect(CFG, points, 500, 100)
@@ -40,6 +42,7 @@ def test_1000_runs_bit_identical_for_chunk_sizes_100_and_1000():
         np.testing.assert_array_equal(a[key][:600], np.concatenate([o[key] for o in outs]), err_msg=key)
 
 
+@pytest.mark.xdist_group("test_engine.records")  # one worker compiles the 6-run records program once
 def test_common_random_numbers_across_points():
     """Seed s draws the same target and the same measurement noise at every point: with a comm
     radius that changes nothing for the CIF (it ignores the graph), the target path, the
@@ -58,6 +61,7 @@ def test_common_random_numbers_across_points():
     assert len({float(err[s, -1, cif, 0]) for s in range(3)}) == 3  # different seeds differ
 
 
+@pytest.mark.xdist_group("test_engine.batch100")
 def test_nan_in_one_run_is_flagged_and_isolated():
     good = lf.default_params(CFG)
     bad = lf.default_params(CFG, p0_diag=[np.nan, 100.0, 1e4, 100.0])
@@ -70,6 +74,7 @@ def test_nan_in_one_run_is_flagged_and_isolated():
         np.testing.assert_array_equal(clean[key][:50], mixed[key][:50], err_msg=key)
 
 
+@pytest.mark.xdist_group("test_engine.records")
 def test_records_can_be_kept():
     fn = engine.compiled(lf.SCENARIO, CFG, records=True)
     params, keys = engine.chunk_inputs(_points({}), 6, 0, 0, 6, 6)  # the CRN test's program
