@@ -187,17 +187,30 @@ def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed
     devs = devices()[:max(1, min(len(devices()), max(-(-(e - s) // b) for s, e in plan)))]
     fn = compiled(scenario, cfg, records, timeseries)
     programs = None
-    for idx, (start, stop) in enumerate(plan):
-        if chunks is not None and idx not in chunks:
-            continue
-        parts = []
-        for k, s in enumerate(range(start, stop, b)):
-            e = min(s + b, stop)
-            params, keys = chunk_inputs(point_params, n_seeds, base_seed, s, e, b)
-            if programs is None:
-                programs = _programs(fn, params, keys, devs, _label(scenario, cfg, records, timeseries))
-            dev = devs[k % len(devs)]
-            parts.append((e - s, programs[k % len(devs)](jax.device_put(params, dev), jax.device_put(keys, dev))))
-        out = jax.tree.map(lambda *xs: np.concatenate([np.asarray(x)[:m] for (m, _), x in zip(parts, xs)]),
-                           *[o for _, o in parts])
-        yield idx, start, stop, out
+    # One dispatching thread per device: calls from a single thread kept the CPU devices
+    # mostly one after the other (measured: CPU/wall 1.05 with two devices and 2-batch chunks).
+    lanes = [ThreadPoolExecutor(1, thread_name_prefix=f"mcjax-device-{i}") for i in range(len(devs))]
+
+    def call(program, dev, params, keys):
+        out = program(jax.device_put(params, dev), jax.device_put(keys, dev))
+        return jax.tree.map(np.asarray, out)
+
+    try:
+        for idx, (start, stop) in enumerate(plan):
+            if chunks is not None and idx not in chunks:
+                continue
+            parts = []
+            for k, s in enumerate(range(start, stop, b)):
+                e = min(s + b, stop)
+                params, keys = chunk_inputs(point_params, n_seeds, base_seed, s, e, b)
+                if programs is None:
+                    programs = _programs(fn, params, keys, devs, _label(scenario, cfg, records, timeseries))
+                d = k % len(devs)
+                parts.append((e - s, lanes[d].submit(call, programs[d], devs[d], params, keys)))
+            parts = [(m, f.result()) for m, f in parts]
+            out = jax.tree.map(lambda *xs: np.concatenate([x[:m] for (m, _), x in zip(parts, xs)]),
+                               *[o for _, o in parts])
+            yield idx, start, stop, out
+    finally:
+        for lane in lanes:
+            lane.shutdown(wait=True, cancel_futures=True)
