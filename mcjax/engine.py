@@ -12,7 +12,8 @@ size. Step t's key is ``fold_in(run_key, t)`` (noise drawn per step, never pre-d
 
 Every CPU core works: the process has one CPU device per core (:mod:`mcjax.runtime`), the
 B-run batch program is compiled once for each device (in parallel), and the batches of a
-chunk go to the devices in turn, dispatched asynchronously so they compute side by side.
+chunk go to the devices in turn, each device called from its own thread so they compute side
+by side (from one thread the CPU devices ran mostly one after the other).
 Every device runs the same program on B-aligned slices, so the numbers do not depend on the
 device count either. (A ``shard_map`` over the devices was tried: one program, but its bits
 differ from the one-device program's in the last place.)
@@ -176,7 +177,7 @@ def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed
     chunk indices (for resuming). ``timeseries=True`` yields ``(outputs, series)`` as the
     outputs (see :func:`simulate`). Each chunk is computed as consecutive calls of one
     compiled :data:`BATCH_SIZE`-run program (the last call padded by repeating the chunk's
-    last run), sent to the devices in turn and dispatched asynchronously, so memory is
+    last run), sent to the devices in turn (one calling thread per device), so memory is
     bounded by the chunk and the numbers depend neither on it nor on the device count.
     """
     n_points = int(jax.tree.leaves(point_params)[0].shape[0])

@@ -25,8 +25,8 @@ import functools
 import math
 
 import jax
-import numpy as np
 import jax.numpy as jnp
+import numpy as np
 
 from mcjax.numerics import matmul, safe_norm, softmin
 

@@ -64,7 +64,8 @@ def unicycle_step(state, heading_cmd, accel_cmd, alpha_phi, limits: UnicycleLimi
     h = dt / m
     # every quadrature node at once (one set of operations, not m + 1: a smaller program);
     # the weighted sum keeps the node order
-    t = (jnp.arange(m + 1, dtype=x.dtype) * h).reshape((m + 1,) + (1,) * x.ndim)
+    nd = max(jnp.ndim(a) for a in (x, heading_cmd, accel_cmd, alpha_phi, *limits))  # the broadcast rank
+    t = (jnp.arange(m + 1, dtype=x.dtype) * h).reshape((m + 1,) + (1,) * nd)
     vk = speed_at(v, accel_cmd, limits, t)
     pk = heading_at(phi, heading_cmd, alpha_phi, limits.turn_rate_max, t)
     fx, fy = vk * jnp.cos(pk), vk * jnp.sin(pk)
