@@ -9,7 +9,9 @@ import pytest
 from mcjax import engine
 from mcjax.scenarios import leader_follower as lf
 
-CFG = lf.Config(planner="gradient", filters=("cif", "modified_icf"), n_steps=24, warmup_steps=4,
+# One filter (the leader's): a smaller program. The paper's config in closed loop, with its Table 1
+# claims, runs in benchmarks/divergence_sun2011.py (1,000 runs per case).
+CFG = lf.Config(planner="gradient", filters=("modified_icf",), n_steps=24, warmup_steps=4,
                 plan_iterations=3)
 
 
@@ -76,22 +78,6 @@ def test_config_and_param_validation():
     assert lf.check_params(cfg, {"horizon": 8}) == [("horizon", "an integer in [1, max_horizon = 6]")]
     assert lf.check_params(cfg, {"horizon": 4, "replan_every": 5}) == [("replan_every", "an integer in [1, horizon]")]
     assert lf.check_params(cfg, {"horizon": [3, 5], "replan_every": 3}) == []
-
-
-def test_paper_config_icf_reproduces_table_1_case_2():
-    """Sun et al. 2011 Table 1, case 2, with the paper's config (ICF read as "priors"): over 20
-    closed-loop runs the ICF diverges in none and is less accurate than the modified ICF."""
-    from mcjax.sweep import build_spec, run_sweep
-
-    config = __import__("pathlib").Path(__file__).parents[1] / "configs" / "sun2011.toml"
-    spec = build_spec({"base": str(config), "seeds": 20, "base_seed": 77, "config": {"filters": ["icf", "modified_icf"]}},
-                      config.parent)
-    assert spec.config.icf_variant == "priors" and spec.config.planner == "gradient"
-    df = run_sweep(spec).set_index(["filter", "seed_index"])
-    icf, mod = df.loc["icf"], df.loc["modified_icf"]
-    assert not icf["diverged"].any() and not mod["diverged"].any()
-    assert icf["mean_error"].mean() > mod["mean_error"].mean()
-    assert icf["mean_error"].mean() < 1000.0  # finite and small, as in the paper (39.7 m vs 9.8 m)
 
 
 @pytest.mark.xdist_group("test_closed_loop")  # one worker builds the module fixture once
