@@ -104,6 +104,17 @@ def replot(out: Path) -> None:
     print(path_heatmap(g, trace, best, final, n_seeds, out / "path_heatmap.png"))
 
 
+def _cached_sweep(spec, path: Path):
+    """The sweep's rows, read from ``path`` if an earlier (killed) run of this benchmark wrote
+    them, else run and written there; and the wall seconds it took."""
+    t0 = time.perf_counter()
+    if path.is_file():
+        return pd.read_parquet(path), time.perf_counter() - t0
+    df = run_sweep(spec)
+    df.to_parquet(path)
+    return df, time.perf_counter() - t0
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--spec", default=str(ROOT / "sweeps" / "tune_sun2011.toml"))
@@ -198,14 +209,7 @@ def main() -> None:
     gspec = build_spec({**shared, "params": {kk: v for kk, v in shared.get("params", {}).items() if kk not in grid},
                         "grid": grid, "seeds": spec.train_seeds, "base_seed": spec.train_base_seed},
                        Path(args.spec).parent)
-    grid_file = out / "grid_runs.parquet"
-    t2 = time.perf_counter()
-    if grid_file.is_file():
-        gdf = pd.read_parquet(grid_file)
-    else:
-        gdf = run_sweep(gspec)
-        gdf.to_parquet(grid_file)
-    grid_wall = time.perf_counter() - t2
+    gdf, grid_wall = _cached_sweep(gspec, out / "grid_runs.parquet")
     g = gdf.groupby(["alpha_I", "alpha_L", "alpha_C"]).agg(div=("diverged", "mean"), rmse=("rmse", "mean")).reset_index()
     best = g.sort_values(["div", "rmse"]).iloc[0]
     print(f"grid: {len(g)} points x {spec.train_seeds} seeds = {len(g) * spec.train_seeds} runs in {grid_wall:.0f} s; "
@@ -218,14 +222,7 @@ def main() -> None:
     hspec = build_spec({**shared, "params": {kk: v for kk, v in shared.get("params", {}).items() if kk not in zipped},
                         "zip": zipped, "seeds": spec.heldout_seeds, "base_seed": spec.heldout_base_seed},
                        Path(args.spec).parent)
-    held_file = out / "heldout_runs.parquet"
-    t3 = time.perf_counter()
-    if held_file.is_file():
-        hdf = pd.read_parquet(held_file)
-    else:
-        hdf = run_sweep(hspec)
-        hdf.to_parquet(held_file)
-    held_wall = time.perf_counter() - t3
+    hdf, held_wall = _cached_sweep(hspec, out / "heldout_runs.parquet")
     rows = []
     for pid, name in enumerate(cand):
         st = _stats(hdf[hdf["point_id"] == pid])
