@@ -77,8 +77,9 @@ def settings() -> dict:
 
 @lru_cache(maxsize=1)
 def _code_version() -> str:
-    """A hash of mcjax's source files, JAX's version and the CPU: what a stored program
-    depends on besides its own key."""
+    """A hash of mcjax's source files, JAX's version, the CPU and ``XLA_FLAGS`` (the compiler's
+    options: the test suite compiles with cheaper ones): what a stored program depends on
+    besides its own key."""
     h = hashlib.sha256()
     root = Path(__file__).resolve().parent
     for path in sorted(root.rglob("*.py")):
@@ -90,7 +91,7 @@ def _code_version() -> str:
             cpu += next((line for line in f if line.startswith(("model name", "flags"))), "")
     except OSError:
         pass
-    h.update(f"{jax.__version__}|{cpu}".encode())
+    h.update(f"{jax.__version__}|{cpu}|{os.environ.get('XLA_FLAGS', '')}".encode())
     return h.hexdigest()
 
 

@@ -141,7 +141,7 @@ def test_results_do_not_depend_on_the_device_count(tmp_path):
 def test_a_second_process_loads_the_stored_program_and_gets_the_same_bits(tmp_path):
     """The persistent cache: the first process compiles and stores the batch program, the
     second loads it (no compilation) and computes the same numbers; a damaged file is
-    compiled again, never trusted."""
+    compiled again, never trusted; other XLA_FLAGS compile their own program."""
     import json
     import os
     import subprocess
@@ -174,3 +174,10 @@ def test_a_second_process_loads_the_stored_program_and_gets_the_same_bits(tmp_pa
     third, c = run("c.npy")
     assert third == {"loaded": 0, "stored": 1}
     np.testing.assert_array_equal(a, c)
+    # other compiler options (XLA_FLAGS: here XLA's defaults instead of the suite's cheap
+    # ones) are another program: compiled and stored beside the first, not loaded
+    env["XLA_FLAGS"] = ""
+    fourth, d = run("d.npy")
+    assert fourth == {"loaded": 0, "stored": 1}
+    assert len(list((tmp_path / "cache" / "mcjax-programs").glob("*.pkl"))) == 2
+    np.testing.assert_allclose(a, d, rtol=1e-9)
