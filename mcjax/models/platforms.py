@@ -62,18 +62,23 @@ def unicycle_step(state, heading_cmd, accel_cmd, alpha_phi, limits: UnicycleLimi
     x, y, v, phi = state[..., 0], state[..., 1], state[..., 2], state[..., 3]
     m = 2 * substeps
     h = dt / m
-    # every quadrature node at once (one set of operations, not m + 1: a smaller program);
-    # the weighted sum keeps the node order
-    nd = max(jnp.ndim(a) for a in (x, heading_cmd, accel_cmd, alpha_phi, *limits))  # the broadcast rank
-    t = (jnp.arange(m + 1, dtype=x.dtype) * h).reshape((m + 1,) + (1,) * nd)
-    vk = speed_at(v, accel_cmd, limits, t)
-    pk = heading_at(phi, heading_cmd, alpha_phi, limits.turn_rate_max, t)
+    # every quadrature node at once (one set of operations, not m + 1: a smaller program), the
+    # nodes on a new last axis (a gradient then sums the inputs over a contiguous axis: on the
+    # CPU, under vmap, faster than over a leading one); the weighted sum keeps the node order
+    t = jnp.arange(m + 1, dtype=x.dtype) * h
+
+    def node(a):
+        return jnp.asarray(a)[..., None]
+
+    at_nodes = UnicycleLimits(*map(node, limits))
+    vk = speed_at(node(v), node(accel_cmd), at_nodes, t)
+    pk = heading_at(node(phi), node(heading_cmd), node(alpha_phi), at_nodes.turn_rate_max, t)
     fx, fy = vk * jnp.cos(pk), vk * jnp.sin(pk)
     vx, vy = 0.0, 0.0
     for k in range(m + 1):
         w = 1.0 if k in (0, m) else (4.0 if k % 2 else 2.0)
-        vx = vx + w * fx[k]
-        vy = vy + w * fy[k]
+        vx = vx + w * fx[..., k]
+        vy = vy + w * fy[..., k]
     return jnp.stack([x + vx * h / 3.0, y + vy * h / 3.0,
                       speed_at(v, accel_cmd, limits, dt),
                       heading_at(phi, heading_cmd, alpha_phi, limits.turn_rate_max, dt)], axis=-1)

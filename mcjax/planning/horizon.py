@@ -20,7 +20,7 @@ import jax.numpy as jnp
 
 from mcjax.models.motion import cv_matrices, cv_process_noise
 from mcjax.models.platforms import UnicycleLimits, unicycle_step
-from mcjax.numerics import spd_inverse
+from mcjax.numerics import matvec, spd_inverse
 from mcjax.planning.objectives import (
     ROBUSTNESS_PENALTIES, CostParams, CostTerms, information_after_prediction, step_terms, weighted,
 )
@@ -63,8 +63,10 @@ def rollout(problem: Problem, u: jax.Array, dyn: Dynamics):
     def body(carry, u_h):
         uavs, x = carry
         cmd = uavs[:, 3] + offset * u_h
-        nxt = unicycle_step(uavs, cmd, 0.0, dyn.alpha_phi, limits, dyn.dt)
-        x = F @ x
+        # rematerialised in the backward pass: storing the step's quadrature nodes for it
+        # costs more than recomputing them (docs/benchmarks.md, 2026-12-02)
+        nxt = jax.checkpoint(unicycle_step)(uavs, cmd, 0.0, dyn.alpha_phi, limits, dyn.dt)
+        x = matvec(F, x)
         return (nxt, x), (nxt, uavs[:, 3], cmd, x)
 
     _, (poses, prev, cmds, targets) = jax.lax.scan(body, (problem.uavs, problem.target_mean), u)
@@ -81,11 +83,12 @@ def horizon_terms(problem: Problem, u: jax.Array, dyn: Dynamics, cost: CostParam
 
     def body(P, step):
         pose, h, c, x = step
-        terms, P_post = step_terms(information_after_prediction(P, F, Q), pose, h, c, x[jnp.array([0, 2])],
+        terms, P_post = step_terms(information_after_prediction(P, F, Q), pose, h, c, x[::2],
                                    cost, penalty=penalty, smooth=smooth)
         return P_post, terms
 
-    _, terms = jax.lax.scan(body, spd_inverse(problem.Y), (poses, prev, cmds, targets))
+    # each step recomputed in the backward pass instead of stacking its intermediates
+    _, terms = jax.lax.scan(jax.checkpoint(body), spd_inverse(problem.Y), (poses, prev, cmds, targets))
     mask = (jnp.arange(u.shape[0]) < dyn.horizon).astype(u.dtype)
     return CostTerms(*(jnp.sum(mask * t) for t in terms))
 

@@ -36,7 +36,7 @@ import jax
 import jax.numpy as jnp
 
 from mcjax import graph
-from mcjax.numerics import spd_inverse, wrap_angle
+from mcjax.numerics import matmul, spd_inverse, wrap_angle
 
 #: ε of the regularised distance √(|Δ|² + ε²), m.
 DISTANCE_EPS = 1.0
@@ -87,8 +87,9 @@ def a_optimality(Y: jax.Array, info_xy: jax.Array, gates: jax.Array):
     ``info_xy`` (n, 2, 2) position blocks of eq. 10; ``gates`` (n,) in [0, 1].
     Returns ``(trace, P)`` with ``P = (Y + Σ g I)⁻¹`` the predicted posterior covariance."""
     s = jnp.sum(gates[:, None, None] * info_xy, axis=0)
-    idx = jnp.array([0, 2])
-    total = Y.at[idx[:, None], idx[None, :]].add(s)
+    # s into the position rows and columns (0, 2) of the 4×4, by a broadcast (no scatter)
+    position = jnp.array([1.0, 0.0], Y.dtype)
+    total = Y + (s[:, None, :, None] * position[None, :, None, None] * position[None, None, None, :]).reshape(4, 4)
     P = spd_inverse(total)
     return jnp.trace(P), P
 
@@ -98,7 +99,7 @@ def information_after_prediction(P, F, Q):
     (Sun et al. 2011, eq. 1) of the covariance ``P``.
 
     (Not :func:`mcjax.filters.gaussian.predict_information`, which predicts a filter state.)"""
-    return spd_inverse(F @ P @ F.T + Q)
+    return spd_inverse(matmul(matmul(F, P), F.T) + Q)
 
 
 def robustness_penalty(R: jax.Array, kind: str, scale, temperature, smooth: bool) -> jax.Array:
