@@ -12,7 +12,7 @@ CIF over all runs and over non-divergent runs, min λ2, disconnected steps and w
     python benchmarks/divergence_sun2011.py                       # 1,000 runs, both planners
     python benchmarks/divergence_sun2011.py --runs 20 --planners gradient
     python benchmarks/divergence_sun2011.py --runs 10000 --planners gradient --cases case2 \
-        --icf-variants priors --no-figures       # the 10,000-run speed target (issue: speed)
+        --icf-variants priors --no-figures       # the 10,000-run speed target
 
 Both readings of the ICF run side by side (the config's, "priors" — the ICF as the paper ran
 it —, then "contributions"). The leader plans from the modified ICF, so the closed loop does not
