@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
+import resource
 import sys
 import time
 from pathlib import Path
@@ -86,7 +87,8 @@ def _rows(curve: str, args, sc, base, values) -> list[dict]:
             for loop, cfg in (("open", open_loop), ("closed", closed)):
                 if loop == "closed" and n > args.max_closed_agents:
                     continue
-                out.append((loop, n, dataclasses.replace(cfg, n_agents=n), values, args.runs))
+                runs = args.closed_runs if loop == "closed" else args.runs
+                out.append((loop, n, dataclasses.replace(cfg, n_agents=n), values, runs))
     elif curve == "horizon":
         for h in args.horizons:
             cfg = dataclasses.replace(closed, max_horizon=h, plan_period=min(3, h))
@@ -134,7 +136,8 @@ def main(argv=None) -> int:
     ap.add_argument("--curves", nargs="+", choices=CURVES, default=list(CURVES))
     ap.add_argument("--steps", type=int, default=100, help="steps per run (paper: 200)")
     ap.add_argument("--runs", type=int, default=500, help="runs per open-loop point")
-    ap.add_argument("--closed-runs", type=int, default=100, help="runs per closed-loop point")
+    ap.add_argument("--closed-runs", type=int, default=100,
+                    help="runs per closed-loop point (agents and horizon curves)")
     ap.add_argument("--max-runs", type=int, default=10_000, help="largest run count of the runs curve")
     ap.add_argument("--agents", type=int, nargs="+", default=[5, 10, 20, 50])
     ap.add_argument("--max-closed-agents", type=int, default=20, help="largest team run in closed loop")
@@ -158,7 +161,9 @@ def main(argv=None) -> int:
     for r in df.itertuples():
         print(f"| {r.curve} | {r.loop} | {r.x} | {r.runs} | {r.compile_s:.1f} | {r.ms_per_run:.3f} | "
               f"{r.memory_per_run_kb:.1f} | {r.load:.1f} |")
-    print(f"\nwrote {args.out / 'scaling.csv'} and {args.out / 'scaling.png'}")
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # kB on Linux
+    print(f"\npeak resident memory of this process: {peak:.2f} GiB")
+    print(f"wrote {args.out / 'scaling.csv'} and {args.out / 'scaling.png'}")
     return 0
 
 

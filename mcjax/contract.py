@@ -24,6 +24,9 @@ What a scenario provides:
   by ``timeseries_outputs(cfg)``: ``(T, F)`` per filter, ``(T,)`` per run;
 * optionally ``check_params(cfg, values) -> [(field, allowed), …]``: checks across fields
   (e.g. the horizon against ``Config.max_horizon``); single-field checks come from the table.
+* optionally ``compiler_options``: XLA options for the scenario's batch programs
+  (``jax.jit(..., compiler_options=…)``), e.g. :data:`FAST_COMPILE`; an option this JAX does
+  not know is dropped (the program is then compiled with XLA's defaults).
 
 Validation reads values as a spec writes them (TOML): kinds are exact — a boolean is no
 number, a float no integer (:meth:`Param.problem` with ``exact=True``), a string or a table no
@@ -428,6 +431,14 @@ class Surrogate(NamedTuple):
     Smoothing: type
 
 
+#: XLA's older fusion code generator on the CPU (``xla_cpu_use_fusion_emitters = False``):
+#: measured on the 2-core VM (2026-12-02, docs/benchmarks.md) it compiles the closed loop of
+#: Sun et al. 2011 with ~35–45 % less CPU time than the default (newer) emitters, the program
+#: running as fast; for Ren & Lv 2017's IMM-UKF it ran ~10 % slower, so that scenario keeps
+#: the default.
+FAST_COMPILE: Mapping[str, Any] = {"xla_cpu_use_fusion_emitters": False}
+
+
 @dataclass(frozen=True, eq=False)
 class Scenario:
     """One simulated system (see the module docstring). Hashed by identity, so the engine
@@ -445,6 +456,7 @@ class Scenario:
     timeseries_outputs: Callable[[Any], Mapping[str, Output]] | None = None
     check_params: Callable[[Any, dict], list] | None = None
     surrogate: Surrogate | None = None   # smooth stand-in for ``mcjax tune`` (optional)
+    compiler_options: Mapping[str, Any] | None = None  # XLA options of its programs (optional)
 
     def __post_init__(self):
         for field in ("n_agents", "n_steps", "filters"):

@@ -11,7 +11,8 @@ noise at every sweep point (common random numbers) and results do not depend on 
 size. Step t's key is ``fold_in(run_key, t)`` (noise drawn per step, never pre-drawn).
 
 Every CPU core works: the process has one CPU device per core (:mod:`mcjax.runtime`), the
-B-run batch program is compiled once for each device (in parallel), and the batches of a
+B-run batch program is compiled once for each device (in parallel; an XLA program is bound
+to its device), with the scenario's ``compiler_options``, and the batches of a
 chunk go to the devices in turn, each device called from its own thread so they compute side
 by side (from one thread the CPU devices ran mostly one after the other).
 Every device runs the same program on B-aligned slices, so the numbers do not depend on the
@@ -72,14 +73,35 @@ def simulate(scenario: Scenario, cfg, params, keys, *, records: bool = False, ti
 
 def compiled(scenario: Scenario, cfg, records: bool = False, timeseries: bool = False) -> Callable:
     """The jitted :func:`simulate` for one scenario and config (defined once per process,
-    however the flags are spelled: positionally, by keyword or left at their defaults)."""
+    however the flags are spelled: positionally, by keyword or left at their defaults),
+    compiled with the scenario's :func:`compiler_options` — so it is a top-level program: to
+    use a batch inside a transformation of your own (``jit``, ``grad``), call :func:`simulate`."""
     return _compiled(scenario, cfg, bool(records), bool(timeseries))
 
 
 @lru_cache(maxsize=32)
 def _compiled(scenario: Scenario, cfg, records: bool, timeseries: bool) -> Callable:
     return jax.jit(lambda params, keys: simulate(scenario, cfg, params, keys, records=records,
-                                                 timeseries=timeseries))
+                                                 timeseries=timeseries),
+                   compiler_options=compiler_options(scenario))
+
+
+def compiler_options(scenario: Scenario) -> dict | None:
+    """The scenario's XLA options (:attr:`mcjax.contract.Scenario.compiler_options`) that this
+    JAX knows; an unknown one is dropped rather than failing every compilation."""
+    return _known_options(tuple(sorted((scenario.compiler_options or {}).items())))
+
+
+@lru_cache(maxsize=None)
+def _known_options(items: tuple) -> dict | None:
+    known = {}
+    for name, value in items:
+        try:  # a one-line program, compiled once per option and process
+            jax.jit(lambda x: x + 1, compiler_options={name: value}).lower(np.float32(0)).compile()
+        except Exception:  # noqa: BLE001 — jaxlib's error for an unknown option ("No such compile option")
+            continue
+        known[name] = value
+    return known or None
 
 
 def devices() -> list:
@@ -126,7 +148,7 @@ def _label(scenario: Scenario, cfg, records: bool, timeseries: bool) -> str | No
     module = getattr(scenario.init, "__module__", "") or ""
     if not module.startswith("mcjax."):
         return None
-    return f"{scenario.name}|{module}|{cfg!r}|{bool(records)}|{bool(timeseries)}"
+    return f"{scenario.name}|{module}|{cfg!r}|{bool(records)}|{bool(timeseries)}|{compiler_options(scenario)}"
 
 
 def stack_points(points: list) -> object:

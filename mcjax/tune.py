@@ -444,7 +444,9 @@ def _batch_function(spec: TuneSpec) -> Callable:
         g, (value, (rmse, div)) = jax.jacfwd(pushed, has_aux=True)(z)
         return value, g, rmse, div
 
-    return jax.jit(jax.vmap(one, in_axes=(None, 0, None)))
+    from mcjax.engine import compiler_options
+
+    return jax.jit(jax.vmap(one, in_axes=(None, 0, None)), compiler_options=compiler_options(scenario))
 
 
 def train_keys(spec: TuneSpec):

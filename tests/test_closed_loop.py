@@ -88,7 +88,7 @@ def test_fixed_plan_period_plans_only_when_due_and_gives_the_same_bits(mixed):
     _, a, b = mixed
     cfg = lf.Config(**{**{k: getattr(CFG, k) for k in CFG.SETTINGS}, "plan_period": 3})
     fast = engine.compiled(lf.SCENARIO, cfg, records=True)
-    jaxpr = str(jax.make_jaxpr(fast)(*batch(cfg, [dict(horizon=5, replan_every=3, alpha_I=1000.0)] * 3, [5, 1, 7])))
+    jaxpr = str(fast.trace(*batch(cfg, [dict(horizon=5, replan_every=3, alpha_I=1000.0)] * 3, [5, 1, 7])).jaxpr)
     assert "cond[" in jaxpr  # a real branch, not a select over both sides
     c = jax.tree.map(np.asarray, fast(*batch(cfg, [dict(horizon=5, replan_every=3, alpha_I=1000.0)] * 3, [5, 1, 7])))
     for name in ("positions", "error", "plan_cost", "lambda2"):
@@ -96,3 +96,35 @@ def test_fixed_plan_period_plans_only_when_due_and_gives_the_same_bits(mixed):
     assert lf.check_params(cfg, {"replan_every": 2}) == [
         ("replan_every", "equal to config.plan_period = 3 (set plan_period = 0 to vary it)")]
     assert lf.check_params(cfg, {"replan_every": 3}) == []
+
+
+@pytest.mark.xdist_group("test_closed_loop")
+def test_float32_planner_flies_the_float64_plans_and_keeps_the_filters_positive_definite(mixed):
+    """``plan_dtype = "float32"``: the leader's problem is solved in float32, in coordinates
+    relative to its target estimate, and everything else stays float64. Against the float64
+    planner (the module's batch ``b``, same seeds): the UAVs fly the same paths to a metre
+    (the plans agree to float32 rounding), and the leader's information matrix — the filter
+    state the planner reads — is symmetric positive definite at every step (checked by its
+    eigenvalues, not assumed)."""
+    _, _, b = mixed
+    cfg = lf.Config(**{**{k: getattr(CFG, k) for k in CFG.SETTINGS}, "plan_dtype": "float32"})
+    params, keys = batch(cfg, [dict(horizon=5, replan_every=3, alpha_I=1000.0)] * 3, [5, 1, 7])
+    k = cfg.filters.index("modified_icf")
+
+    def run(p, key):
+        state = lf.init(cfg, p, key)
+
+        def body(s, t):
+            s, rec = lf.step(cfg, p, s, jax.random.fold_in(key, t))
+            return s, (rec, lf.per_agent("modified_icf", s.filters[k], cfg.n_agents).Y)
+
+        return jax.lax.scan(body, state, jnp.arange(cfg.n_steps))[1]
+
+    recs, Y = jax.jit(jax.vmap(run))(params, keys)
+    assert np.asarray(recs.plan_cost).dtype == np.float64
+    assert np.all(np.isfinite(np.asarray(recs.plan_cost)))
+    gap = np.abs(np.asarray(recs.positions) - b.positions)
+    assert np.max(gap) < 1.0, np.max(gap)  # metres
+    Y = np.asarray(Y)
+    np.testing.assert_allclose(Y, np.swapaxes(Y, -1, -2), rtol=1e-9, atol=0)
+    assert np.all(np.linalg.eigvalsh(Y)[..., 0] > 0.0)

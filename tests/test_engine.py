@@ -181,3 +181,25 @@ def test_a_second_process_loads_the_stored_program_and_gets_the_same_bits(tmp_pa
     assert fourth == {"loaded": 0, "stored": 1}
     assert len(list((tmp_path / "cache" / "mcjax-programs").glob("*.pkl"))) == 2
     np.testing.assert_allclose(a, d, rtol=1e-9)
+
+
+def test_scenario_compiler_options_apply_and_unknown_ones_are_dropped():
+    """A scenario's ``compiler_options`` reach its programs; an option this JAX does not know
+    is dropped instead of failing every compilation. The built-in leader–follower scenario
+    compiles with XLA's older CPU fusion emitters (:data:`mcjax.contract.FAST_COMPILE`): its
+    records equal those of XLA's default emitters to rounding (a one-filter open loop)."""
+    from mcjax.contract import FAST_COMPILE
+
+    assert engine.compiler_options(lf.SCENARIO) == dict(FAST_COMPILE)
+    odd = dataclasses.replace(lf.SCENARIO, compiler_options={"xla_no_such_option_in_mcjax": 1, **FAST_COMPILE})
+    assert engine.compiler_options(odd) == dict(FAST_COMPILE)
+    plain = dataclasses.replace(lf.SCENARIO, compiler_options=None)
+    assert engine.compiler_options(plain) is None
+    cfg = dataclasses.replace(CFG, filters=("modified_icf",), n_steps=12)
+    params, keys = engine.chunk_inputs(_points({}), 3, 0, 0, 3, 3)
+    a = engine.compiled(lf.SCENARIO, cfg, records=True)(params, keys)
+    b = engine.compiled(plain, cfg, records=True)(params, keys)
+    for name in ("error", "positions", "lambda2", "robustness"):
+        x, y = np.asarray(getattr(a, name)), np.asarray(getattr(b, name))
+        assert np.all(np.isfinite(x)), name
+        np.testing.assert_allclose(x, y, rtol=1e-9, atol=1e-9, err_msg=name)

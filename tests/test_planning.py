@@ -152,6 +152,23 @@ def degenerate_batch(n_runs=1000, seed=5):
     return Problem(jnp.asarray(uavs), jnp.asarray(target), jnp.asarray(Y)), jnp.asarray(u)
 
 
+
+def test_horizon_cost_depends_on_relative_positions_only():
+    """Moving the UAVs and the target estimate together (by up to 300 km) leaves the exact and
+    the smooth horizon cost unchanged to rounding — what lets the float32 planner
+    (``plan_dtype``) solve in coordinates relative to the target estimate."""
+    probs, u = degenerate_batch(200, seed=11)
+    off = jnp.asarray(np.random.default_rng(11).uniform(-3e5, 3e5, (200, 2)))
+    moved = Problem(probs.uavs.at[..., :2].add(off[:, None]),
+                    probs.target_mean.at[:, 0].add(off[:, 0]).at[:, 2].add(off[:, 1]), probs.Y)
+    cp = cost_params()
+    for smooth in (False, True):
+        cost = jax.jit(jax.vmap(lambda q, v: horizon_cost(q, v, DYN, cp, smooth=smooth)))
+        a, b = np.asarray(cost(probs, u)), np.asarray(cost(moved, u))
+        assert np.all(np.isfinite(a))
+        np.testing.assert_allclose(b, a, rtol=1e-9, err_msg=f"smooth={smooth}")
+
+
 @pytest.mark.parametrize("penalty", ["barrier", "inverse"])
 def test_gradient_finite_in_degenerate_geometry(penalty):
     probs, u = degenerate_batch(400)

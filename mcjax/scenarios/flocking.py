@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax import graph, metrics
-from mcjax.contract import Output, Param, Scenario, Setting, config_type, params_type
+from mcjax.contract import FAST_COMPILE, Output, Param, Scenario, Setting, config_type, params_type
 from mcjax.filters.consensus import KCF_GAINS, FilterOptions, Measurements, filter_step
 from mcjax.filters.gaussian import Gaussian, first_step_model
 from mcjax.models import flocking as fl
@@ -376,5 +376,6 @@ def timeseries(cfg, records: Record, params) -> dict:
 SCENARIO = Scenario(
     name=NAME, title="Lou, Cui & Li 2013: a flocking sensor network tracks a target with the Kalman-consensus "
     "filter", Config=Config, Params=Params, init=init, step=step, reduce=reduce, outputs=outputs,
-    timeseries=timeseries, timeseries_outputs=timeseries_outputs, check_params=check_params)
+    timeseries=timeseries, timeseries_outputs=timeseries_outputs, check_params=check_params,
+    compiler_options=FAST_COMPILE)
 default_params = SCENARIO.default_params

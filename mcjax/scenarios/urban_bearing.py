@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcjax.contract import Output, Param, Scenario, Setting, config_type, params_type
+from mcjax.contract import FAST_COMPILE, Output, Param, Scenario, Setting, config_type, params_type
 from mcjax.filters.gaussian import ekf_update
 from mcjax.filters.imm import IMMState, combine, imm_step
 from mcjax.models import environment as env
@@ -398,5 +398,6 @@ def timeseries(cfg, records: Record, params) -> dict:
 SCENARIO = Scenario(
     name=NAME, title="Chen & Hao 2022: one UAV localises an emitter among buildings by azimuth (IMM-EKF, FIM "
     "planning)", Config=Config, Params=Params, init=init, step=step, reduce=reduce, outputs=outputs,
-    timeseries=timeseries, timeseries_outputs=timeseries_outputs, check_params=check_params)
+    timeseries=timeseries, timeseries_outputs=timeseries_outputs, check_params=check_params,
+    compiler_options=FAST_COMPILE)
 default_params = SCENARIO.default_params

@@ -45,7 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax import graph, metrics
-from mcjax.contract import Output, Param, Scenario, Setting, config_type, params_type
+from mcjax.contract import FAST_COMPILE, Output, Param, Scenario, Setting, config_type, params_type
 from mcjax.filters.consensus import (
     WEIGHT_KINDS,
     FilterOptions,
@@ -388,5 +388,6 @@ def timeseries(cfg, records: Record, params) -> dict:
 SCENARIO = Scenario(
     name=NAME, title="Chen & Lu 2013: three UAVs estimate the wind by consensus Kalman filtering and hold a "
     "formation on a sine path", Config=Config, Params=Params, init=init, step=step, reduce=reduce,
-    outputs=outputs, timeseries=timeseries, timeseries_outputs=timeseries_outputs, check_params=check_params)
+    outputs=outputs, timeseries=timeseries, timeseries_outputs=timeseries_outputs, check_params=check_params,
+    compiler_options=FAST_COMPILE)
 default_params = SCENARIO.default_params
