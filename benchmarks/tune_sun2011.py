@@ -107,6 +107,8 @@ def replot(out: Path) -> None:
 def _cached_sweep(spec, path: Path):
     """The sweep's rows, read from ``path`` if an earlier (killed) run of this benchmark wrote
     them, else run and written there; and the wall seconds it took."""
+    from mcjax.sweep import run_sweep
+
     t0 = time.perf_counter()
     if path.is_file():
         return pd.read_parquet(path), time.perf_counter() - t0
@@ -133,7 +135,7 @@ def main() -> None:
     import jax
 
     from mcjax import engine, tune
-    from mcjax.sweep import build_spec, read_identity, run_sweep  # noqa: F401
+    from mcjax.sweep import build_spec, read_identity  # noqa: F401
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -46,6 +46,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Any, Callable, Mapping, NamedTuple
 
 import numpy as np
@@ -436,7 +437,7 @@ class Surrogate(NamedTuple):
 #: Sun et al. 2011 with ~35–45 % less CPU time than the default (newer) emitters, the program
 #: running as fast; for Ren & Lv 2017's IMM-UKF it ran ~10 % slower, so that scenario keeps
 #: the default.
-FAST_COMPILE: Mapping[str, Any] = {"xla_cpu_use_fusion_emitters": False}
+FAST_COMPILE: Mapping[str, Any] = MappingProxyType({"xla_cpu_use_fusion_emitters": False})
 
 
 @dataclass(frozen=True, eq=False)
