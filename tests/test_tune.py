@@ -210,6 +210,17 @@ def test_example_spec_reads():
 # ------------------------------------------------------------------ gradients
 
 
+def _assert_central_differences(spec, evaluator, z0, grad, h=1e-4):
+    """``grad`` against central differences of ``evaluator``'s loss at ``z0`` (the same seeds,
+    float64), each Param to a relative 1e-3 (of itself, or 1 % of the gradient's norm)."""
+    fd = np.array([(evaluator(z0 + h * e).loss - evaluator(z0 - h * e).loss) / (2 * h) for e in np.eye(len(z0))])
+    scale = np.linalg.norm(grad)
+    assert scale > 0
+    for name, g, f in zip(spec.names, grad, fd):
+        assert abs(g - f) <= 1e-3 * max(abs(g), 1e-2 * scale), (name, g, f)
+    assert np.all(np.abs(grad) > 1e-3 * scale)  # every Param carries gradient (none is checked as 0 = 0)
+
+
 @pytest.mark.xdist_group("test_tune")  # one worker builds the module fixture once
 def test_gradient_matches_central_differences(spec, evaluator):
     """d loss / d z of the forward-mode gradient vs central differences of the same loss (the
@@ -217,13 +228,7 @@ def test_gradient_matches_central_differences(spec, evaluator):
     z0 = tune.to_unconstrained(spec.bounds, spec.initial())
     ev = evaluator(z0)
     assert ev.dropped == 0 and np.all(np.isfinite(ev.grad))
-    h = 1e-4
-    fd = np.array([(evaluator(z0 + h * e).loss - evaluator(z0 - h * e).loss) / (2 * h) for e in np.eye(len(z0))])
-    scale = np.linalg.norm(ev.grad)
-    assert scale > 0
-    for name, g, f in zip(spec.names, ev.grad, fd):
-        assert abs(g - f) <= 1e-3 * max(abs(g), 1e-2 * scale), (name, g, f)
-    assert np.all(np.abs(ev.grad) > 1e-3 * scale)  # every Param carries gradient (none is checked as 0 = 0)
+    _assert_central_differences(spec, evaluator, z0, ev.grad)
 
 
 @pytest.mark.xdist_group("test_tune")  # one worker builds the module fixture once
@@ -387,9 +392,4 @@ def test_reverse_mode_gradient_matches_central_differences(spec, evaluator):
     ev, fwd = reverse(z0), evaluator(z0)
     assert ev.dropped == 0 and np.all(np.isfinite(ev.grad))
     np.testing.assert_allclose(ev.loss, fwd.loss, rtol=1e-9)  # two programs: rounding differs
-    h = 1e-4
-    fd = np.array([(evaluator(z0 + h * e).loss - evaluator(z0 - h * e).loss) / (2 * h) for e in np.eye(len(z0))])
-    scale = np.linalg.norm(ev.grad)
-    assert scale > 0
-    for name, g, f in zip(spec.names, ev.grad, fd):
-        assert abs(g - f) <= 1e-3 * max(abs(g), 1e-2 * scale), (name, g, f)
+    _assert_central_differences(spec, evaluator, z0, ev.grad)
