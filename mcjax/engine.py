@@ -74,16 +74,29 @@ def simulate(scenario: Scenario, cfg, params, keys, *, records: bool = False, ti
 def compiled(scenario: Scenario, cfg, records: bool = False, timeseries: bool = False) -> Callable:
     """The jitted :func:`simulate` for one scenario and config (defined once per process,
     however the flags are spelled: positionally, by keyword or left at their defaults),
-    compiled with the scenario's :func:`compiler_options` — so it is a top-level program: to
-    use a batch inside a transformation of your own (``jit``, ``grad``), call :func:`simulate`."""
+    compiled with the scenario's :func:`compiler_options` when called (or lowered) on arrays.
+    Called inside a transformation of your own (``jit``, ``make_jaxpr``, ``grad``), where JAX
+    does not allow compiler options, it is the same function without them."""
     return _compiled(scenario, cfg, bool(records), bool(timeseries))
 
 
 @lru_cache(maxsize=32)
 def _compiled(scenario: Scenario, cfg, records: bool, timeseries: bool) -> Callable:
-    return jax.jit(lambda params, keys: simulate(scenario, cfg, params, keys, records=records,
-                                                 timeseries=timeseries),
-                   compiler_options=compiler_options(scenario))
+    def run(params, keys):
+        return simulate(scenario, cfg, params, keys, records=records, timeseries=timeseries)
+
+    options = compiler_options(scenario)
+    top = jax.jit(run, compiler_options=options)
+    if options is None:
+        return top
+    nested = jax.jit(run)
+
+    def program(params, keys):
+        traced = any(isinstance(a, jax.core.Tracer) for a in jax.tree.leaves((params, keys)))
+        return (nested if traced else top)(params, keys)
+
+    program.lower, program.trace = top.lower, top.trace
+    return program
 
 
 def compiler_options(scenario: Scenario) -> dict | None:

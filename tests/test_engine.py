@@ -2,6 +2,7 @@
 
 import dataclasses
 
+import jax
 import numpy as np
 import pytest
 
@@ -203,3 +204,8 @@ def test_scenario_compiler_options_apply_and_unknown_ones_are_dropped():
         x, y = np.asarray(getattr(a, name)), np.asarray(getattr(b, name))
         assert np.all(np.isfinite(x)), name
         np.testing.assert_allclose(x, y, rtol=1e-9, atol=1e-9, err_msg=name)
+    # inside a transformation of the caller's (where JAX allows no compiler options) the same
+    # function runs without them
+    fn = engine.compiled(lf.SCENARIO, cfg, records=True)
+    nested = jax.jit(lambda p, k: fn(p, k))(params, keys)
+    np.testing.assert_allclose(np.asarray(nested.error), np.asarray(a.error), rtol=1e-9, atol=1e-9)
