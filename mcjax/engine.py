@@ -87,16 +87,23 @@ def _compiled(scenario: Scenario, cfg, records: bool, timeseries: bool) -> Calla
 
     options = compiler_options(scenario)
     top = jax.jit(run, compiler_options=options)
-    if options is None:
-        return top
-    nested = jax.jit(run)
+    return top if options is None else _Program(top, jax.jit(run))
 
-    def program(params, keys):
+
+class _Program:
+    """A jitted function with compiler options (``top``) that, called on tracers — inside a
+    caller's ``jit``, ``make_jaxpr`` or ``grad``, where JAX allows no options — runs ``nested``,
+    the same function without them. Everything else (``lower``, ``trace``, …) is ``top``'s."""
+
+    def __init__(self, top, nested):
+        self._top, self._nested = top, nested
+
+    def __call__(self, params, keys):
         traced = any(isinstance(a, jax.core.Tracer) for a in jax.tree.leaves((params, keys)))
-        return (nested if traced else top)(params, keys)
+        return (self._nested if traced else self._top)(params, keys)
 
-    program.lower, program.trace = top.lower, top.trace
-    return program
+    def __getattr__(self, name):
+        return getattr(self._top, name)
 
 
 def compiler_options(scenario: Scenario) -> dict | None:
