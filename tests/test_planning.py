@@ -152,7 +152,6 @@ def degenerate_batch(n_runs=1000, seed=5):
     return Problem(jnp.asarray(uavs), jnp.asarray(target), jnp.asarray(Y)), jnp.asarray(u)
 
 
-
 def test_horizon_cost_depends_on_relative_positions_only():
     """Moving the UAVs and the target estimate together (by up to 300 km) leaves the exact and
     the smooth horizon cost unchanged to rounding — what lets the float32 planner
