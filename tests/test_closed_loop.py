@@ -1,6 +1,8 @@
 """The closed loop of Sun et al. 2011 §4 in the leader–follower scenario: one program for a batch of
 mixed horizons and weights, plan cadence τ_r, limits respected, validation."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -107,7 +109,7 @@ def test_float32_planner_flies_the_float64_plans_and_keeps_the_filters_positive_
     state the planner reads — is symmetric positive definite at every step (checked by its
     eigenvalues, not assumed)."""
     _, _, b = mixed
-    cfg = lf.Config(**{**{k: getattr(CFG, k) for k in CFG.SETTINGS}, "plan_dtype": "float32"})
+    cfg = dataclasses.replace(CFG, plan_dtype="float32")
     params, keys = batch(cfg, [dict(horizon=5, replan_every=3, alpha_I=1000.0)] * 3, [5, 1, 7])
     k = cfg.filters.index("modified_icf")
 

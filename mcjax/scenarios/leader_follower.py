@@ -85,7 +85,7 @@ Config = config_type("Config", dict(
     plan_learning_rate=Setting(0.3, "Adam step on theta, u = tanh(theta)", low=0, low_open=True),
     plan_elite_fraction=Setting(0.1, "cem: fraction of each round refitted", low=0, high=1, low_open=True),
     plan_dtype=Setting("float64", "float type of the planner's problem (float32: solved in coordinates relative "
-                       "to the leader's target estimate: the closed loop ran 1.4-1.6x faster; the filters, the "
+                       "to the leader's target estimate: the closed loop ran 1.2-1.7x faster; the filters, the "
                        "executed commands and the simulation stay in dtype)", choices=kit.DTYPES),
     robustness_penalty=Setting("barrier", "penalty of the connectivity robustness R_I (barrier = "
                                "softplus(-R_I/s), ours; inverse = the paper's 1/|R_I|)",
@@ -270,7 +270,10 @@ def _solve(cfg, problem: Problem, dyn: Dynamics, cost: CostParams, warm, key):
     x = problem.target_mean
     shift = jnp.stack([x[0], x[2]])
     local = Problem(problem.uavs.at[:, :2].add(-shift), x.at[0].set(0.0).at[2].set(0.0), problem.Y)
-    narrow = lambda tree: jax.tree.map(lambda a: jnp.asarray(a).astype(pdt), tree)  # noqa: E731
+
+    def narrow(tree):
+        return jax.tree.map(lambda a: jnp.asarray(a).astype(pdt), tree)
+
     plan = solve(horizon_plan_cost(narrow(local), narrow(dyn), narrow(cost), penalty=cfg.robustness_penalty),
                  narrow(warm), key, planner_options(cfg))
     return jax.tree.map(lambda a: a.astype(dtype), plan)
