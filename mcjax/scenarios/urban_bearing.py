@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcjax.contract import FAST_COMPILE, Output, Param, Scenario, Setting, config_type, params_type
+from mcjax.contract import FAST_COMPILE, Output, Param, Scenario, Setting, Surrogate, config_type, params_type
 from mcjax.filters.gaussian import ekf_update
 from mcjax.filters.imm import IMMState, combine, imm_step
 from mcjax.models import environment as env
@@ -347,6 +347,130 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
     return State(state.t + 1, uav, command, los, tuple(new_filters), fim), rec
 
 
+class Smoothing(NamedTuple):
+    """Temperatures of the training surrogate (:func:`smooth_step`; ``[tune.smoothing]`` of a
+    tune spec). Ours: the paper has no smooth model."""
+
+    geometry: float = 20.0   # m: every building test (LOS, shadow, reflections, occupancy, altitude band)
+    plan: float = 0.1        # the soft argmax over the grid: τ in units of the candidates' score spread
+    command: float = 1e-3    # rad, rad/s: the soft max/min of the command box's limits
+
+
+#: Weight of a measurement in deep shadow (the soft gate never reaches 0, so R/g stays finite).
+_GATE_FLOOR = 1e-9
+
+
+def _gated_mode_filter(x, P, model, z, uav, q, gate):
+    """:func:`_mode_filter` (Chen & Hao 2022, eqs. 2, 11–12) for a measurement of weight
+    ``gate`` ∈ (0, 1] (the smooth line of sight): the update with the tempered likelihood
+    ``p(z|x)^g``, i.e. the EKF with noise ``σ²/g``, and its mode likelihood
+    ``log N(ν; 0, S_g) + ½ log(2πσ²/g) − (g/2) log(2πσ²)`` — the IMM's eq. 12 likelihood at
+    g = 1, and 0 (no information, as the exact filter's skipped update) as g → 0."""
+    bias, sigma = model
+    P = symmetrize(P + q**2 * jnp.eye(2, dtype=P.dtype))
+    var = sigma**2
+
+    def h(xy):
+        return (azimuth(xy, uav) + bias)[None]
+
+    x, P, ll = ekf_update(x, P, z[None], h, (var / gate)[None, None], angle_mask=jnp.array([True]))
+    two_pi_var = 2.0 * jnp.pi * var
+    return x, P, ll + 0.5 * jnp.log(two_pi_var / gate) - 0.5 * gate * jnp.log(two_pi_var)
+
+
+def smooth_plan_command(cfg, params, b: env.Buildings, uav, previous, belief: urban.Belief, smoothing):
+    """The training surrogate of :func:`plan_command`, for the grid planner of Chen & Hao 2022,
+    Alg. 1 (lines 3–9) and eq. 20: the same grid of candidate commands (spread over a soft
+    command box, :func:`mcjax.planning.urban.soft_candidate_commands`), each scored by the
+    smooth eq. 20 score (:func:`mcjax.planning.urban.surrogate_score_terms`), the choice a
+    soft argmax weighed by smooth admissibility (:func:`mcjax.planning.urban.soft_argmax_command`).
+    No fallback and no warm-start switch: the command is a smooth function of the weights,
+    the state and the belief. Used for either ``Config.planner`` (docs/tune.md)."""
+    lim = limits_of(cfg, params)
+    w = urban.Weights(params.c1, params.c2, params.c3)
+    T = smoothing.geometry
+    lo, hi = urban.soft_command_box(previous, lim, cfg.dt, smoothing.command)
+    counts = urban.grid_counts(cfg.theta_rate_max, cfg.omega_rate_max, cfg.dt, cfg.theta_step, cfg.omega_step)
+    commands = urban.soft_candidate_commands(lo, hi, counts, smoothing.command)
+
+    def score(c):
+        track = urban.predicted_track(uav, c, params.speed, cfg.dt, cfg.horizon)
+        j = urban.track_score(urban.surrogate_score_terms(b, belief, track, cfg.fim_score, T), w)
+        ok = urban.soft_admissible_log(b, uav, c, track, lim, params.speed, cfg.dt, cfg.theta_rate_max * cfg.dt, T)
+        return j, ok
+
+    scores, log_ok = jax.vmap(score)(commands)
+    command, _ = urban.soft_argmax_command(commands, scores, log_ok, smoothing.plan)
+    return command
+
+
+def smooth_step(cfg, params, state: State, key, smoothing: Smoothing) -> tuple[State, jax.Array]:
+    """:func:`step` (Chen & Hao 2022, Alg. 1) with every hard switch smooth, for training by
+    gradient (``mcjax tune``); the same random draws. Replaced switches (docs/tune.md):
+
+    * the planner's grid argmax (and, for the gradient planner, its clip to the command box,
+      fallback and warm-start switch) -> :func:`smooth_plan_command`;
+    * the shadow hold (``held = no LOS at the last step & the held command admissible``) ->
+      the blend ``h·previous + (1 − h)·planned`` with ``h = (1 − los_prev)·p_adm(previous)``,
+      ``los_prev`` the smooth line of sight at the UAV's position (where the last measurement
+      was taken; 1 at step 0, as the exact ``measured`` starts True);
+    * the measurement gate (no LOS -> no measurement) -> a measurement of weight
+      ``g = los`` (:func:`_gated_mode_filter`), its bearing from the smooth field
+      (:func:`mcjax.planning.urban.soft_measured_bearing`), its noise σ blended between LOS
+      and NLOS by the smooth "a reflection arrives";
+    * the FIM accumulation (eq. 13: only with LOS) -> weighted by ``los``.
+
+    Returns the new state and the position errors (F, 1) of every filter."""
+    dtype = jnp.dtype(cfg.dtype)
+    p = kit.cast(params, dtype)
+    b = buildings_of(p)
+    T = smoothing.geometry
+    k_plan, k_noise = jax.random.split(key)
+    del k_plan
+
+    imm = state.filters[cfg.filters.index("imm")]
+    xy, _ = combine(imm)
+    _, sig = mode_models(p, "imm")
+    belief = urban.Belief(xy, imm.x, imm.mu, state.fim, sig, p.emitter[2])
+    planned = smooth_plan_command(cfg, p, b, state.uav, state.command, belief, smoothing)
+    lim = limits_of(cfg, p)
+    hold_track = urban.predicted_track(state.uav, state.command, p.speed, cfg.dt, cfg.horizon)
+    hold_ok = jnp.exp(urban.soft_admissible_log(b, state.uav, state.command, hold_track, lim, p.speed, cfg.dt,
+                                                cfg.theta_rate_max * cfg.dt, T))
+    los_prev = jnp.where(state.t == 0, 1.0, urban.soft_line_of_sight(b, p.emitter, state.uav[:3], T))
+    held = (1.0 - los_prev) * hold_ok
+    command = held * state.command + (1.0 - held) * planned
+    uav = fixed_wing_step(state.uav, command[0], command[1], p.speed, cfg.dt)
+
+    pos = uav[:3]
+    clean, los, reflected = urban.soft_measured_bearing(b, p.emitter, pos, p.R2, p.power, p.directivity, T)
+    reflected = jnp.where(p.R2 > 0, reflected, 0.0)
+    sigma = p.sigma_los + reflected * (p.sigma_nlos - p.sigma_los)
+    z = wrap_angle(clean + sigma * jax.random.normal(k_noise, (), dtype))
+    gate = _GATE_FLOOR + (1.0 - _GATE_FLOOR) * los
+
+    first = state.t == 0
+    new_filters, errors = [], []
+    for name, fstate in zip(cfg.filters, state.filters):
+        bias, sg = mode_models(p, name)
+        m = bias.shape[0]
+        transition = p.imm_transition if m == 3 else jnp.ones((1, 1), dtype)
+        transition = jnp.where(first, jnp.eye(m, dtype=dtype), transition)
+        fnew, (x, _) = imm_step(fstate, transition, _gated_mode_filter, (bias, sg), z, uav, p.process_noise, gate)
+        new_filters.append(fnew)
+        errors.append(jnp.sqrt(jnp.sum((x - p.emitter[:2]) ** 2))[None])
+    imm_new = new_filters[cfg.filters.index("imm")]
+    gained = jax.vmap(lambda x, s: urban.bearing_information(x, uav, s))(imm_new.x, sig)
+    fim = state.fim + los * gained
+    return State(state.t + 1, uav, command, los > 0.5, tuple(new_filters), fim), jnp.stack(errors)
+
+
+def training_weights(cfg, params):
+    """What the training loss of ``mcjax tune`` reads: one UAV, weight 1 (the errors
+    :func:`smooth_step` returns are (F, 1))."""
+    return jnp.ones(1, jnp.dtype(cfg.dtype))
+
+
 def outputs(cfg) -> dict[str, Output]:
     """Per-run summary fields (:func:`reduce`)."""
     return dict(
@@ -399,5 +523,5 @@ SCENARIO = Scenario(
     name=NAME, title="Chen & Hao 2022: one UAV localises an emitter among buildings by azimuth (IMM-EKF, FIM "
     "planning)", Config=Config, Params=Params, init=init, step=step, reduce=reduce, outputs=outputs,
     timeseries=timeseries, timeseries_outputs=timeseries_outputs, check_params=check_params,
-    compiler_options=FAST_COMPILE)
+    surrogate=Surrogate(smooth_step, training_weights, Smoothing), compiler_options=FAST_COMPILE)
 default_params = SCENARIO.default_params

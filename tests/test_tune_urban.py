@@ -1,0 +1,152 @@
+"""``mcjax tune`` on Chen & Hao 2022 (urban_bearing): the planner weights c1, c2, c3 by gradient.
+
+The exact closed loop is piecewise constant in the weights (the grid planner's argmax) with
+jumps (the shadow hold, the measurement gate, reflections that appear and vanish), so
+training runs the scenario's smooth surrogate (``urban_bearing.smooth_step``, docs/tune.md).
+Every test shares ONE small gradient program: 8 steps, a 3-step planning horizon, the IMM
+only, 2 training runs, the UAV started 100 m south of the reflection region of the tall
+building's east wall, flying north into it, so that J_FIM, J_T and J_NLOS (eq. 20) all
+differ between the candidate commands and each weight carries gradient. The degenerate runs
+use the same program (the Params are its argument).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mcjax import tune
+from mcjax.planning import urban
+from mcjax.scenarios import urban_bearing as ub
+from test_tune import _assert_central_differences
+
+ROOT = Path(__file__).resolve().parents[1]
+EMITTER = np.array([5000.0, 5000.0, 0.0])
+#: Start: (5300, 5100) at 200 m heading north, 100 m south of the NLOS region (y 5200–5600 at
+#: x = 5300) of the tall building's east wall, in line of sight.
+START = [5300.0, 5100.0, 200.0, float(np.pi / 2)]
+
+
+def _spec_data() -> dict:
+    return {"base": str(ROOT / "configs" / "chen2022.toml"),
+            "config": {"n_steps": 8, "warmup_steps": 1, "horizon": 3, "filters": ["imm"]},
+            "params": {"uav0": START},
+            "tune": {"steps": 1, "train_seeds": 2, "train_base_seed": 1, "heldout_seeds": 2,
+                     "heldout_base_seed": 0, "checkpoint_every": 8,
+                     "params": {"c1": {"low": 0.01, "high": 2.0, "scale": "log"},
+                                "c2": {"low": 0.01, "high": 5.0, "scale": "log"},
+                                "c3": {"low": -1.5, "high": 1.5}},
+                     "loss": {"filter": "imm"}}}
+
+
+@pytest.fixture(scope="module")
+def spec() -> tune.TuneSpec:
+    return tune.build_tune_spec(_spec_data(), ROOT)
+
+
+@pytest.fixture(scope="module")
+def evaluator(spec) -> tune.Evaluator:
+    return tune.Evaluator(spec)
+
+
+def _with_base(spec, **values) -> tune.TuneSpec:
+    """The same program with other (untuned) Params values."""
+    sweep = dataclasses.replace(spec.sweep, base_params=spec.sweep.base_params._replace(
+        **{k: np.asarray(v, np.float64) for k, v in values.items()}))
+    return dataclasses.replace(spec, sweep=sweep)
+
+
+@pytest.mark.xdist_group("tune_urban")  # one worker builds the module fixture once
+def test_spec_takes_the_weights_and_the_smoothing_table():
+    data = _spec_data()
+    data["tune"]["smoothing"] = {"geometry": 30.0, "plan": 0.2, "command": 2e-3}
+    s = tune.build_tune_spec(data, ROOT)
+    assert s.names == ["c1", "c2", "c3"] and s.smoothing == ub.Smoothing(30.0, 0.2, 2e-3)
+    assert s.sweep.config.planner == "grid"  # the paper's planner, whose argmax the surrogate smooths
+
+
+@pytest.mark.xdist_group("tune_urban")  # one worker builds the module fixture once
+def test_gradient_matches_central_differences_for_several_steps(spec, evaluator):
+    """d loss / d z (forward mode, as mcjax tune) vs central differences of the same loss (the
+    same seeds, float64) to a relative 1e-3 for c1, c2, c3, at steps h = 1e-3, 1e-4, 1e-5 in z:
+    the agreement at every h shows the surrogate loss is smooth there, not one lucky h."""
+    z0 = tune.to_unconstrained(spec.bounds, spec.initial())
+    ev = evaluator(z0)
+    assert ev.dropped == 0 and np.all(np.isfinite(ev.grad)), ev
+    for h in (1e-3, 1e-4, 1e-5):
+        _assert_central_differences(spec, evaluator, z0, ev.grad, h=h)
+
+
+@pytest.mark.xdist_group("tune_urban")  # one worker builds the module fixture once
+def test_loss_is_invariant_to_scaling_all_weights(spec, evaluator):
+    """Like the grid's argmax, the surrogate's soft argmax over standardised scores does not
+    change when (c1, c2, c3) are multiplied by a positive number (so the tune cannot lower
+    the training loss by sharpening the surrogate)."""
+    x = spec.initial()
+    a = evaluator(tune.to_unconstrained(spec.bounds, x))
+    b = evaluator(tune.to_unconstrained(spec.bounds, 2.0 * x))
+    assert abs(a.loss - b.loss) <= 1e-9 * abs(a.loss)
+
+
+@pytest.mark.xdist_group("tune_urban")  # one worker builds the module fixture once
+@pytest.mark.parametrize("case", ["uav_over_emitter", "hidden_whole_run", "at_altitude_floor"])
+def test_gradients_finite_for_degenerate_runs(spec, evaluator, case):
+    """Same program, other Params: the UAV starting straight above the emitter; the UAV
+    2 km WNW of the emitter, flying at it inside the tall building's shadow for the whole run
+    (no measurement: the exact run holds its command every step); the UAV at h_min, where
+    every descending candidate is inadmissible."""
+    if case == "uav_over_emitter":
+        values = {"uav0": [*EMITTER[:2], 200.0, 0.0]}
+    elif case == "hidden_whole_run":
+        bearing = np.deg2rad(152.0)  # the middle of the shadow wedge (135°–169°) behind the tall building
+        values = {"uav0": [EMITTER[0] + 2000 * np.cos(bearing), EMITTER[1] + 2000 * np.sin(bearing), 200.0,
+                           bearing - np.pi]}
+    else:
+        values = {"uav0": [0.0, 0.0, 100.0, 0.0]}
+    s = _with_base(spec, **values)
+    if case == "hidden_whole_run":  # the exact simulation sees nothing on this run
+        from mcjax.models import environment as env
+        b = ub._buildings_np(s.sweep.base_params.buildings)
+        # 8 steps of 50 m stay within 400 m of the start and 35 m of its altitude (|θ| ≤ 5°):
+        # no point of that cylinder sees the emitter
+        r, a, z = np.meshgrid(np.linspace(0, 400, 9), np.linspace(0, 2 * np.pi, 16), [165.0, 200.0, 235.0])
+        pts = np.c_[values["uav0"][0] + (r * np.cos(a)).ravel(), values["uav0"][1] + (r * np.sin(a)).ravel(),
+                    z.ravel()]
+        assert not np.any(np.asarray(env.line_of_sight(b, EMITTER, pts)))
+    ev = tune.Evaluator(s)
+    assert ev.fn is evaluator.fn  # the same compiled program
+    out = ev(tune.to_unconstrained(s.bounds, s.initial()))
+    assert out.dropped == 0 and np.isfinite(out.loss) and np.all(np.isfinite(out.grad)), out
+
+
+@pytest.mark.xdist_group("tune_urban")
+def test_smooth_measurement_pieces_have_finite_derivatives_straight_above():
+    """With the UAV exactly above the emitter and the estimate exactly under the UAV (a
+    bearing undefined at both), the smooth bearing, the gated mode filter and the FIM
+    increment have finite derivatives with respect to the UAV's position and the gate."""
+    b = ub._buildings_np(ub.DEFAULT_BUILDINGS)
+    T = ub.Smoothing().geometry
+
+    def f(shift):
+        uav = jnp.asarray([*EMITTER[:2], 200.0]) + shift
+        bearing, los, refl = urban.soft_measured_bearing(b, jnp.asarray(EMITTER), uav, 0.5, 1.0, 1.0, T)
+        gate = 1e-9 + (1 - 1e-9) * los
+        x, P, ll = ub._gated_mode_filter(uav[:2], 1e4 * jnp.eye(2), (0.0, 0.0035), bearing, uav, 0.0, gate)
+        info = urban.bearing_information(uav[:2], uav, 0.0035)
+        return jnp.concatenate([jnp.stack([bearing, los, refl, ll]), x, P.ravel(), info.ravel()])
+
+    values = jax.jit(f)(jnp.zeros(3))
+    jac = jax.jit(jax.jacfwd(f))(jnp.zeros(3))
+    assert np.all(np.isfinite(np.asarray(values))) and np.all(np.isfinite(np.asarray(jac)))
+
+
+def test_exact_step_is_not_the_surrogate():
+    """The exact simulation (what mcjax sweep runs) is untouched: Scenario.step is the exact
+    step, the surrogate a separate function."""
+    assert ub.SCENARIO.step is ub.step and ub.SCENARIO.surrogate.step is ub.smooth_step
+    assert ub.SCENARIO.surrogate.Smoothing is ub.Smoothing
