@@ -184,38 +184,36 @@ def modified_icf_update(h, angle_mask, opts, xb, Pb, z, sensor, adjacency, R_inv
     return sym_matvec(P, y), P
 
 
-def to_dense(P):
-    """(…) upper-triangle tuple → dense (…, D, D)."""
-    return jnp.stack([jnp.stack([sym(P, i, j) for j in range(D)], -1) for i in range(D)], -2)
-
-
-@partial(jax.jit, static_argnames=("kind", "opts", "h", "angle_mask"))
-def run_batch(kind, opts, h, angle_mask, z, sensors, adjacency, x0, P0, F, Q, R):
+@partial(jax.jit, static_argnames=("kind", "opts", "h", "angle_mask", "dtype"))
+def run_batch(kind, opts, h, angle_mask, z, sensors, adjacency, x0, P0, F, Q, R, dtype="float64"):
     """``kind`` ("local" or "modified_icf") over a batch of recorded runs.
 
     ``z`` (B, T, n, M) (NaN where missing), ``sensors`` (B, T, n, ·), ``adjacency``
-    (B, T, n, n); ``x0`` (D,), ``P0``, ``F``, ``Q`` (D, D), ``R`` (M, M). Step 0 updates the
-    prior without predicting (docs/equations.md timing). Returns estimates (B, T, n, D) and
-    covariances (B, T, n, D, D).
+    (B, T, n, n) (not read by ``"local"``: pass ``None``); ``x0`` (D,), ``P0``, ``F``, ``Q``
+    (D, D), ``R`` (M, M); every input is cast to ``dtype`` first. Step 0 updates the prior
+    without predicting (docs/equations.md timing).
 
-    The state is carried as SoA ``(n, B)`` arrays; each step writes its estimates and
-    covariances straight into the (B, T, …) outputs (a ``dynamic_update_slice`` in the scan
-    carry), so no transpose of the whole output is needed at the end.
+    Returns estimates (T, n, D, B) and covariances (T, n, D, D, B): *batch last*, as the
+    state is carried, so each step's outputs are written as contiguous ``(n, B)`` rows and no
+    transpose is needed; ``numpy.moveaxis(out, -1, 0)`` views them as (B, T, n, …) without a
+    copy (:func:`mcjax.filters.recorded.run_filter` does so).
     """
+    z, sensors, x0, P0, F, Q, R = (jnp.asarray(v, dtype) for v in (z, sensors, x0, P0, F, Q, R))
     B, T, n = z.shape[:3]
     zt = jnp.moveaxis(z, 0, -1)              # (T, n, M, B)
     st = jnp.moveaxis(sensors, 0, -1)        # (T, n, ·, B)
-    at = jnp.moveaxis(adjacency, 0, -1)      # (T, n, n, B)
+    if kind == "local":
+        at = jnp.zeros((T,), z.dtype)        # unused
+    else:
+        at = jnp.moveaxis(jnp.asarray(adjacency, dtype), 0, -1)  # (T, n, n, B)
     R_inv = jnp.linalg.inv(R)
     P0 = 0.5 * (P0 + P0.T)
     x = tuple(jnp.broadcast_to(x0[k], (n, B)) for k in range(D))
     P = tuple(jnp.broadcast_to(P0[i, j], (n, B)) for i, j in UPPER)
-    X = jnp.zeros((B, T, n, D), z.dtype)
-    PP = jnp.zeros((B, T, n, D, D), z.dtype)
     eye, zero = jnp.eye(D, dtype=F.dtype), jnp.zeros_like(Q)
 
     def body(carry, inputs):
-        x, P, X, PP = carry
+        x, P = carry
         t, zz, ss, aa = inputs
         first = t == 0
         xb, Pb = predict(x, P, jnp.where(first, eye, F), jnp.where(first, zero, Q))
@@ -225,9 +223,8 @@ def run_batch(kind, opts, h, angle_mask, z, sensors, adjacency, x0, P0, F, Q, R)
             x, P = local_update(h, angle_mask, xb, Pb, zs, sn, R)
         else:
             x, P = modified_icf_update(h, angle_mask, opts, xb, Pb, zs, sn, aa, R_inv)
-        X = jax.lax.dynamic_update_slice(X, jnp.moveaxis(jnp.stack(x, -1), 1, 0)[:, None], (0, t, 0, 0))
-        PP = jax.lax.dynamic_update_slice(PP, jnp.moveaxis(to_dense(P), 1, 0)[:, None], (0, t, 0, 0, 0))
-        return (x, P, X, PP), None
+        dense = jnp.stack([jnp.stack([sym(P, i, j) for j in range(D)], 1) for i in range(D)], 1)
+        return (x, P), (jnp.stack(x, 1), dense)  # (n, D, B), (n, D, D, B)
 
-    (_, _, X, PP), _ = jax.lax.scan(body, (x, P, X, PP), (jnp.arange(T), zt, st, at))
+    _, (X, PP) = jax.lax.scan(body, (x, P), (jnp.arange(T), zt, st, at))
     return X, PP

@@ -84,8 +84,10 @@ MIN_RUNS_PER_DEVICE = 64
 def _run_batched(kind, opts, z, s, a, consts, dt):
     """The local EKF / modified ICF through :func:`batched.run_batch` on one CPU device, or with
     ``SPLIT_OVER_DEVICES`` the batch split into contiguous chunks over the devices (every run is
-    computed independently, so the split does not change any bit). Returns numpy arrays with
-    ``z``'s leading axes."""
+    computed independently, so the split does not change any bit). ``z``, ``s``, ``a`` are numpy
+    or device arrays. Returns numpy arrays with ``z``'s leading axes: on one device, read-only
+    views of the kernel's batch-last outputs (no copy); split, one copy into a batch-last
+    result."""
     single = z.ndim == 3
     if single:
         z, s, a = z[None], s[None], a[None]
@@ -98,15 +100,26 @@ def _run_batched(kind, opts, z, s, a, consts, dt):
     bounds = np.linspace(0, B, k + 1).astype(int)
     pending = []
     for d, lo, hi in zip(devices, bounds[:-1], bounds[1:]):
-        args = [jax.device_put(np.asarray(v[lo:hi], dt), d) for v in (z, s, a)]
-        cst = [jax.device_put(np.asarray(v, dt), d) for v in consts]
-        pending.append(batched.run_batch(kind, opts, range_bearing, _ANGLE_MASK_RB, *args, *cst))
+        chunk = (z, s, None if kind == "local" else a) if k == 1 else (
+            np.asarray(z[lo:hi]), np.asarray(s[lo:hi]), None if kind == "local" else np.asarray(a[lo:hi]))
+        args = [None if v is None else jax.device_put(v, d) for v in chunk]
+        cst = [jax.device_put(np.asarray(v), d) for v in consts]
+        pending.append(batched.run_batch(kind, opts, range_bearing, _ANGLE_MASK_RB, *args, *cst, dtype=dt))
     if k == 1:
         xs, Ps = (np.asarray(v) for v in pending[0])
     else:
-        xs = np.concatenate([np.asarray(p[0]) for p in pending])
-        Ps = np.concatenate([np.asarray(p[1]) for p in pending])
+        xs = np.concatenate([np.asarray(p[0]) for p in pending], axis=-1)
+        Ps = np.concatenate([np.asarray(p[1]) for p in pending], axis=-1)
+    xs, Ps = np.moveaxis(xs, -1, 0), np.moveaxis(Ps, -1, 0)
     return (xs[0], Ps[0]) if single else (xs, Ps)
+
+
+@jax.jit
+def _graph_and_sensor_flags(s, a):
+    """``[sensor positions finite, adjacency 0/1, adjacency symmetric, zero diagonal]``, the
+    checks of :func:`run_filter` in one compiled pass over the (large) inputs."""
+    return jnp.stack([jnp.all(jnp.isfinite(s)), jnp.all((a == 0) | (a == 1)),
+                      jnp.all(a == jnp.swapaxes(a, -1, -2)), jnp.all(jnp.diagonal(a, axis1=-2, axis2=-1) == 0)])
 
 
 def run_filter(
@@ -169,14 +182,14 @@ def run_filter(
     _expect_shape("sensor_positions", s, (*lead, T, n, 2), "(one (x, y) per step and agent, like measurements)")
     a = _as_array("adjacency", adjacency, np.float64)
     _expect_shape("adjacency", a, (*lead, T, n, n), "(one n×n 0/1 matrix per step)")
-    if not np.all(np.isfinite(s)):
-        raise ValueError("sensor_positions must be finite")
-    if not np.all((a == 0) | (a == 1)):
-        raise ValueError("adjacency must contain only 0 and 1")
-    if not np.array_equal(a, np.swapaxes(a, -1, -2)):
-        raise ValueError("adjacency must be symmetric (undirected comm links)")
-    if np.any(np.diagonal(a, axis1=-2, axis2=-1) != 0):
-        raise ValueError("adjacency must have a zero diagonal")
+    # on the device, once: the batched kernels read these very buffers (no second copy)
+    s, a = (jax.device_put(v, jax.local_devices()[0]) for v in (s, a))
+    flags = np.asarray(_graph_and_sensor_flags(s, a))
+    for ok, message in zip(flags, ("sensor_positions must be finite", "adjacency must contain only 0 and 1",
+                                   "adjacency must be symmetric (undirected comm links)",
+                                   "adjacency must have a zero diagonal")):
+        if not ok:
+            raise ValueError(message)
     x0a = _as_array("x0", x0, np.float64)
     _expect_shape("x0", x0a, (4,), "([x, ẋ, y, ẏ])")
     if not np.all(np.isfinite(x0a)):
@@ -200,7 +213,7 @@ def run_filter(
 
     dt = jnp.float64 if dtype == "float64" else jnp.float32
     if kind in BATCHED_KINDS:
-        return _run_batched(kind, opts, z, s, a, (x0a, P0a, Fa, Qa, Ra), dt)
+        return _run_batched(kind, opts, z, s, a, (x0a, P0a, Fa, Qa, Ra), dtype)
     args = [jnp.asarray(v, dt) for v in (z, s, a)]
     consts = [jnp.asarray(v, dt) for v in (x0a, P0a, Fa, Qa, Ra, kcf_epsilon)]
     fn = partial(_run_one, kind, opts)
