@@ -109,19 +109,7 @@ class _Program:
 def compiler_options(scenario: Scenario) -> dict | None:
     """The scenario's XLA options (:attr:`mcjax.contract.Scenario.compiler_options`) that this
     JAX knows; an unknown one is dropped rather than failing every compilation."""
-    return _known_options(tuple(sorted((scenario.compiler_options or {}).items())))
-
-
-@lru_cache(maxsize=None)
-def _known_options(items: tuple) -> dict | None:
-    known = {}
-    for name, value in items:
-        try:  # a one-line program, compiled once per option and process
-            jax.jit(lambda x: x + 1, compiler_options={name: value}).lower(np.float32(0)).compile()
-        except Exception:  # noqa: BLE001 — jaxlib's error for an unknown option ("No such compile option")
-            continue
-        known[name] = value
-    return known or None
+    return runtime.known_compiler_options(scenario.compiler_options)
 
 
 def devices() -> list:

@@ -169,3 +169,22 @@ def store_executable(key: str, device, compiled, targets: frozenset) -> None:
 
 
 _apply()
+
+
+def known_compiler_options(options) -> dict | None:
+    """The XLA options of ``options`` (a mapping, or None) that this JAX knows, for
+    ``jax.jit(..., compiler_options=…)``; an unknown one is dropped (the program is then
+    compiled with XLA's default for it) rather than failing every compilation."""
+    return _known_options(tuple(sorted((options or {}).items())))
+
+
+@lru_cache(maxsize=None)
+def _known_options(items: tuple) -> dict | None:
+    known = {}
+    for name, value in items:
+        try:  # a one-line program, compiled once per option and process
+            jax.jit(lambda x: x + 1, compiler_options={name: value}).lower(0.0).compile()
+        except Exception:  # noqa: BLE001 — jaxlib's error for an unknown option ("No such compile option")
+            continue
+        known[name] = value
+    return known or None

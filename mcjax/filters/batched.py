@@ -24,12 +24,13 @@ pure JAX and differentiable.
 
 from __future__ import annotations
 
-from functools import partial
+from functools import lru_cache, partial
+from types import MappingProxyType
 
 import jax
 import jax.numpy as jnp
 
-from mcjax import graph, numerics
+from mcjax import graph, numerics, runtime
 from mcjax.numerics import wrap_angle
 
 D = 4  # state dimension [x, ẋ, y, ẏ]
@@ -184,8 +185,28 @@ def modified_icf_update(h, angle_mask, opts, xb, Pb, z, sensor, adjacency, R_inv
     return sym_matvec(P, y), P
 
 
-@partial(jax.jit, static_argnames=("kind", "opts", "h", "angle_mask", "dtype"))
+#: XLA options per kernel. The local EKF's program runs ~20 % faster without XLA's "YNN"
+#: reduction kernels (its only reductions are the 2-term sums of the range's square); the
+#: modified ICF's ran ~1.7x slower without them, so it keeps XLA's defaults
+#: (docs/filter_speed.md). An option this JAX does not know is dropped.
+COMPILER_OPTIONS = {"local": MappingProxyType({"xla_cpu_experimental_ynn_fusion_type": ""})}
+
+
+@lru_cache(maxsize=None)
+def _program(kind):
+    options = runtime.known_compiler_options(COMPILER_OPTIONS.get(kind))
+    return jax.jit(partial(_run_batch, kind), static_argnames=("opts", "h", "angle_mask", "dtype"),
+                   compiler_options=options)
+
+
 def run_batch(kind, opts, h, angle_mask, z, sensors, adjacency, x0, P0, F, Q, R, dtype="float64"):
+    """``kind`` ("local" or "modified_icf") over a batch of recorded runs, compiled (one
+    program per kind, with its :data:`COMPILER_OPTIONS`). Called on concrete arrays (not
+    inside another ``jit``). See :func:`_run_batch`."""
+    return _program(kind)(opts, h, angle_mask, z, sensors, adjacency, x0, P0, F, Q, R, dtype=dtype)
+
+
+def _run_batch(kind, opts, h, angle_mask, z, sensors, adjacency, x0, P0, F, Q, R, dtype="float64"):
     """``kind`` ("local" or "modified_icf") over a batch of recorded runs.
 
     ``z`` (B, T, n, M) (NaN where missing), ``sensors`` (B, T, n, ·), ``adjacency``
