@@ -65,6 +65,7 @@ from typing import Any, Callable, NamedTuple
 import numpy as np
 import pandas as pd
 
+from mcjax import scenarios
 from mcjax.sweep import (MAX_BASE_SEED, MAX_SEEDS, SpecError, SweepSpec, _check_keys, _count, _is_number,
                          _read_toml, _show, _suggest, build_spec, is_config_file)
 
@@ -252,7 +253,8 @@ def build_tune_spec(data: dict, base_dir: str | Path) -> TuneSpec:
     scenario, cfg = spec.scenario, spec.config
     if scenario.surrogate is None:
         raise SpecError(f"scenario: {scenario.name} has no smooth surrogate (Scenario.surrogate), which "
-                        f"mcjax tune needs; tunable scenarios: leader_follower")
+                        f"mcjax tune needs; tunable built-in scenarios: "
+                        f"{', '.join(n for n, s in scenarios.BUILTIN.items() if s.surrogate is not None)}")
     optimizer = tune.get("optimizer", "adam")
     if optimizer not in OPTIMIZERS:
         raise SpecError(f"tune.optimizer: must be one of {', '.join(OPTIMIZERS)}; got {_show(optimizer)}"

@@ -201,6 +201,15 @@ def test_spec_without_tune_table_or_with_grid(tmp_path):
             tune.build_tune_spec(__import__("tomllib").loads(text), tmp_path)
 
 
+def test_scenario_without_surrogate_names_the_tunable_ones(tmp_path):
+    text = f'base = "{(ROOT / "configs" / "ren2017.toml").as_posix()}"\n[tune]\nsteps = 2\n[tune.params.sigma_r]\nlow = 1.0\nhigh = 9.0\n'
+    with pytest.raises(SpecError) as exc:
+        tune.build_tune_spec(__import__("tomllib").loads(text), tmp_path)
+    message = str(exc.value)
+    assert message.startswith("scenario: uuv_imm has no smooth surrogate") and "\n" not in message
+    assert message.endswith("tunable built-in scenarios: leader_follower, urban_bearing")
+
+
 def test_example_spec_reads():
     s = tune.load_tune_spec(ROOT / "sweeps" / "tune_sun2011.toml")
     assert s.names == ["alpha_I", "alpha_L", "alpha_C"]
