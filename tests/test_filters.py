@@ -120,6 +120,29 @@ def test_batch_axis_matches_single_runs():
     np.testing.assert_allclose(xb[1], x2, rtol=1e-10, atol=1e-6)  # last-bit: XLA code differs by batch size
 
 
+@pytest.mark.parametrize("kind", ["local", "modified_icf"])
+def test_batched_kernel_matches_the_general_path(kind, monkeypatch):
+    """The structure-of-arrays kernels (mcjax/filters/batched.py) against the one-run filters
+    (consensus.filter_step) vmapped over runs: same equations, different algebra and layout.
+    Sparse graph and missed measurements; outputs of the documented shape, read-only."""
+    from mcjax.filters import recorded
+
+    runs = [_data(seed=s, T=25, comm_radius=60 * KM, sensing_radius=90 * KM)[0] for s in (11, 12, 13)]
+    batch = {k: np.stack([c[k] for c in runs]) for k in ("measurements", "sensor_positions", "adjacency")}
+    assert np.isnan(batch["measurements"]).any() and 0 < batch["adjacency"].mean() < 0.8
+    rest = {k: v for k, v in runs[0].items() if k not in batch}
+    x, P = run_filter(kind, **batch, **rest, consensus_steps=2)
+    assert x.shape == (3, 25, 5, 4) and P.shape == (3, 25, 5, 4, 4)
+    assert not x.flags.writeable and not P.flags.writeable
+    monkeypatch.setattr(recorded, "BATCHED_KINDS", ())
+    xg, Pg = run_filter(kind, **batch, **rest, consensus_steps=2)
+    scale = np.abs(xg).reshape(-1, 4).max(axis=0)
+    assert np.max(np.abs(x - xg) / scale) < 1e-9
+    d = np.sqrt(np.diagonal(Pg, axis1=-2, axis2=-1).reshape(-1, 4).max(axis=0))
+    assert np.max(np.abs(P - Pg) / np.outer(d, d)) < 1e-9
+    np.testing.assert_array_equal(P, np.swapaxes(P, -1, -2))
+
+
 def test_float32_tracks_float64():
     common, truth = _data(seed=8, T=40)
     x64, _ = run_filter("cif", **common)
@@ -142,6 +165,11 @@ def test_float32_tracks_float64():
     (dict(dtype="float16"), "dtype must be"),
     (dict(weights="uniform"), "weights must be one of"),
     (dict(adjacency=np.ones((5, 3, 3))), "zero diagonal"),
+    (dict(adjacency=np.full((5, 3, 3), 0.5) * (1 - np.eye(3))), "adjacency must contain only 0 and 1"),
+    (dict(adjacency=np.triu(np.ones((5, 3, 3)), 1)), r"adjacency must be symmetric"),
+    (dict(sensor_positions=np.where(np.arange(2) == 1, np.nan, np.zeros((5, 3, 2)))), "sensor_positions must be finite"),
+    (dict(kind="local", adjacency=np.triu(np.ones((2, 5, 3, 3)), 1), measurements=np.full((2, 5, 3, 2), np.nan),
+          sensor_positions=np.zeros((2, 5, 3, 2))), r"adjacency must be symmetric"),
 ])
 def test_bad_input_names_the_argument(change, match):
     args = dict(kind="cif", measurements=np.full((5, 3, 2), np.nan), sensor_positions=np.zeros((5, 3, 2)),
