@@ -21,7 +21,9 @@ component's scale, must be ≤ 1e-9).
     python benchmarks/filter_throughput.py                      # local, modified_icf; B = 1000, 10000
     python benchmarks/filter_throughput.py --filters cif icf modified_icf kcf local --batches 1000
 
-Prints a markdown table: ns per agent-step for each engine (mcjax also with the batch split over
+Prints a markdown table: ns per agent-step for each engine (mcjax also with its outputs copied
+to C order, ``np.ascontiguousarray``, as the peers return them — ``run_filter`` returns the
+local and modified-ICF results as views of batch-last buffers —, with the batch split over
 every CPU device (``recorded.SPLIT_OVER_DEVICES``; off by default), and
 through the general vmap path that ran these filters before the structure-of-arrays kernels), the
 speed ratios
@@ -185,10 +187,10 @@ def main(argv=None) -> None:
           f"median of {args.repeats}")
     from mcjax.filters.recorded import SPLIT_OVER_DEVICES as split
     other = "1 device" if split else f"{len(jax.local_devices())} devices"
-    print(f"| filter | B | mcjax ns | mcjax {other} ns | mcjax general path ns | filterpy ns | numpy ns | "
-          "numba ns | filterpy/mcjax | mcjax/numba | "
+    print(f"| filter | B | mcjax ns | mcjax C-ordered ns | mcjax {other} ns | mcjax general path ns | filterpy ns | "
+          "numpy ns | numba ns | filterpy/mcjax | mcjax/numba | "
           "flops peers / mcjax | mcjax GFLOP/s | numba GFLOP/s | load |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for kind in args.filters:
         r_ = range(args.peer_runs)
         ns_numpy = median_time(lambda: [numpy_peer.run_filter_numpy(kind, z[r], s[r], a[r], x0, **common)
@@ -204,6 +206,9 @@ def main(argv=None) -> None:
             run_filter(kind, **batch, x0=x0, **common)
             compile_s = time.perf_counter() - t
             ns_mcjax = median_time(lambda: run_filter(kind, **batch, x0=x0, **common), args.repeats) / (B * per_run) * 1e9
+            # run_filter may return views of batch-last buffers; the peers return C-ordered arrays
+            ns_c = median_time(lambda: [np.ascontiguousarray(v) for v in run_filter(kind, **batch, x0=x0, **common)],
+                               args.repeats) / (B * per_run) * 1e9
             ns_one = ns_general = math.nan
             if not args.no_variants and kind in recorded.BATCHED_KINDS:
                 saved = recorded.SPLIT_OVER_DEVICES, recorded.BATCHED_KINDS
@@ -231,7 +236,7 @@ def main(argv=None) -> None:
             fmt = lambda v: "–" if math.isnan(v) else f"{v:,.0f}"  # noqa: E731
             ratio_fp = "–" if math.isnan(ns_fp) else f"{ns_fp / ns_mcjax:,.0f}"
             ratio_nb = "–" if math.isnan(ns_numba) else f"{ns_mcjax / ns_numba:.2f}"
-            print(f"| {kind} | {B:,} | {fmt(ns_mcjax)} | {fmt(ns_one)} | {fmt(ns_general)} | {fmt(ns_fp)} | {fmt(ns_numpy)} | {fmt(ns_numba)} | "
+            print(f"| {kind} | {B:,} | {fmt(ns_mcjax)} | {fmt(ns_c)} | {fmt(ns_one)} | {fmt(ns_general)} | {fmt(ns_fp)} | {fmt(ns_numpy)} | {fmt(ns_numba)} | "
                   f"{ratio_fp} | {ratio_nb} | {f_peer} / {f_mcjax} | {gflops} | {gflops_nb} | {os.getloadavg()[0]:.1f} |", flush=True)
             print(f"#   {kind} B={B}: first mcjax call (compilation included) {compile_s:.1f} s", flush=True)
             del batch
