@@ -21,13 +21,16 @@ component's scale, must be ≤ 1e-9).
     python benchmarks/filter_throughput.py                      # local, modified_icf; B = 1000, 10000
     python benchmarks/filter_throughput.py --filters cif icf modified_icf kcf local --batches 1000
 
-Prints a markdown table: ns per agent-step for each engine (mcjax also with its outputs copied
-to C order, ``np.ascontiguousarray``, as the peers return them — ``run_filter`` returns the
-local and modified-ICF results as views of batch-last buffers —, with the batch split over
-every CPU device (``recorded.SPLIT_OVER_DEVICES``; off by default), and
-through the general vmap path that ran these filters before the structure-of-arrays kernels), the
-speed ratios
-(filterpy time / mcjax time, mcjax time / numba time), the floating-point operations per
+Prints a markdown table: ns per agent-step for each engine. "mcjax" is ``run_filter`` as a user
+calls it: for the local filter and the modified ICF in float64 that is the native kernels
+(``mcjax/filters/native_kernels.cc`` through XLA's FFI) when the machine has a C++ compiler,
+else the pure-JAX kernels (the first lines say which). Beside it: mcjax with its outputs
+copied to C order (``np.ascontiguousarray``, the peers' layout; the pure-JAX kernels return
+views of batch-last buffers), the pure-JAX kernels (always timed) and, unless
+``--no-variants``, the pure-JAX kernels with the batch split over every CPU device
+(``recorded.SPLIT_OVER_DEVICES``; off by default) and the general vmap path that ran these
+filters before the structure-of-arrays kernels; the speed ratios (filterpy time / mcjax time,
+mcjax time / numba time, pure-JAX time / numba time), the floating-point operations per
 agent-step counted by hand (docs/filter_speed.md) and mcjax's resulting GFLOP/s, and the load
 average (``os.getloadavg()``) at the end of each row.
 """
@@ -187,10 +190,13 @@ def main(argv=None) -> None:
           f"median of {args.repeats}")
     from mcjax.filters.recorded import SPLIT_OVER_DEVICES as split
     other = "1 device" if split else f"{len(jax.local_devices())} devices"
-    print(f"| filter | B | mcjax ns | mcjax C-ordered ns | mcjax {other} ns | mcjax general path ns | filterpy ns | "
-          "numpy ns | numba ns | filterpy/mcjax | mcjax/numba | "
-          "flops peers / mcjax | mcjax GFLOP/s | numba GFLOP/s | load |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    from mcjax.filters import native
+    engine = "native kernels" if native.available() else f"pure-JAX kernels ({native.STATUS['reason']})"
+    print(f"# mcjax's default for local and modified_icf here: {engine}")
+    print(f"| filter | B | mcjax ns | mcjax C-ordered ns | mcjax pure JAX ns | mcjax pure JAX {other} ns | "
+          "mcjax general path ns | filterpy ns | numpy ns | numba ns | filterpy/mcjax | mcjax/numba | "
+          "pure JAX/numba | flops peers / mcjax | mcjax GFLOP/s | numba GFLOP/s | load |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for kind in args.filters:
         r_ = range(args.peer_runs)
         ns_numpy = median_time(lambda: [numpy_peer.run_filter_numpy(kind, z[r], s[r], a[r], x0, **common)
@@ -209,9 +215,19 @@ def main(argv=None) -> None:
             # run_filter may return views of batch-last buffers; the peers return C-ordered arrays
             ns_c = median_time(lambda: [np.ascontiguousarray(v) for v in run_filter(kind, **batch, x0=x0, **common)],
                                args.repeats) / (B * per_run) * 1e9
-            ns_one = ns_general = math.nan
+            ns_one = ns_general = ns_jax = math.nan
+            if kind in recorded.BATCHED_KINDS:  # the pure-JAX kernels (always; the default without a compiler)
+                saved = recorded.USE_NATIVE
+                try:
+                    recorded.USE_NATIVE = False
+                    run_filter(kind, **batch, x0=x0, **common)
+                    ns_jax = median_time(lambda: run_filter(kind, **batch, x0=x0, **common),
+                                         args.repeats) / (B * per_run) * 1e9
+                finally:
+                    recorded.USE_NATIVE = saved
             if not args.no_variants and kind in recorded.BATCHED_KINDS:
-                saved = recorded.SPLIT_OVER_DEVICES, recorded.BATCHED_KINDS
+                saved = recorded.SPLIT_OVER_DEVICES, recorded.BATCHED_KINDS, recorded.USE_NATIVE
+                recorded.USE_NATIVE = False  # the variants are of the pure-JAX path
                 try:
                     recorded.SPLIT_OVER_DEVICES = not saved[0]  # the other device choice
                     run_filter(kind, **batch, x0=x0, **common)
@@ -224,7 +240,7 @@ def main(argv=None) -> None:
                         ns_general = median_time(lambda: run_filter(kind, **batch, x0=x0, **common),
                                                  args.repeats) / (B * per_run) * 1e9
                 finally:
-                    recorded.SPLIT_OVER_DEVICES, recorded.BATCHED_KINDS = saved
+                    recorded.SPLIT_OVER_DEVICES, recorded.BATCHED_KINDS, recorded.USE_NATIVE = saved
             ns_numba = math.nan
             if numba_peer is not None and kind in NUMBA_FILTERS:
                 numba_peer.run_filter_numba(kind, *(v[:2] for v in batch.values()), x0, **common)
@@ -236,8 +252,9 @@ def main(argv=None) -> None:
             fmt = lambda v: "–" if math.isnan(v) else f"{v:,.0f}"  # noqa: E731
             ratio_fp = "–" if math.isnan(ns_fp) else f"{ns_fp / ns_mcjax:,.0f}"
             ratio_nb = "–" if math.isnan(ns_numba) else f"{ns_mcjax / ns_numba:.2f}"
-            print(f"| {kind} | {B:,} | {fmt(ns_mcjax)} | {fmt(ns_c)} | {fmt(ns_one)} | {fmt(ns_general)} | {fmt(ns_fp)} | {fmt(ns_numpy)} | {fmt(ns_numba)} | "
-                  f"{ratio_fp} | {ratio_nb} | {f_peer} / {f_mcjax} | {gflops} | {gflops_nb} | {os.getloadavg()[0]:.1f} |", flush=True)
+            ratio_jax = "–" if math.isnan(ns_numba) or math.isnan(ns_jax) else f"{ns_jax / ns_numba:.2f}"
+            print(f"| {kind} | {B:,} | {fmt(ns_mcjax)} | {fmt(ns_c)} | {fmt(ns_jax)} | {fmt(ns_one)} | {fmt(ns_general)} | {fmt(ns_fp)} | {fmt(ns_numpy)} | {fmt(ns_numba)} | "
+                  f"{ratio_fp} | {ratio_nb} | {ratio_jax} | {f_peer} / {f_mcjax} | {gflops} | {gflops_nb} | {os.getloadavg()[0]:.1f} |", flush=True)
             print(f"#   {kind} B={B}: first mcjax call (compilation included) {compile_s:.1f} s", flush=True)
             del batch
 

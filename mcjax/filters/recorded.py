@@ -16,7 +16,7 @@ from mcjax.filters.consensus import (
     init_states,
     per_agent,
 )
-from mcjax.filters import batched
+from mcjax.filters import batched, native
 from mcjax.filters.gaussian import first_step_model
 from mcjax.models.sensors import range_bearing
 
@@ -77,21 +77,29 @@ BATCHED_KINDS = ("local", "modified_icf")
 #: Off: on the shared 2-core VM the copy of the halves cost more than the second core gave
 #: (docs/filter_speed.md, 2026-12-01: 1.5x slower at B = 10,000).
 SPLIT_OVER_DEVICES = False
+#: Run the local EKF and the modified ICF (float64) through the native kernels when the
+#: machine can build them (:func:`mcjax.filters.native.available`; ``MCJAX_NATIVE=off`` turns
+#: them off for the process). False: always the pure-JAX kernels of :mod:`.batched`.
+USE_NATIVE = True
 #: Fewest runs per CPU device when a batch is split over the devices.
 MIN_RUNS_PER_DEVICE = 64
 
 
 def _run_batched(kind, opts, z, s, a, consts, dt):
-    """The local EKF / modified ICF through :func:`batched.run_batch` on one CPU device, or with
-    ``SPLIT_OVER_DEVICES`` the batch split into contiguous chunks over the devices (every run is
-    computed independently, so the split does not change any bit). ``z``, ``s``, ``a`` are numpy
-    or device arrays. Returns numpy arrays with ``z``'s leading axes: on one device, read-only
-    views of the kernel's batch-last outputs (no copy); split, one copy into a batch-last
-    result."""
+    """The local EKF / modified ICF: in float64, through the native kernels where they are
+    built (:mod:`.native`, C-ordered results); otherwise through :func:`batched.run_batch` on
+    one CPU device, or with ``SPLIT_OVER_DEVICES`` the batch split into contiguous chunks over
+    the devices (every run is computed independently, so the split does not change any bit).
+    ``z``, ``s``, ``a`` are numpy or device arrays. Returns numpy arrays with ``z``'s leading
+    axes: from the pure-JAX kernels on one device, read-only views of their batch-last outputs
+    (no copy); split, one copy into a batch-last result."""
     single = z.ndim == 3
     if single:
         z, s, a = z[None], s[None], a[None]
     B = z.shape[0]
+    if USE_NATIVE and dt == "float64" and native.available():
+        xs, Ps = native.run_batch(kind, opts, z, s, a, *consts)
+        return (xs[0], Ps[0]) if single else (xs, Ps)
     if B == 1:  # XLA compiles a batch of one differently (last-bit changes): run two copies
         xs, Ps = _run_batched(kind, opts, *(np.concatenate([v, v]) for v in (z, s, a)), consts, dt)
         return (xs[0], Ps[0]) if single else (xs[:1], Ps[:1])
@@ -112,14 +120,6 @@ def _run_batched(kind, opts, z, s, a, consts, dt):
         Ps = np.concatenate([np.asarray(p[1]) for p in pending], axis=-1)
     xs, Ps = np.moveaxis(xs, -1, 0), np.moveaxis(Ps, -1, 0)
     return (xs[0], Ps[0]) if single else (xs, Ps)
-
-
-@jax.jit
-def _graph_and_sensor_flags(s, a):
-    """``[sensor positions finite, adjacency 0/1, adjacency symmetric, zero diagonal]``, the
-    checks of :func:`run_filter` in one compiled pass over the (large) inputs."""
-    return jnp.stack([jnp.all(jnp.isfinite(s)), jnp.all((a == 0) | (a == 1)),
-                      jnp.all(a == jnp.swapaxes(a, -1, -2)), jnp.all(jnp.diagonal(a, axis1=-2, axis2=-1) == 0)])
 
 
 def run_filter(
@@ -185,14 +185,17 @@ def run_filter(
     _expect_shape("sensor_positions", s, (*lead, T, n, 2), "(one (x, y) per step and agent, like measurements)")
     a = _as_array("adjacency", adjacency, np.float64)
     _expect_shape("adjacency", a, (*lead, T, n, n), "(one n×n 0/1 matrix per step)")
-    # on the device, once: the batched kernels read these very buffers (no second copy)
-    s, a = (jax.device_put(v, jax.local_devices()[0]) for v in (s, a))
-    flags = np.asarray(_graph_and_sensor_flags(s, a))
-    for ok, message in zip(flags, ("sensor_positions must be finite", "adjacency must contain only 0 and 1",
-                                   "adjacency must be symmetric (undirected comm links)",
-                                   "adjacency must have a zero diagonal")):
-        if not ok:
-            raise ValueError(message)
+    if not np.all(np.isfinite(s)):
+        raise ValueError("sensor_positions must be finite")
+    with np.errstate(invalid="ignore"):  # NaN or out-of-range values: caught by the comparison
+        a8 = a.astype(np.uint8)  # the kernels read the graph as 0/1 bytes: 1/8 of the memory
+    if not np.array_equal(a8, a):
+        raise ValueError("adjacency must contain only 0 and 1")
+    if not np.array_equal(a8, np.swapaxes(a8, -1, -2)):
+        raise ValueError("adjacency must be symmetric (undirected comm links)")
+    if np.any(np.diagonal(a8, axis1=-2, axis2=-1)):
+        raise ValueError("adjacency must have a zero diagonal")
+    a = a8
     x0a = _as_array("x0", x0, np.float64)
     _expect_shape("x0", x0a, (4,), "([x, ẋ, y, ẏ])")
     if not np.all(np.isfinite(x0a)):

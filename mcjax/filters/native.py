@@ -1,0 +1,111 @@
+"""Native CPU kernels of the local EKF and the modified ICF for :func:`mcjax.filters.run_filter`,
+through XLA's FFI (``native_kernels.cc``, the equations of :mod:`mcjax.filters.batched`).
+
+XLA runs the structure-of-arrays kernels of :mod:`.batched` as dozens of elementwise loops per
+step, each reading the state again, on one thread; a compiled loop over runs keeps one run's
+state in registers and uses every core (docs/filter_speed.md). So when the machine has a C++
+compiler, the first call builds ``native_kernels.cc`` into a shared library (``c++ -O3
+-march=native``, a few seconds), keeps it in mcjax's cache folder (keyed on the source, the
+compiler and the CPU; safe to delete), and registers its two handlers with XLA. Without a
+compiler, or with ``MCJAX_NATIVE=off``, :func:`available` is False and ``run_filter`` uses the
+pure-JAX kernels, which are also the ones for float32 and for gradients. Both give the same
+numbers to round-off (tests/test_filters.py checks 1e-9).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import platform
+import shutil
+import subprocess
+import tempfile
+from functools import lru_cache
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from mcjax import runtime
+
+SOURCE = Path(__file__).with_name("native_kernels.cc")
+TARGETS = {"local": ("mcjax_local_ekf", "McjaxLocalEkf"), "modified_icf": ("mcjax_modified_icf", "McjaxModifiedIcf")}
+WEIGHT_CODES = {"eq11": 0, "metropolis": 1, "max_degree": 2}
+#: Why the native kernels are not in use in this process ("" when they are).
+STATUS = {"reason": "not tried yet"}
+
+
+def _compiler() -> str | None:
+    return next((c for c in (os.environ.get("CXX"), "c++", "g++", "clang++") if c and shutil.which(c)), None)
+
+
+def _library_path(cxx: str) -> Path:
+    version = subprocess.run([cxx, "--version"], capture_output=True, text=True, timeout=30).stdout
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            cpu += "".join(line for line in f if line.startswith(("model name", "flags")))[:4000]
+    except OSError:
+        pass
+    key = hashlib.sha256(SOURCE.read_bytes() + version.encode() + cpu.encode() + jax.__version__.encode())
+    folder = runtime.cache_dir()
+    folder = (folder / "mcjax-native") if folder is not None else Path(tempfile.gettempdir()) / f"mcjax-native-{os.getuid()}"
+    return folder / f"filters-{key.hexdigest()[:24]}.so"
+
+
+def _build(cxx: str, target: Path) -> None:
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.with_suffix(f".{os.getpid()}.tmp")
+    cmd = [cxx, "-O3", "-march=native", "-std=c++17", "-shared", "-fPIC", "-pthread",
+           f"-I{jax.ffi.include_dir()}", str(SOURCE), "-o", str(tmp)]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed: {done.stderr.strip()[-500:]}")
+    os.replace(tmp, target)  # atomic: a concurrent process sees the whole library or none
+
+
+@lru_cache(maxsize=1)
+def available() -> bool:
+    """Build (once per machine), load and register the native kernels; False (with the reason in
+    :data:`STATUS`) if ``MCJAX_NATIVE=off``, there is no C++ compiler, or the build fails."""
+    if os.environ.get("MCJAX_NATIVE", "").lower() in ("off", "0", "false", "no"):
+        STATUS["reason"] = "MCJAX_NATIVE=off"
+        return False
+    cxx = _compiler()
+    if cxx is None:
+        STATUS["reason"] = "no C++ compiler (c++, g++, clang++ or $CXX) on PATH"
+        return False
+    try:
+        path = _library_path(cxx)
+        if not path.exists():
+            _build(cxx, path)
+        lib = ctypes.cdll.LoadLibrary(str(path))
+        for name, symbol in TARGETS.values():
+            jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(getattr(lib, symbol)), platform="cpu")
+    except Exception as exc:  # noqa: BLE001 — any failure means: use the pure-JAX kernels
+        STATUS["reason"] = f"build or load failed: {exc}"
+        return False
+    STATUS["reason"] = ""
+    return True
+
+
+def run_batch(kind, opts, z, s, a, x0, P0, F, Q, R):
+    """``kind`` ("local" or "modified_icf") over B runs (float64 numpy or device arrays
+    (B, T, n, ·)); returns C-ordered numpy estimates (B, T, n, 4) and covariances
+    (B, T, n, 4, 4). Call only when :func:`available`."""
+    B, T, n = z.shape[:3]
+    threads = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+    out = (jax.ShapeDtypeStruct((B, T, n, 4), np.float64), jax.ShapeDtypeStruct((B, T, n, 4, 4), np.float64))
+    consts = [np.asarray(v, np.float64) for v in (x0, P0, F, Q, R)]
+    name = TARGETS[kind][0]
+    if kind == "local":
+        xs, Ps = _call(name, out, (z, s, *consts), threads=np.int64(threads))
+    else:
+        xs, Ps = _call(name, out, (z, s, np.asarray(a, np.uint8), *consts), threads=np.int64(threads), steps=np.int64(opts.consensus_steps),
+                       weights=np.int64(WEIGHT_CODES[opts.weights]), component=opts.contribution != "one")
+    return np.asarray(xs), np.asarray(Ps)
+
+
+def _call(name, out, args, **attrs):
+    return jax.ffi.ffi_call(name, out)(*args, **attrs)
