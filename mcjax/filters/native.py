@@ -5,7 +5,7 @@ XLA runs the structure-of-arrays kernels of :mod:`.batched` as dozens of element
 step, each reading the state again, on one thread; a compiled loop over runs keeps one run's
 state in registers and uses every core (docs/filter_speed.md). So when the machine has a C++
 compiler, the first call builds ``native_kernels.cc`` into a shared library (``c++ -O3
--march=native``, a few seconds), keeps it in mcjax's cache folder (keyed on the source, the
+-march=native -fno-math-errno``, a few seconds), keeps it in mcjax's cache folder (keyed on the source, the
 compiler and the CPU; safe to delete), and registers its two handlers with XLA. Without a
 compiler, or with ``MCJAX_NATIVE=off``, :func:`available` is False and ``run_filter`` uses the
 pure-JAX kernels, which are also the ones for float32 and for gradients. Both give the same
@@ -57,7 +57,7 @@ def _library_path(cxx: str) -> Path:
 def _build(cxx: str, target: Path) -> None:
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = target.with_suffix(f".{os.getpid()}.tmp")
-    cmd = [cxx, "-O3", "-march=native", "-std=c++17", "-shared", "-fPIC", "-pthread",
+    cmd = [cxx, "-O3", "-march=native", "-fno-math-errno", "-std=c++17", "-shared", "-fPIC", "-pthread",
            f"-I{jax.ffi.include_dir()}", str(SOURCE), "-o", str(tmp)]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     if done.returncode != 0:

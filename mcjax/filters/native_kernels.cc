@@ -127,45 +127,120 @@ void write(double* xs, double* Ps, const double x[D], const double P[D][D]) {
     for (int j = 0; j < D; ++j) Ps[i * D + j] = P[i][j];
 }
 
-void local_runs(const Model& m, const double* z, const double* s, int64_t b0, int64_t b1, int64_t T,
-                int64_t n, double* xs, double* Ps) {
-  for (int64_t b = b0; b < b1; ++b)
-    for (int64_t i = 0; i < n; ++i) {
-      double x[D], P[D][D];
-      for (int k = 0; k < D; ++k) x[k] = m.x0[k];
-      for (int k = 0; k < D; ++k)
-        for (int l = 0; l < D; ++l) P[k][l] = m.P0[k][l];
-      for (int64_t t = 0; t < T; ++t) {
-        int64_t row = (b * T + t) * n + i;
-        predict(m, t == 0, x, P);
-        double nu[2], H[2][D];
-        if (measured(z + 2 * row, s + 2 * row, x, nu, H)) {
-          double PHt[D][2], S[2][2], Si[2][2], K[D][2];
-          for (int k = 0; k < D; ++k)
-            for (int a = 0; a < 2; ++a) {
-              PHt[k][a] = 0;
-              for (int l = 0; l < D; ++l) PHt[k][a] += P[k][l] * H[a][l];
-            }
-          for (int a = 0; a < 2; ++a)
-            for (int c = 0; c < 2; ++c) {
-              S[a][c] = m.R[a][c];
-              for (int k = 0; k < D; ++k) S[a][c] += H[a][k] * PHt[k][c];
-            }
-          double s01 = 0.5 * (S[0][1] + S[1][0]);
-          double det = S[0][0] * S[1][1] - s01 * s01;
-          Si[0][0] = S[1][1] / det;
-          Si[1][1] = S[0][0] / det;
-          Si[0][1] = Si[1][0] = -s01 / det;
-          for (int k = 0; k < D; ++k)
-            for (int c = 0; c < 2; ++c) K[k][c] = PHt[k][0] * Si[0][c] + PHt[k][1] * Si[1][c];
-          for (int k = 0; k < D; ++k) x[k] += K[k][0] * nu[0] + K[k][1] * nu[1];
-          for (int k = 0; k < D; ++k)
-            for (int l = k; l < D; ++l)
-              P[k][l] = P[l][k] = P[k][l] - (K[k][0] * PHt[l][0] + K[k][1] * PHt[l][1]);
+// The local EKF on V (run, agent) lanes at once, the state in structure-of-arrays form, so
+// that the compiler turns every lane loop into vector instructions (atan2, a library call,
+// runs lane by lane). Lanes are the flattened (run, agent) pairs lane0 … lane0 + V − 1; a
+// block past the last pair repeats the last pair and writes nothing for it, so every pair is
+// computed by the same instructions whatever the batch size. H has the zero columns 1 and 3
+// of range–bearing (h depends on the position only); a missing measurement keeps the
+// prediction (a select, not a branch).
+constexpr int V = 8;
+
+void local_block(const Model& m, const double* z, const double* s, int64_t lane0, int64_t total, int64_t T,
+                 int64_t n, double* xs, double* Ps) {
+  int64_t base[V];
+  bool live[V];
+  for (int l = 0; l < V; ++l) {
+    int64_t lane = std::min(lane0 + l, total - 1);
+    live[l] = lane0 + l < total;
+    base[l] = (lane / n) * T * n + lane % n;  // row of step 0: ((b T) + t) n + i
+  }
+  alignas(64) double x[D][V], P[D][D][V];
+  for (int k = 0; k < D; ++k)
+    for (int l = 0; l < V; ++l) x[k][l] = m.x0[k];
+  for (int k = 0; k < D; ++k)
+    for (int q = 0; q < D; ++q)
+      for (int l = 0; l < V; ++l) P[k][q][l] = m.P0[k][q];
+  for (int64_t t = 0; t < T; ++t) {
+    if (t > 0) {
+      alignas(64) double xb[D][V], FP[D][D][V];
+      for (int i = 0; i < D; ++i)
+        for (int l = 0; l < V; ++l) {
+          double v = 0;
+          for (int k = 0; k < D; ++k) v += m.F[i][k] * x[k][l];
+          xb[i][l] = v;
         }
-        write(xs + D * row, Ps + D * D * row, x, P);
+      for (int i = 0; i < D; ++i)
+        for (int q = 0; q < D; ++q)
+          for (int l = 0; l < V; ++l) {
+            double v = 0;
+            for (int k = 0; k < D; ++k) v += m.F[i][k] * P[k][q][l];
+            FP[i][q][l] = v;
+          }
+      for (int i = 0; i < D; ++i)
+        for (int l = 0; l < V; ++l) x[i][l] = xb[i][l];
+      for (int i = 0; i < D; ++i)
+        for (int q = i; q < D; ++q)
+          for (int l = 0; l < V; ++l) {
+            double v = 0;
+            for (int k = 0; k < D; ++k) v += FP[i][k][l] * m.F[q][k];
+            P[i][q][l] = P[q][i][l] = v + m.Q[i][q];
+          }
+    }
+    alignas(64) double z0[V], z1[V], dx[V], dy[V], nu1s[V];
+    bool valid[V];
+    for (int l = 0; l < V; ++l) {
+      int64_t row = base[l] + t * n;
+      z0[l] = z[2 * row];
+      z1[l] = z[2 * row + 1];
+      dx[l] = x[0][l] - s[2 * row];
+      dy[l] = x[2][l] - s[2 * row + 1];
+    }
+    for (int l = 0; l < V; ++l) {  // lane by lane: the library's atan2 and the angle wrap
+      valid[l] = std::isfinite(z0[l]) && std::isfinite(z1[l]);
+      if (!valid[l]) z0[l] = z1[l] = 0.0;
+      bool on = dx[l] == 0.0 && dy[l] == 0.0;
+      nu1s[l] = wrap_angle(z1[l] - (on ? 0.0 : std::atan2(dy[l], dx[l])));
+    }
+    for (int l = 0; l < V; ++l) {
+      double sq = dx[l] * dx[l] + dy[l] * dy[l];
+      bool positive = !(sq <= 1e-30), on = dx[l] == 0.0 && dy[l] == 0.0;
+      double r = std::sqrt(positive ? sq : 1.0);
+      double safe_sq = on ? 1.0 : sq;
+      double h00 = positive ? dx[l] / r : 0.0, h02 = positive ? dy[l] / r : 0.0;
+      double h10 = on ? 0.0 : -dy[l] / safe_sq, h12 = on ? 0.0 : dx[l] / safe_sq;
+      double nu0 = z0[l] - (positive ? r : 0.0), nu1 = nu1s[l];
+      double PHt[D][2];
+      for (int k = 0; k < D; ++k) {
+        PHt[k][0] = P[k][0][l] * h00 + P[k][2][l] * h02;
+        PHt[k][1] = P[k][0][l] * h10 + P[k][2][l] * h12;
+      }
+      double s00 = h00 * PHt[0][0] + h02 * PHt[2][0] + m.R[0][0];
+      double s01 = h00 * PHt[0][1] + h02 * PHt[2][1] + 0.5 * (m.R[0][1] + m.R[1][0]);
+      double s11 = h10 * PHt[0][1] + h12 * PHt[2][1] + m.R[1][1];
+      double det = s00 * s11 - s01 * s01;
+      double i00 = s11 / det, i11 = s00 / det, i01 = -s01 / det;
+      bool ok = valid[l];
+      for (int k = 0; k < D; ++k) {
+        double k0 = PHt[k][0] * i00 + PHt[k][1] * i01, k1 = PHt[k][0] * i01 + PHt[k][1] * i11;
+        double xn = x[k][l] + (k0 * nu0 + k1 * nu1);
+        x[k][l] = ok ? xn : x[k][l];
+        for (int q = k; q < D; ++q) {
+          double v = P[k][q][l] - (k0 * PHt[q][0] + k1 * PHt[q][1]);
+          v = ok ? v : P[k][q][l];
+          P[k][q][l] = v;
+          P[q][k][l] = v;
+        }
       }
     }
+    for (int l = 0; l < V; ++l) {
+      if (!live[l]) continue;
+      int64_t row = base[l] + t * n;
+      double* xo = xs + D * row;
+      double* po = Ps + D * D * row;
+      for (int k = 0; k < D; ++k) xo[k] = x[k][l];
+      for (int k = 0; k < D; ++k)
+        for (int q = 0; q < D; ++q) po[k * D + q] = P[k][q][l];
+    }
+  }
+}
+
+void local_runs(const Model& m, const double* z, const double* s, int64_t b0, int64_t b1, int64_t T,
+                int64_t n, double* xs, double* Ps) {
+  // runs b0 … b1 − 1, i.e. lanes b0 n … b1 n − 1, in blocks of V
+  int64_t first = b0 * n, last = b1 * n;
+  for (int64_t lane = first; lane < last; lane += V)
+    local_block(m, z, s, lane, last, T, n, xs, Ps);
 }
 
 constexpr int kMaxAgents = 64;
