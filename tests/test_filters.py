@@ -179,6 +179,17 @@ def test_native_kernels_match_the_pure_jax_kernels(kind, options, monkeypatch):
     assert np.max(np.abs(P - Pj) / np.outer(d, d)) < 1e-8
 
 
+def test_more_agents_than_the_native_kernel_holds_run_in_jax(monkeypatch):
+    from mcjax.filters import native, recorded
+
+    monkeypatch.setattr(native, "MAX_AGENTS", 4)  # the 5-agent team is then "too large"
+    batch, rest = _sparse_batch(T=6)
+    x, _ = run_filter("modified_icf", **batch, **rest)
+    assert not x.flags.c_contiguous  # the pure-JAX kernel's batch-last view
+    monkeypatch.setattr(recorded, "USE_NATIVE", False)
+    np.testing.assert_array_equal(x, run_filter("modified_icf", **batch, **rest)[0])
+
+
 def test_native_kernels_can_be_turned_off(monkeypatch):
     from mcjax.filters import native
 

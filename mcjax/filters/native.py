@@ -32,6 +32,9 @@ from mcjax import runtime
 SOURCE = Path(__file__).with_name("native_kernels.cc")
 TARGETS = {"local": ("mcjax_local_ekf", "McjaxLocalEkf"), "modified_icf": ("mcjax_modified_icf", "McjaxModifiedIcf")}
 WEIGHT_CODES = {"eq11": 0, "metropolis": 1, "max_degree": 2}
+#: The modified ICF's kernel keeps a run's graph on the stack: at most this many agents
+#: (``kMaxAgents`` in the C++); larger teams run in the pure-JAX kernel.
+MAX_AGENTS = 64
 #: Why the native kernels are not in use in this process ("" when they are).
 STATUS = {"reason": "not tried yet"}
 
