@@ -295,6 +295,24 @@ def _violation(cfg, params, previous, command, uav):
             | (uav[2] < lim.h_min - tol) | (uav[2] > lim.h_max + tol))
 
 
+def _filter_bank(cfg, p, state: State, mode_filter, z, uav, *gate):
+    """Every configured filter's IMM cycle (eqs. 11–12; one mode for the single-model EKF) on
+    the measurement ``z`` (``gate``: the surrogate's measurement weight); returns the new
+    filter states and each filter's position error."""
+    dtype = jnp.dtype(cfg.dtype)
+    first = state.t == 0
+    new_filters, errors = [], []
+    for name, fstate in zip(cfg.filters, state.filters):
+        bias, sg = mode_models(p, name)
+        m = bias.shape[0]
+        transition = p.imm_transition if m == 3 else jnp.ones((1, 1), dtype)
+        transition = jnp.where(first, jnp.eye(m, dtype=dtype), transition)
+        fnew, (x, _) = imm_step(fstate, transition, mode_filter, (bias, sg), z, uav, p.process_noise, *gate)
+        new_filters.append(fnew)
+        errors.append(jnp.sqrt(jnp.sum((x - p.emitter[:2]) ** 2))[None])
+    return new_filters, errors
+
+
 def step(cfg, params, state: State, key) -> tuple[State, Record]:
     """One step of Chen & Hao 2022, Alg. 1: plan (or hold the command after a step in the
     shadow), fly one step (eq. 1), measure the azimuth (eqs. 5–6 with the LOS or NLOS noise),
@@ -326,16 +344,7 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
     sigma = jnp.where(reflected, p.sigma_nlos, p.sigma_los)
     z = jnp.where(los, wrap_angle(clean + sigma * jax.random.normal(k_noise, (), dtype)), jnp.nan)
 
-    first = state.t == 0
-    new_filters, errors = [], []
-    for name, fstate in zip(cfg.filters, state.filters):
-        bias, sg = mode_models(p, name)
-        m = bias.shape[0]
-        transition = p.imm_transition if m == 3 else jnp.ones((1, 1), dtype)
-        transition = jnp.where(first, jnp.eye(m, dtype=dtype), transition)
-        fnew, (x, _) = imm_step(fstate, transition, _mode_filter, (bias, sg), z, uav, p.process_noise)
-        new_filters.append(fnew)
-        errors.append(jnp.sqrt(jnp.sum((x - p.emitter[:2]) ** 2))[None])
+    new_filters, errors = _filter_bank(cfg, p, state, _mode_filter, z, uav)
     imm_new = new_filters[cfg.filters.index("imm")]
     gained = jax.vmap(lambda x, s: urban.bearing_information(x, uav, s))(imm_new.x, sig)
     fim = state.fim + jnp.where(los, gained, 0.0)
@@ -449,16 +458,7 @@ def smooth_step(cfg, params, state: State, key, smoothing: Smoothing) -> tuple[S
     z = wrap_angle(clean + sigma * jax.random.normal(k_noise, (), dtype))
     gate = _GATE_FLOOR + (1.0 - _GATE_FLOOR) * los
 
-    first = state.t == 0
-    new_filters, errors = [], []
-    for name, fstate in zip(cfg.filters, state.filters):
-        bias, sg = mode_models(p, name)
-        m = bias.shape[0]
-        transition = p.imm_transition if m == 3 else jnp.ones((1, 1), dtype)
-        transition = jnp.where(first, jnp.eye(m, dtype=dtype), transition)
-        fnew, (x, _) = imm_step(fstate, transition, _gated_mode_filter, (bias, sg), z, uav, p.process_noise, gate)
-        new_filters.append(fnew)
-        errors.append(jnp.sqrt(jnp.sum((x - p.emitter[:2]) ** 2))[None])
+    new_filters, errors = _filter_bank(cfg, p, state, _gated_mode_filter, z, uav, gate)
     imm_new = new_filters[cfg.filters.index("imm")]
     gained = jax.vmap(lambda x, s: urban.bearing_information(x, uav, s))(imm_new.x, sig)
     fim = state.fim + los * gained
