@@ -94,21 +94,20 @@ def available() -> bool:
 
 
 def run_batch(kind, opts, z, s, a, x0, P0, F, Q, R):
-    """``kind`` ("local" or "modified_icf") over B runs (float64 numpy or device arrays
-    (B, T, n, ·)); returns C-ordered numpy estimates (B, T, n, 4) and covariances
-    (B, T, n, 4, 4). Call only when :func:`available`."""
+    """``kind`` over B recorded runs in the native kernels: ``"local"``, the EKF in moment form
+    (docs/equations.md §5.1), or ``"modified_icf"``, Sun et al. 2011 eqs. 8–12 with ``opts``'
+    consensus steps, weights and contribution rule. ``z``, ``s`` float64 (B, T, n, 2), ``a`` the
+    0/1 adjacency (B, T, n, n) (read as bytes; not read by ``"local"``). Returns C-ordered numpy
+    estimates (B, T, n, 4) and covariances (B, T, n, 4, 4). Call only when :func:`available`."""
     B, T, n = z.shape[:3]
     threads = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
     out = (jax.ShapeDtypeStruct((B, T, n, 4), np.float64), jax.ShapeDtypeStruct((B, T, n, 4, 4), np.float64))
     consts = [np.asarray(v, np.float64) for v in (x0, P0, F, Q, R)]
-    name = TARGETS[kind][0]
+    call = jax.ffi.ffi_call(TARGETS[kind][0], out)
     if kind == "local":
-        xs, Ps = _call(name, out, (z, s, *consts), threads=np.int64(threads))
+        xs, Ps = call(z, s, *consts, threads=np.int64(threads))
     else:
-        xs, Ps = _call(name, out, (z, s, np.asarray(a, np.uint8), *consts), threads=np.int64(threads), steps=np.int64(opts.consensus_steps),
-                       weights=np.int64(WEIGHT_CODES[opts.weights]), component=opts.contribution != "one")
+        xs, Ps = call(z, s, np.asarray(a, np.uint8), *consts, threads=np.int64(threads),
+                      steps=np.int64(opts.consensus_steps), weights=np.int64(WEIGHT_CODES[opts.weights]),
+                      component=opts.contribution != "one")
     return np.asarray(xs), np.asarray(Ps)
-
-
-def _call(name, out, args, **attrs):
-    return jax.ffi.ffi_call(name, out)(*args, **attrs)

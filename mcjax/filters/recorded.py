@@ -160,10 +160,11 @@ def run_filter(
     kcf_epsilon : ε of the KCF consensus gain.
 
     Returns numpy arrays: estimates (…, T, n, 4) and covariances (…, T, n, 4, 4); the CIF
-    reports its single estimate for every agent. They are read-only; for the local filter and
-    the modified ICF they are views of batch-last buffers (not C-ordered: use
-    ``numpy.ascontiguousarray`` where a C-ordered copy is needed). Every bad argument raises
-    ValueError naming it.
+    reports its single estimate for every agent. They are read-only. The local filter and the
+    modified ICF run in float64 in native kernels where a C++ compiler exists (:mod:`.native`;
+    C-ordered results), else in the pure-JAX kernels (:mod:`.batched`), whose results are views
+    of batch-last buffers (``numpy.ascontiguousarray`` makes a C-ordered copy). Every bad
+    argument raises ValueError naming it.
     """
     if kind not in FILTER_KINDS:
         raise ValueError(f"kind must be one of {', '.join(map(repr, FILTER_KINDS))}; got {kind!r}")
