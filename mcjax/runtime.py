@@ -168,9 +168,6 @@ def store_executable(key: str, device, compiled, targets: frozenset) -> None:
         pass
 
 
-_apply()
-
-
 def known_compiler_options(options) -> dict | None:
     """The XLA options of ``options`` (a mapping, or None) that this JAX knows, for
     ``jax.jit(..., compiler_options=…)``; an unknown one is dropped (the program is then
@@ -188,3 +185,6 @@ def _known_options(items: tuple) -> dict | None:
             continue
         known[name] = value
     return known or None
+
+
+_apply()

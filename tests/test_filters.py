@@ -180,14 +180,15 @@ def test_native_kernels_match_the_pure_jax_kernels(kind, options, monkeypatch):
 
 
 def test_more_agents_than_the_native_kernel_holds_run_in_jax(monkeypatch):
-    from mcjax.filters import native, recorded
+    from mcjax.filters import native
 
     monkeypatch.setattr(native, "MAX_AGENTS", 4)  # the 5-agent team is then "too large"
     batch, rest = _sparse_batch(T=6)
-    x, _ = run_filter("modified_icf", **batch, **rest)
+    x, P = run_filter("modified_icf", **batch, **rest)
     assert not x.flags.c_contiguous  # the pure-JAX kernel's batch-last view
-    monkeypatch.setattr(recorded, "USE_NATIVE", False)
-    np.testing.assert_array_equal(x, run_filter("modified_icf", **batch, **rest)[0])
+    xr, Pr = _peer("modified_icf", {**rest, **{k: v[0] for k, v in batch.items()}})
+    np.testing.assert_allclose(x[0], xr, rtol=1e-8, atol=1e-6)
+    np.testing.assert_allclose(P[0], Pr, rtol=1e-7, atol=1e-8)
 
 
 def test_native_kernels_can_be_turned_off(monkeypatch):
@@ -197,6 +198,10 @@ def test_native_kernels_can_be_turned_off(monkeypatch):
     native.available.cache_clear()
     try:
         assert native.available() is False and native.STATUS["reason"] == "MCJAX_NATIVE=off"
+        monkeypatch.setenv("MCJAX_NATIVE", "of")
+        native.available.cache_clear()
+        with pytest.raises(ValueError, match=r"^MCJAX_NATIVE must be 'on' or 'off'; got 'of'$"):
+            native.available()
     finally:
         native.available.cache_clear()
 

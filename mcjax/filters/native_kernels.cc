@@ -177,29 +177,21 @@ void local_block(const Model& m, const double* z, const double* s, int64_t lane0
             P[i][q][l] = P[q][i][l] = v + m.Q[i][q];
           }
     }
-    alignas(64) double z0[V], z1[V], dx[V], dy[V], nu1s[V];
+    alignas(64) double nu0s[V], nu1s[V], H00[V], H02[V], H10[V], H12[V];
     bool valid[V];
-    for (int l = 0; l < V; ++l) {
+    for (int l = 0; l < V; ++l) {  // lane by lane: h, H and ν (the library's atan2, the wrap)
       int64_t row = base[l] + t * n;
-      z0[l] = z[2 * row];
-      z1[l] = z[2 * row + 1];
-      dx[l] = x[0][l] - s[2 * row];
-      dy[l] = x[2][l] - s[2 * row + 1];
-    }
-    for (int l = 0; l < V; ++l) {  // lane by lane: the library's atan2 and the angle wrap
-      valid[l] = std::isfinite(z0[l]) && std::isfinite(z1[l]);
-      if (!valid[l]) z0[l] = z1[l] = 0.0;
-      bool on = dx[l] == 0.0 && dy[l] == 0.0;
-      nu1s[l] = wrap_angle(z1[l] - (on ? 0.0 : std::atan2(dy[l], dx[l])));
+      double xl[D] = {x[0][l], x[1][l], x[2][l], x[3][l]}, nu[2] = {0.0, 0.0}, H[2][D] = {};
+      valid[l] = measured(z + 2 * row, s + 2 * row, xl, nu, H);
+      nu0s[l] = nu[0];
+      nu1s[l] = nu[1];
+      H00[l] = H[0][0];
+      H02[l] = H[0][2];
+      H10[l] = H[1][0];
+      H12[l] = H[1][2];
     }
     for (int l = 0; l < V; ++l) {
-      double sq = dx[l] * dx[l] + dy[l] * dy[l];
-      bool positive = !(sq <= 1e-30), on = dx[l] == 0.0 && dy[l] == 0.0;
-      double r = std::sqrt(positive ? sq : 1.0);
-      double safe_sq = on ? 1.0 : sq;
-      double h00 = positive ? dx[l] / r : 0.0, h02 = positive ? dy[l] / r : 0.0;
-      double h10 = on ? 0.0 : -dy[l] / safe_sq, h12 = on ? 0.0 : dx[l] / safe_sq;
-      double nu0 = z0[l] - (positive ? r : 0.0), nu1 = nu1s[l];
+      double h00 = H00[l], h02 = H02[l], h10 = H10[l], h12 = H12[l], nu0 = nu0s[l], nu1 = nu1s[l];
       double PHt[D][2];
       for (int k = 0; k < D; ++k) {
         PHt[k][0] = P[k][0][l] * h00 + P[k][2][l] * h02;

@@ -41,6 +41,7 @@ import jax.numpy as jnp
 
 from mcjax.models import environment as env
 from mcjax.models.platforms import FixedWingLimits, braking_climb, command_box, fixed_wing_step
+from mcjax.numerics import softmax_value, softmin
 
 FIM_SCORES = ("logdet", "det")
 
@@ -236,11 +237,6 @@ def _soft_reflection(buildings, emitter, uav, T):
 # simulation never calls them.
 
 
-def soft_max(x, T, axis=-1):
-    """``T·logsumexp(x/T)``: a smooth maximum, at most ``T·log K`` above the true one."""
-    return T * jax.nn.logsumexp(x / T, axis=axis)
-
-
 def soft_segment_blocked(a, c, lo3, hi3, T):
     """Smooth "the segment ``a–c`` meets box b" (the slab test of the shadow, Chen & Hao 2022,
     eqs. 7–8, :func:`mcjax.models.environment.line_of_sight`): along the segment, measured
@@ -258,8 +254,8 @@ def soft_segment_blocked(a, c, lo3, hi3, T):
     s_lo = jnp.minimum(t1, t2) * L[..., None]                         # (..., B, 3) metres
     s_hi = jnp.maximum(t1, t2) * L[..., None]
     zero = jnp.zeros_like(s_lo[..., :1])
-    enter = soft_max(jnp.concatenate([s_lo, zero], axis=-1), T)
-    leave = -soft_max(jnp.concatenate([-s_hi, -jnp.broadcast_to(L[..., None], zero.shape)], axis=-1), T)
+    enter = softmax_value(jnp.concatenate([s_lo, zero], axis=-1), T)
+    leave = softmin(jnp.concatenate([s_hi, jnp.broadcast_to(L[..., None], zero.shape)], axis=-1), T)
     return jax.nn.sigmoid((leave - enter) / T)
 
 
