@@ -169,6 +169,11 @@ def test_native_kernels_match_the_pure_jax_kernels(kind, options, monkeypatch):
     x1, P1 = run_filter(kind, **{k: v[1] for k, v in batch.items()}, **rest, **options)
     np.testing.assert_array_equal(x1, x[1])
     np.testing.assert_array_equal(P1, P[1])
+    # 19 runs: several blocks of the kernels' 8 vector lanes, split over the threads, the last
+    # block partial — every copy of a run gives the same bits as the 3-run batch
+    xb, Pb = run_filter(kind, **{k: v[np.arange(19) % 3] for k, v in batch.items()}, **rest, **options)
+    np.testing.assert_array_equal(xb, x[np.arange(19) % 3])
+    np.testing.assert_array_equal(Pb, P[np.arange(19) % 3])
     monkeypatch.setattr(recorded, "USE_NATIVE", False)
     xj, Pj = run_filter(kind, **batch, **rest, **options)
     # 1e-8: on this sparse, often unmeasured data the information form's inverse round trips
@@ -233,8 +238,13 @@ def test_float32_tracks_float64():
     (dict(sensor_positions=np.where(np.arange(2) == 1, np.nan, np.zeros((5, 3, 2)))), "sensor_positions must be finite"),
     (dict(kind="local", adjacency=np.triu(np.ones((2, 5, 3, 3)), 1), measurements=np.full((2, 5, 3, 2), np.nan),
           sensor_positions=np.zeros((2, 5, 3, 2))), r"adjacency must be symmetric"),
+    (dict(adjacency=np.where(np.eye(3) == 0, np.nan, 0.0) * np.ones((5, 1, 1))), "adjacency must contain only 0 and 1"),
+    (dict(adjacency=np.triu(np.full((5, 3, 3), 2.0), 1)), "adjacency must contain only 0 and 1"),  # and asymmetric
 ])
-def test_bad_input_names_the_argument(change, match):
+@pytest.mark.parametrize("native_checks", [True, False], ids=["native-checks", "numpy-checks"])
+def test_bad_input_names_the_argument(change, match, native_checks, monkeypatch):
+    from mcjax.filters import recorded
+    monkeypatch.setattr(recorded, "USE_NATIVE", native_checks)
     args = dict(kind="cif", measurements=np.full((5, 3, 2), np.nan), sensor_positions=np.zeros((5, 3, 2)),
                 adjacency=np.zeros((5, 3, 3)), x0=np.zeros(4), P0=np.eye(4), F=np.eye(4),
                 Q=np.zeros((4, 4)), R=np.eye(2))
@@ -242,3 +252,34 @@ def test_bad_input_names_the_argument(change, match):
     kind = args.pop("kind")
     with pytest.raises(ValueError, match=match):
         run_filter(kind, **args)
+
+
+def test_native_adjacency_check_finds_each_defect():
+    """The one-pass native check of the adjacency (mcjax/filters/native_kernels.cc) on valid
+    graphs and on each kind of defect, n = 1 … 9: the expected verdict, and numpy's 0/1 bytes."""
+    from mcjax.filters import native
+    if not native.available():
+        pytest.skip(f"native kernels not built: {native.STATUS['reason']}")
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 5, 9):
+        upper = np.triu(rng.random((40, n, n)) < 0.5, 1)
+        valid = (upper | np.swapaxes(upper, -1, -2)).astype(np.float64)
+        valid[3] = np.where(valid[3] == 0, -0.0, 1.0)  # -0.0 is a zero
+        cases = {"valid": (valid, 0)}
+        if n > 1:
+            asym = valid.copy()
+            asym[7, 0, 1] = 1.0 - asym[7, 0, 1]
+            cases["asymmetric"] = (asym, 2)
+        diag = valid.copy()
+        diag[11, n - 1, n - 1] = 1.0
+        cases["diagonal"] = (diag, 4)
+        value = valid.copy()
+        value[19, 0, 0] = np.nan
+        half = valid.copy()
+        half[23, n - 1, 0] = 0.5
+        for a in (value, half):  # a wrong value is reported (the other bits do not matter then)
+            assert native.adjacency_bytes(a)[1] & 1
+        for name, (a, expected) in cases.items():
+            a8, bad = native.adjacency_bytes(a)
+            assert bad == expected, (n, name, bad)
+            np.testing.assert_array_equal(a8, a.astype(np.uint8))

@@ -24,6 +24,8 @@
 #include <thread>
 #include <vector>
 
+#include <sys/mman.h>
+
 #include "xla/ffi/api/ffi.h"
 
 namespace ffi = xla::ffi;
@@ -45,26 +47,41 @@ double wrap_angle(double a) {  // (−π, π], as mcjax.numerics.wrap_angle
   return w == -kPi ? kPi : w;
 }
 
-void predict(const Model& m, bool first, double x[D], double P[D][D]) {
-  if (first) return;
-  double xb[D], FP[D][D];
+// Both kernels work on V lanes at once, every state entry a vector of V doubles (GCC/Clang
+// vector extensions), so that their arithmetic runs as vector instructions whatever the
+// compiler's auto-vectoriser decides; h, H and ν (the library's atan2, the angle wrap) run lane
+// by lane through measured(). A block past the last lane repeats the last one and writes nothing
+// for it, so every lane is computed by the same instructions whatever the batch size.
+constexpr int V = 8;
+typedef double vd __attribute__((vector_size(V * sizeof(double))));
+typedef int64_t vm __attribute__((vector_size(V * sizeof(int64_t))));
+
+inline vd splat(double v) { return vd{} + v; }
+inline vd root(vd v) {
+  vd r;
+  for (int l = 0; l < V; ++l) r[l] = std::sqrt(v[l]);
+  return r;
+}
+
+// x̄ = F x, P̄ = F P Fᵀ + Q (P̄ symmetric by construction).
+void predict(const Model& m, vd x[D], vd P[D][D]) {
+  vd xb[D], FP[D][D];
   for (int i = 0; i < D; ++i) {
-    xb[i] = 0;
+    xb[i] = vd{};
     for (int k = 0; k < D; ++k) xb[i] += m.F[i][k] * x[k];
   }
   for (int i = 0; i < D; ++i)
-    for (int j = 0; j < D; ++j) {
-      FP[i][j] = 0;
-      for (int k = 0; k < D; ++k) FP[i][j] += m.F[i][k] * P[k][j];
+    for (int q = 0; q < D; ++q) {
+      FP[i][q] = vd{};
+      for (int k = 0; k < D; ++k) FP[i][q] += m.F[i][k] * P[k][q];
     }
-  for (int i = 0; i < D; ++i) {
-    x[i] = xb[i];
-    for (int j = i; j < D; ++j) {
-      double v = 0;
-      for (int k = 0; k < D; ++k) v += FP[i][k] * m.F[j][k];
-      P[i][j] = P[j][i] = v + m.Q[i][j];
+  for (int i = 0; i < D; ++i) x[i] = xb[i];
+  for (int i = 0; i < D; ++i)
+    for (int q = i; q < D; ++q) {
+      vd v = vd{};
+      for (int k = 0; k < D; ++k) v += FP[i][k] * m.F[q][k];
+      P[i][q] = P[q][i] = v + m.Q[i][q];
     }
-  }
 }
 
 // h(x̄) and H at x̄ for a sensor at (sx, sy); returns false if z is missing.
@@ -91,16 +108,48 @@ bool measured(const double* z, const double* s, const double x[D], double nu[2],
   return true;
 }
 
+// The measurement terms of V lanes at the predicted states x (lane l reads row rows[l] of z
+// and s): ν, the nonzero entries of H (columns 0 and 2: h depends on the position only), and
+// ok = all ones where the measurement is present (else ν = 0, H = 0).
+struct Terms {
+  vd nu0, nu1, h00, h02, h10, h12;
+  vm ok;
+};
+
+Terms measure_lanes(const double* z, const double* s, const int64_t rows[V], const vd x[D]) {
+  alignas(64) double out[6][V];
+  alignas(64) int64_t ok[V];
+  for (int l = 0; l < V; ++l) {
+    double xl[D] = {x[0][l], x[1][l], x[2][l], x[3][l]}, nu[2] = {0.0, 0.0}, H[2][D] = {};
+    ok[l] = measured(z + 2 * rows[l], s + 2 * rows[l], xl, nu, H) ? -1 : 0;
+    out[0][l] = nu[0];
+    out[1][l] = nu[1];
+    out[2][l] = H[0][0];
+    out[3][l] = H[0][2];
+    out[4][l] = H[1][0];
+    out[5][l] = H[1][2];
+  }
+  Terms t;
+  __builtin_memcpy(&t.nu0, out[0], sizeof(vd));
+  __builtin_memcpy(&t.nu1, out[1], sizeof(vd));
+  __builtin_memcpy(&t.h00, out[2], sizeof(vd));
+  __builtin_memcpy(&t.h02, out[3], sizeof(vd));
+  __builtin_memcpy(&t.h10, out[4], sizeof(vd));
+  __builtin_memcpy(&t.h12, out[5], sizeof(vd));
+  __builtin_memcpy(&t.ok, ok, sizeof(vm));
+  return t;
+}
+
 // S⁻¹ of a symmetric positive definite 4×4 by Cholesky S = L Lᵀ, S⁻¹ = L⁻ᵀ L⁻¹ (the algorithm
-// of mcjax.numerics.spd_inverse; NaN if S is not positive definite).
-void spd_inverse(const double S[D][D], double out[D][D]) {
-  double L[D][D] = {}, M[D][D] = {};
+// of mcjax.numerics.spd_inverse; NaN if S is not positive definite), lane by lane.
+void spd_inverse(const vd S[D][D], vd out[D][D]) {
+  vd L[D][D] = {}, M[D][D] = {};
   for (int j = 0; j < D; ++j) {
-    double d = S[j][j];
+    vd d = S[j][j];
     for (int k = 0; k < j; ++k) d -= L[j][k] * L[j][k];
-    L[j][j] = std::sqrt(d);
+    L[j][j] = root(d);
     for (int i = j + 1; i < D; ++i) {
-      double v = S[i][j];
+      vd v = S[i][j];
       for (int k = 0; k < j; ++k) v -= L[i][k] * L[j][k];
       L[i][j] = v / L[j][j];
     }
@@ -108,122 +157,68 @@ void spd_inverse(const double S[D][D], double out[D][D]) {
   for (int i = 0; i < D; ++i) {
     M[i][i] = 1.0 / L[i][i];
     for (int j = 0; j < i; ++j) {
-      double v = 0;
+      vd v = vd{};
       for (int k = j; k < i; ++k) v += L[i][k] * M[k][j];
       M[i][j] = -v / L[i][i];
     }
   }
   for (int i = 0; i < D; ++i)
     for (int j = i; j < D; ++j) {
-      double v = 0;
+      vd v = vd{};
       for (int k = j; k < D; ++k) v += M[k][i] * M[k][j];
       out[i][j] = out[j][i] = v;
     }
 }
 
-void write(double* xs, double* Ps, const double x[D], const double P[D][D]) {
-  for (int i = 0; i < D; ++i) xs[i] = x[i];
-  for (int i = 0; i < D; ++i)
-    for (int j = 0; j < D; ++j) Ps[i * D + j] = P[i][j];
+// Lane l of x and P to the output row `row`.
+void write_lane(double* xs, double* Ps, int64_t row, const vd x[D], const vd P[D][D], int l) {
+  double* xo = xs + D * row;
+  double* po = Ps + D * D * row;
+  for (int k = 0; k < D; ++k) xo[k] = x[k][l];
+  for (int k = 0; k < D; ++k)
+    for (int q = 0; q < D; ++q) po[k * D + q] = P[k][q][l];
 }
 
-// The local EKF on V (run, agent) lanes at once, the state in structure-of-arrays form, so
-// that the compiler turns every lane loop into vector instructions (atan2, a library call,
-// runs lane by lane). Lanes are the flattened (run, agent) pairs lane0 … lane0 + V − 1; a
-// block past the last pair repeats the last pair and writes nothing for it, so every pair is
-// computed by the same instructions whatever the batch size. H has the zero columns 1 and 3
-// of range–bearing (h depends on the position only); a missing measurement keeps the
-// prediction (a select, not a branch).
-constexpr int V = 8;
-
+// The local EKF on V (run, agent) lanes: the flattened pairs lane0 … lane0 + V − 1. Step 0
+// updates the prior without predicting; a missing measurement keeps the prediction (a select).
 void local_block(const Model& m, const double* z, const double* s, int64_t lane0, int64_t total, int64_t T,
                  int64_t n, double* xs, double* Ps) {
-  int64_t base[V];
-  bool live[V];
+  int64_t base[V], rows[V];
   for (int l = 0; l < V; ++l) {
     int64_t lane = std::min(lane0 + l, total - 1);
-    live[l] = lane0 + l < total;
     base[l] = (lane / n) * T * n + lane % n;  // row of step 0: ((b T) + t) n + i
   }
-  alignas(64) double x[D][V], P[D][D][V];
+  int live = static_cast<int>(std::min<int64_t>(V, total - lane0));
+  vd x[D], P[D][D];
+  for (int k = 0; k < D; ++k) x[k] = splat(m.x0[k]);
   for (int k = 0; k < D; ++k)
-    for (int l = 0; l < V; ++l) x[k][l] = m.x0[k];
-  for (int k = 0; k < D; ++k)
-    for (int q = 0; q < D; ++q)
-      for (int l = 0; l < V; ++l) P[k][q][l] = m.P0[k][q];
+    for (int q = 0; q < D; ++q) P[k][q] = splat(m.P0[k][q]);
+  const double r01 = 0.5 * (m.R[0][1] + m.R[1][0]);
   for (int64_t t = 0; t < T; ++t) {
-    if (t > 0) {
-      alignas(64) double xb[D][V], FP[D][D][V];
-      for (int i = 0; i < D; ++i)
-        for (int l = 0; l < V; ++l) {
-          double v = 0;
-          for (int k = 0; k < D; ++k) v += m.F[i][k] * x[k][l];
-          xb[i][l] = v;
-        }
-      for (int i = 0; i < D; ++i)
-        for (int q = 0; q < D; ++q)
-          for (int l = 0; l < V; ++l) {
-            double v = 0;
-            for (int k = 0; k < D; ++k) v += m.F[i][k] * P[k][q][l];
-            FP[i][q][l] = v;
-          }
-      for (int i = 0; i < D; ++i)
-        for (int l = 0; l < V; ++l) x[i][l] = xb[i][l];
-      for (int i = 0; i < D; ++i)
-        for (int q = i; q < D; ++q)
-          for (int l = 0; l < V; ++l) {
-            double v = 0;
-            for (int k = 0; k < D; ++k) v += FP[i][k][l] * m.F[q][k];
-            P[i][q][l] = P[q][i][l] = v + m.Q[i][q];
-          }
+    if (t > 0) predict(m, x, P);
+    for (int l = 0; l < V; ++l) rows[l] = base[l] + t * n;
+    Terms e = measure_lanes(z, s, rows, x);
+    // S = H P̄ Hᵀ + R, K = P̄ Hᵀ S⁻¹, x = x̄ + K ν, P = P̄ − K (P̄ Hᵀ)ᵀ
+    vd PHt0[D], PHt1[D];
+    for (int k = 0; k < D; ++k) {
+      PHt0[k] = P[k][0] * e.h00 + P[k][2] * e.h02;
+      PHt1[k] = P[k][0] * e.h10 + P[k][2] * e.h12;
     }
-    alignas(64) double nu0s[V], nu1s[V], H00[V], H02[V], H10[V], H12[V];
-    bool valid[V];
-    for (int l = 0; l < V; ++l) {  // lane by lane: h, H and ν (the library's atan2, the wrap)
-      int64_t row = base[l] + t * n;
-      double xl[D] = {x[0][l], x[1][l], x[2][l], x[3][l]}, nu[2] = {0.0, 0.0}, H[2][D] = {};
-      valid[l] = measured(z + 2 * row, s + 2 * row, xl, nu, H);
-      nu0s[l] = nu[0];
-      nu1s[l] = nu[1];
-      H00[l] = H[0][0];
-      H02[l] = H[0][2];
-      H10[l] = H[1][0];
-      H12[l] = H[1][2];
-    }
-    for (int l = 0; l < V; ++l) {
-      double h00 = H00[l], h02 = H02[l], h10 = H10[l], h12 = H12[l], nu0 = nu0s[l], nu1 = nu1s[l];
-      double PHt[D][2];
-      for (int k = 0; k < D; ++k) {
-        PHt[k][0] = P[k][0][l] * h00 + P[k][2][l] * h02;
-        PHt[k][1] = P[k][0][l] * h10 + P[k][2][l] * h12;
-      }
-      double s00 = h00 * PHt[0][0] + h02 * PHt[2][0] + m.R[0][0];
-      double s01 = h00 * PHt[0][1] + h02 * PHt[2][1] + 0.5 * (m.R[0][1] + m.R[1][0]);
-      double s11 = h10 * PHt[0][1] + h12 * PHt[2][1] + m.R[1][1];
-      double det = s00 * s11 - s01 * s01;
-      double i00 = s11 / det, i11 = s00 / det, i01 = -s01 / det;
-      bool ok = valid[l];
-      for (int k = 0; k < D; ++k) {
-        double k0 = PHt[k][0] * i00 + PHt[k][1] * i01, k1 = PHt[k][0] * i01 + PHt[k][1] * i11;
-        double xn = x[k][l] + (k0 * nu0 + k1 * nu1);
-        x[k][l] = ok ? xn : x[k][l];
-        for (int q = k; q < D; ++q) {
-          double v = P[k][q][l] - (k0 * PHt[q][0] + k1 * PHt[q][1]);
-          v = ok ? v : P[k][q][l];
-          P[k][q][l] = v;
-          P[q][k][l] = v;
-        }
+    vd s00 = e.h00 * PHt0[0] + e.h02 * PHt0[2] + m.R[0][0];
+    vd s01 = e.h00 * PHt1[0] + e.h02 * PHt1[2] + r01;
+    vd s11 = e.h10 * PHt1[0] + e.h12 * PHt1[2] + m.R[1][1];
+    vd det = s00 * s11 - s01 * s01;
+    vd i00 = s11 / det, i11 = s00 / det, i01 = -s01 / det;
+    for (int k = 0; k < D; ++k) {
+      vd k0 = PHt0[k] * i00 + PHt1[k] * i01, k1 = PHt0[k] * i01 + PHt1[k] * i11;
+      x[k] = e.ok ? x[k] + (k0 * e.nu0 + k1 * e.nu1) : x[k];
+      for (int q = k; q < D; ++q) {
+        vd v = e.ok ? P[k][q] - (k0 * PHt0[q] + k1 * PHt1[q]) : P[k][q];
+        P[k][q] = v;
+        P[q][k] = v;
       }
     }
-    for (int l = 0; l < V; ++l) {
-      if (!live[l]) continue;
-      int64_t row = base[l] + t * n;
-      double* xo = xs + D * row;
-      double* po = Ps + D * D * row;
-      for (int k = 0; k < D; ++k) xo[k] = x[k][l];
-      for (int k = 0; k < D; ++k)
-        for (int q = 0; q < D; ++q) po[k * D + q] = P[k][q][l];
-    }
+    for (int l = 0; l < live; ++l) write_lane(xs, Ps, rows[l], x, P, l);
   }
 }
 
@@ -261,19 +256,24 @@ void graph_terms(const uint8_t* adj, int64_t n, int weights, bool component, dou
     else if (weights == 1) W[i * n + i] = 1.0 - off;
     else W[i * n + i] = 1.0 - d[i] / static_cast<double>(n);
   }
-  for (int64_t i = 0; i < n; ++i) {
-    if (!component) { size[i] = 1.0; continue; }
-    bool seen[kMaxAgents] = {};
-    int64_t stack[kMaxAgents], top = 0, count = 0;
+  if (!component) {
+    for (int64_t i = 0; i < n; ++i) size[i] = 1.0;
+    return;
+  }
+  bool seen[kMaxAgents] = {};
+  int64_t members[kMaxAgents];
+  for (int64_t i = 0; i < n; ++i) {  // each component once: a depth-first search from its first agent
+    if (seen[i]) continue;
+    int64_t count = 0, top = 0, stack[kMaxAgents];
     stack[top++] = i;
     seen[i] = true;
     while (top) {
       int64_t k = stack[--top];
-      ++count;
+      members[count++] = k;
       for (int64_t j = 0; j < n; ++j)
-        if (!seen[j] && j != k && adj[k * n + j] != 0) { seen[j] = true; stack[top++] = j; }
+        if (!seen[j] && adj[k * n + j] != 0) { seen[j] = true; stack[top++] = j; }
     }
-    size[i] = static_cast<double>(count);
+    for (int64_t c = 0; c < count; ++c) size[members[c]] = static_cast<double>(count);
   }
 }
 
@@ -281,71 +281,88 @@ constexpr int U = 10;  // unique entries of a symmetric 4×4, row-major upper tr
 constexpr int UI[U] = {0, 0, 0, 0, 1, 1, 1, 2, 2, 3};
 constexpr int UJ[U] = {0, 1, 2, 3, 1, 2, 3, 2, 3, 3};
 
-void icf_runs(const Model& m, const double* z, const double* s, const uint8_t* adj, int64_t b0, int64_t b1,
-              int64_t T, int64_t n, int64_t steps, int weights, bool component, double* xs, double* Ps) {
-  std::vector<double> x(n * D), P(n * D * D), info(n * (D + U)), mixed(n * (D + U));
-  double W[kMaxAgents * kMaxAgents], size[kMaxAgents];
-  for (int64_t b = b0; b < b1; ++b) {
-    for (int64_t i = 0; i < n; ++i) {
-      for (int k = 0; k < D; ++k) x[i * D + k] = m.x0[k];
-      for (int k = 0; k < D * D; ++k) P[i * D * D + k] = m.P0[k / D][k % D];
+// The modified ICF on V runs at once (lane l: run b0 + l, the last run repeated past b1),
+// each run's n agents coupled by its own graph of the step.
+void icf_block(const Model& m, const double* z, const double* s, const uint8_t* adj, int64_t b0, int64_t b1,
+               int64_t T, int64_t n, int64_t steps, int weights, bool component, double* xs, double* Ps,
+               std::vector<vd>& state, std::vector<vd>& info, std::vector<vd>& mixed, std::vector<vd>& W) {
+  int64_t runs[V];
+  for (int l = 0; l < V; ++l) runs[l] = std::min(b0 + l, b1 - 1);
+  int live = static_cast<int>(std::min<int64_t>(V, b1 - b0));
+  vd* x = state.data();          // n × D
+  vd* P = state.data() + n * D;  // n × D × D
+  for (int64_t i = 0; i < n; ++i) {
+    for (int k = 0; k < D; ++k) x[i * D + k] = splat(m.x0[k]);
+    for (int k = 0; k < D * D; ++k) P[i * D * D + k] = splat(m.P0[k / D][k % D]);
+  }
+  double Wl[kMaxAgents * kMaxAgents], sizel[kMaxAgents];
+  vd size[kMaxAgents];
+  for (int64_t t = 0; t < T; ++t) {
+    for (int l = 0; l < V; ++l) {  // the graph terms lane by lane
+      graph_terms(adj + (runs[l] * T + t) * n * n, n, weights, component, Wl, sizel);
+      for (int64_t k = 0; k < n * n; ++k) W[k][l] = Wl[k];
+      for (int64_t i = 0; i < n; ++i) size[i][l] = sizel[i];
     }
-    for (int64_t t = 0; t < T; ++t) {
-      graph_terms(adj + (b * T + t) * n * n, n, weights, component, W, size);
-      for (int64_t i = 0; i < n; ++i) {
-        int64_t row = (b * T + t) * n + i;
-        double xi[D], Pi[D][D], Y[D][D], y[D];
-        for (int k = 0; k < D; ++k) xi[k] = x[i * D + k];
-        for (int k = 0; k < D; ++k)
-          for (int l = 0; l < D; ++l) Pi[k][l] = P[i * D * D + k * D + l];
-        predict(m, t == 0, xi, Pi);
-        spd_inverse(Pi, Y);
-        for (int k = 0; k < D; ++k) {
-          y[k] = 0;
-          for (int l = 0; l < D; ++l) y[k] += Y[k][l] * xi[l];
-        }
-        double nu[2], H[2][D];
-        if (measured(z + 2 * row, s + 2 * row, xi, nu, H)) {
-          double pseudo[2], G[D][2];
-          for (int a = 0; a < 2; ++a) {
-            pseudo[a] = nu[a];
-            for (int k = 0; k < D; ++k) pseudo[a] += H[a][k] * xi[k];
-          }
-          for (int k = 0; k < D; ++k)
-            for (int c = 0; c < 2; ++c) G[k][c] = H[0][k] * m.Rinv[0][c] + H[1][k] * m.Rinv[1][c];
-          for (int k = 0; k < D; ++k) y[k] += size[i] * (G[k][0] * pseudo[0] + G[k][1] * pseudo[1]);
-          for (int k = 0; k < D; ++k)
-            for (int l = k; l < D; ++l) Y[k][l] += size[i] * (G[k][0] * H[0][l] + G[k][1] * H[1][l]);
-        }
-        double* v = &info[i * (D + U)];
-        for (int k = 0; k < D; ++k) v[k] = y[k];
-        for (int u = 0; u < U; ++u) v[D + u] = Y[UI[u]][UJ[u]];
+    for (int64_t i = 0; i < n; ++i) {
+      int64_t rows[V];
+      for (int l = 0; l < V; ++l) rows[l] = (runs[l] * T + t) * n + i;
+      vd xi[D], Pi[D][D], Y[D][D], y[D];
+      for (int k = 0; k < D; ++k) xi[k] = x[i * D + k];
+      for (int k = 0; k < D; ++k)
+        for (int q = 0; q < D; ++q) Pi[k][q] = P[i * D * D + k * D + q];
+      if (t > 0) predict(m, xi, Pi);
+      spd_inverse(Pi, Y);  // Ȳ = P̄⁻¹, ȳ = Ȳ x̄
+      for (int k = 0; k < D; ++k) {
+        y[k] = vd{};
+        for (int q = 0; q < D; ++q) y[k] += Y[k][q] * xi[q];
       }
-      for (int64_t step = 0; step < steps; ++step) {
-        for (int64_t i = 0; i < n; ++i)
-          for (int c = 0; c < D + U; ++c) {
-            double v = 0;
-            for (int64_t j = 0; j < n; ++j) v += W[i * n + j] * info[j * (D + U) + c];
-            mixed[i * (D + U) + c] = v;
-          }
-        std::swap(info, mixed);
-      }
-      for (int64_t i = 0; i < n; ++i) {
-        const double* v = &info[i * (D + U)];
-        double Y[D][D], Pn[D][D], xn[D];
-        for (int u = 0; u < U; ++u) Y[UI[u]][UJ[u]] = Y[UJ[u]][UI[u]] = v[D + u];
-        spd_inverse(Y, Pn);
-        for (int k = 0; k < D; ++k) {
-          xn[k] = 0;
-          for (int l = 0; l < D; ++l) xn[k] += Pn[k][l] * v[l];
+      // contributions: i = Hᵀ R⁻¹ (ν + H x̄), I = Hᵀ R⁻¹ H, times the component size
+      Terms e = measure_lanes(z, s, rows, xi);
+      vd hrow[2][D] = {{e.h00, vd{}, e.h02, vd{}}, {e.h10, vd{}, e.h12, vd{}}};
+      vd pseudo[2] = {e.nu0, e.nu1}, G[D][2];
+      for (int a = 0; a < 2; ++a)
+        for (int k = 0; k < D; ++k) pseudo[a] += hrow[a][k] * xi[k];
+      for (int k = 0; k < D; ++k)
+        for (int c = 0; c < 2; ++c) G[k][c] = hrow[0][k] * m.Rinv[0][c] + hrow[1][k] * m.Rinv[1][c];
+      vd w = size[i];
+      for (int k = 0; k < D; ++k) y[k] = e.ok ? y[k] + w * (G[k][0] * pseudo[0] + G[k][1] * pseudo[1]) : y[k];
+      for (int k = 0; k < D; ++k)
+        for (int q = k; q < D; ++q)
+          Y[k][q] = e.ok ? Y[k][q] + w * (G[k][0] * hrow[0][q] + G[k][1] * hrow[1][q]) : Y[k][q];
+      vd* v = &info[i * (D + U)];
+      for (int k = 0; k < D; ++k) v[k] = y[k];
+      for (int u = 0; u < U; ++u) v[D + u] = Y[UI[u]][UJ[u]];
+    }
+    for (int64_t step = 0; step < steps; ++step) {  // consensus: L steps of the weights W
+      for (int64_t i = 0; i < n; ++i)
+        for (int c = 0; c < D + U; ++c) {
+          vd v = vd{};
+          for (int64_t j = 0; j < n; ++j) v += W[i * n + j] * info[j * (D + U) + c];
+          mixed[i * (D + U) + c] = v;
         }
-        for (int k = 0; k < D; ++k) x[i * D + k] = xn[k];
-        for (int k = 0; k < D * D; ++k) P[i * D * D + k] = Pn[k / D][k % D];
-        int64_t row = (b * T + t) * n + i;
-        write(xs + D * row, Ps + D * D * row, xn, Pn);
+      std::swap(info, mixed);
+    }
+    for (int64_t i = 0; i < n; ++i) {  // P = Y⁻¹, x = P y
+      const vd* v = &info[i * (D + U)];
+      vd Y[D][D], Pn[D][D], xn[D];
+      for (int u = 0; u < U; ++u) Y[UI[u]][UJ[u]] = Y[UJ[u]][UI[u]] = v[D + u];
+      spd_inverse(Y, Pn);
+      for (int k = 0; k < D; ++k) {
+        xn[k] = vd{};
+        for (int q = 0; q < D; ++q) xn[k] += Pn[k][q] * v[q];
       }
+      for (int k = 0; k < D; ++k) x[i * D + k] = xn[k];
+      for (int k = 0; k < D * D; ++k) P[i * D * D + k] = Pn[k / D][k % D];
+      for (int l = 0; l < live; ++l) write_lane(xs, Ps, (runs[l] * T + t) * n + i, xn, Pn, l);
     }
   }
+}
+
+void icf_runs(const Model& m, const double* z, const double* s, const uint8_t* adj, int64_t b0, int64_t b1,
+              int64_t T, int64_t n, int64_t steps, int weights, bool component, double* xs, double* Ps) {
+  std::vector<vd> state(n * (D + D * D)), info(n * (D + U)), mixed(n * (D + U)), W(n * n);
+  for (int64_t b = b0; b < b1; b += V)
+    icf_block(m, z, s, adj, b, b1, T, n, steps, weights, component, xs, Ps, state, info, mixed, W);
 }
 
 Model model_of(ffi::Buffer<ffi::F64> x0, ffi::Buffer<ffi::F64> P0, ffi::Buffer<ffi::F64> F,
@@ -369,6 +386,19 @@ Model model_of(ffi::Buffer<ffi::F64> x0, ffi::Buffer<ffi::F64> P0, ffi::Buffer<f
   return m;
 }
 
+// Ask the kernel to back a fresh output buffer with 2 MiB pages where it can (Linux with
+// transparent huge pages in "madvise" mode): the first write to each 4 KiB page of a large,
+// freshly mapped output otherwise costs a page fault, which measured as much CPU time as the
+// filter itself. Advice only — nothing changes if the system declines it.
+void advise_huge(void* data, int64_t bytes) {
+#ifdef MADV_HUGEPAGE
+  constexpr uintptr_t kHuge = uintptr_t{1} << 21;
+  uintptr_t lo = (reinterpret_cast<uintptr_t>(data) + kHuge - 1) & ~(kHuge - 1);
+  uintptr_t hi = (reinterpret_cast<uintptr_t>(data) + static_cast<uintptr_t>(bytes)) & ~(kHuge - 1);
+  if (hi > lo) madvise(reinterpret_cast<void*>(lo), hi - lo, MADV_HUGEPAGE);
+#endif
+}
+
 template <typename Work>
 void over_threads(int64_t B, int64_t threads, Work work) {
   int64_t k = std::max<int64_t>(1, std::min<int64_t>(threads, B));
@@ -387,6 +417,8 @@ ffi::Error LocalImpl(ffi::Buffer<ffi::F64> z, ffi::Buffer<ffi::F64> s, ffi::Buff
   Model m = model_of(x0, P0, F, Q, R);
   const double *zp = z.typed_data(), *sp = s.typed_data();
   double *xp = xs->typed_data(), *pp = Ps->typed_data();
+  advise_huge(xp, xs->size_bytes());
+  advise_huge(pp, Ps->size_bytes());
   over_threads(B, threads, [&](int64_t b0, int64_t b1) { local_runs(m, zp, sp, b0, b1, T, n, xp, pp); });
   return ffi::Error::Success();
 }
@@ -403,6 +435,8 @@ ffi::Error IcfImpl(ffi::Buffer<ffi::F64> z, ffi::Buffer<ffi::F64> s, ffi::Buffer
   const double *zp = z.typed_data(), *sp = s.typed_data();
   const uint8_t* ap = adj.typed_data();
   double *xp = xs->typed_data(), *pp = Ps->typed_data();
+  advise_huge(xp, xs->size_bytes());
+  advise_huge(pp, Ps->size_bytes());
   over_threads(B, threads, [&](int64_t b0, int64_t b1) {
     icf_runs(m, zp, sp, ap, b0, b1, T, n, steps, static_cast<int>(weights), component, xp, pp);
   });
@@ -410,6 +444,43 @@ ffi::Error IcfImpl(ffi::Buffer<ffi::F64> z, ffi::Buffer<ffi::F64> s, ffi::Buffer
 }
 
 }  // namespace
+
+// run_filter's checks of a float64 adjacency (mats n×n matrices, C order) in one pass over
+// threads, writing its 0/1 bytes to out (1 where the entry is 1, else 0). Returns a bit set: 1 an
+// entry other than 0 or 1 (NaN included), 2 an asymmetric pair, 4 a nonzero diagonal entry, the
+// last two judged on the bytes (0: the graph is valid).
+extern "C" int mcjax_adjacency_bytes(const double* a, int64_t mats, int64_t n, uint8_t* out, int64_t threads) {
+  int64_t k = std::max<int64_t>(1, std::min<int64_t>(threads, mats));
+  std::vector<int> found(k, 0);
+  auto work = [&](int64_t c) {
+    int bad = 0;
+    int64_t g0 = mats * c / k, g1 = mats * (c + 1) / k, nn = n * n;
+    const double* __restrict A = a + g0 * nn;
+    uint8_t* __restrict O = out + g0 * nn;
+    for (int64_t e = 0; e < (g1 - g0) * nn; ++e) {  // values, and the bytes: one flat loop
+      double v = A[e];
+      bad |= (v == 0.0 || v == 1.0) ? 0 : 1;
+      O[e] = v == 1.0;
+    }
+    for (int64_t g = 0; g < g1 - g0; ++g)  // symmetry and diagonal on the bytes
+      for (int64_t i = 0; i < n; ++i) {
+        const uint8_t* row = O + g * nn + i * n;
+        bad |= row[i] ? 4 : 0;
+        for (int64_t j = i + 1; j < n; ++j) bad |= row[j] != O[g * nn + j * n + i] ? 2 : 0;
+      }
+    found[c] = bad;
+  };
+  if (k == 1) {
+    work(0);
+  } else {
+    std::vector<std::thread> pool;
+    for (int64_t c = 0; c < k; ++c) pool.emplace_back(work, c);
+    for (auto& th : pool) th.join();
+  }
+  int bad = 0;
+  for (int f : found) bad |= f;
+  return bad;
+}
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(McjaxLocalEkf, LocalImpl,
                               ffi::Ffi::Bind()
