@@ -154,7 +154,7 @@ def main(argv=None) -> None:
     ap.add_argument("--steps", type=int, default=200, help="time steps per run (paper: 200)")
     ap.add_argument("--peer-runs", type=int, default=10, help="runs timed for the numpy and filterpy loops")
     ap.add_argument("--distinct", type=int, default=200, help="distinct simulated runs (tiled up to B)")
-    ap.add_argument("--repeats", type=int, default=3, help="timed calls per engine (median reported)")
+    ap.add_argument("--repeats", type=int, default=5, help="timed calls per engine (median reported)")
     ap.add_argument("--threads", type=int, default=2, help="numba threads")
     ap.add_argument("--no-variants", action="store_true",
                     help="skip the mcjax variants: the other device choice (split over every CPU device, "

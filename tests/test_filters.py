@@ -283,3 +283,21 @@ def test_native_adjacency_check_finds_each_defect():
             a8, bad = native.adjacency_bytes(a)
             assert bad == expected, (n, name, bad)
             np.testing.assert_array_equal(a8, a.astype(np.uint8))
+
+
+@pytest.mark.parametrize("flags", [[], ["-DMCJAX_LIBMVEC", "-mavx2", "-mno-avx512f"], ["-DMCJAX_LIBMVEC", "-mavx512f"]],
+                         ids=["scalar-atan2", "libmvec-avx2", "libmvec-avx512"])
+def test_native_source_compiles_in_each_atan2_variant(flags):
+    """The kernels' three atan2 paths (the machine builds only one of them): each compiles."""
+    import platform
+    import subprocess
+
+    import jax
+    from mcjax.filters import native
+
+    cxx = native._compiler()
+    if cxx is None or (flags and platform.machine() not in ("x86_64", "AMD64")):
+        pytest.skip("needs a C++ compiler (and x86-64 for the libmvec variants)")
+    done = subprocess.run([cxx, "-fsyntax-only", "-std=c++17", "-O1", f"-I{jax.ffi.include_dir()}", *flags,
+                           str(native.SOURCE)], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
