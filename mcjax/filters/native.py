@@ -2,14 +2,16 @@
 through XLA's FFI (``native_kernels.cc``, the equations of :mod:`mcjax.filters.batched`).
 
 XLA runs the structure-of-arrays kernels of :mod:`.batched` as dozens of elementwise loops per
-step, each reading the state again, on one thread; a compiled loop over runs keeps one run's
-state in registers and uses every core (docs/filter_speed.md). So when the machine has a C++
-compiler, the first call builds ``native_kernels.cc`` into a shared library (``c++ -O3
--march=native -fno-math-errno``, a few seconds), keeps it in mcjax's cache folder (keyed on the source, the
-compiler and the CPU; safe to delete), and registers its two handlers with XLA. Without a
-compiler, or with ``MCJAX_NATIVE=off``, :func:`available` is False and ``run_filter`` uses the
-pure-JAX kernels, which are also the ones for float32 and for gradients. Both give the same
-numbers to round-off (tests/test_filters.py checks 1e-9).
+step, each reading the state again, on one thread; a compiled loop keeps 8 lanes' state (8
+(run, agent) pairs or 8 runs) in vector registers and uses every core (docs/filter_speed.md).
+So when the machine has a C++ compiler, the first call builds ``native_kernels.cc`` into a
+shared library (``c++ -O3 -march=native -fno-math-errno``, with glibc's vector math library
+where it links; a few seconds), keeps it in mcjax's cache folder (keyed on the source, the
+compiler and the CPU; safe to delete), and registers its two handlers with XLA; the same
+library checks ``run_filter``'s adjacency (:func:`adjacency_bytes`). Without a compiler, or
+with ``MCJAX_NATIVE=off``, :func:`available` is False and ``run_filter`` uses the pure-JAX
+kernels and numpy checks; the kernels are also the ones for float32 and for gradients. Both
+give the same numbers to round-off (tests/test_filters.py checks 1e-8).
 """
 
 from __future__ import annotations
