@@ -135,7 +135,10 @@ def _programs(fn, params, keys, devs, label: str | None = None) -> list:
     sig = (fn, shapes, tuple(devs))
     if sig not in _PROGRAMS:
         disk_key = None if label is None else f"{label}|{shapes}"
-        programs = [None if disk_key is None else runtime.load_executable(disk_key, d) for d in devs]
+        programs = [None] * len(devs)
+        if disk_key is not None:  # one thread per device: deserialising runs outside the GIL
+            with ThreadPoolExecutor(len(devs)) as pool:
+                programs = list(pool.map(lambda d: runtime.load_executable(disk_key, d), devs))
         todo = [i for i, p in enumerate(programs) if p is None]
         if todo:
             lowered = {i: fn.lower(jax.device_put(params, devs[i]), jax.device_put(keys, devs[i])) for i in todo}

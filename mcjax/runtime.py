@@ -27,6 +27,7 @@ import os
 import pickle
 import platform
 import re
+import threading
 from functools import lru_cache
 from pathlib import Path
 
@@ -113,8 +114,17 @@ def custom_call_targets(lowered) -> frozenset:
     return frozenset(_TARGET.findall(lowered.as_text()))
 
 
-@lru_cache(maxsize=1)
+_READY_LOCK = threading.Lock()
+
+
 def _ready_targets() -> frozenset:
+    """:func:`_lowered_targets`, computed once per process even when several threads ask."""
+    with _READY_LOCK:
+        return _lowered_targets()
+
+
+@lru_cache(maxsize=1)
+def _lowered_targets() -> frozenset:
     """Lower (not compile) a small program of the dense linear algebra mcjax uses, in float32
     and float64, and return the custom-call targets it calls. Lowering is what makes JAX set
     up those kernels in a process (LAPACK's are bound at their first lowering); a stored
@@ -140,9 +150,11 @@ def load_executable(key: str, device):
         return None
     try:
         blob, in_tree, out_tree, targets = pickle.loads(path.read_bytes())
+        # deserialise first: with one thread per device, one thread's lowering in
+        # _ready_targets overlaps the others' deserialising (which runs outside the GIL)
+        program = serialize_executable.deserialize_and_load(blob, in_tree, out_tree, execution_devices=[device])
         if not set(targets) <= _ready_targets():
             return None
-        program = serialize_executable.deserialize_and_load(blob, in_tree, out_tree, execution_devices=[device])
         STATS["loaded"] += 1
         return program
     except Exception:  # a damaged or foreign file: compile again and overwrite it
