@@ -114,12 +114,13 @@ def custom_call_targets(lowered) -> frozenset:
     return frozenset(_TARGET.findall(lowered.as_text()))
 
 
-_READY_LOCK = threading.Lock()
+#: Guards :func:`_ready_targets` and :data:`STATS` against the engine's loading threads.
+_LOCK = threading.Lock()
 
 
 def _ready_targets() -> frozenset:
     """:func:`_lowered_targets`, computed once per process even when several threads ask."""
-    with _READY_LOCK:
+    with _LOCK:
         return _lowered_targets()
 
 
@@ -155,7 +156,8 @@ def load_executable(key: str, device):
         program = serialize_executable.deserialize_and_load(blob, in_tree, out_tree, execution_devices=[device])
         if not set(targets) <= _ready_targets():
             return None
-        STATS["loaded"] += 1
+        with _LOCK:
+            STATS["loaded"] += 1
         return program
     except Exception:  # a damaged or foreign file: compile again and overwrite it
         return None
