@@ -301,3 +301,34 @@ def test_native_source_compiles_in_each_atan2_variant(flags):
     done = subprocess.run([cxx, "-fsyntax-only", "-std=c++17", "-O1", f"-I{jax.ffi.include_dir()}", *flags,
                            str(native.SOURCE)], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
+
+
+@pytest.mark.parametrize("kind", ["local", "modified_icf"])
+def test_native_kernels_keep_the_guards_of_range_bearing(kind, monkeypatch):
+    """A sensor exactly on the estimate (zero range: H's rows are zero, no update from it), one
+    next to it, and a measurement with one NaN component (missing): the native kernels give what
+    the pure-JAX kernels give."""
+    from mcjax.filters import native, recorded
+
+    if not native.available():
+        pytest.skip(f"native kernels not built: {native.STATUS['reason']}")
+    T, n = 3, 2
+    x0 = np.array([1000.0, 1.0, 2000.0, -1.0])
+    z = np.full((T, n, 2), [500.0, 0.3])
+    z[2, 0, 1] = np.nan
+    s = np.zeros((T, n, 2))
+    s[0, 0] = x0[[0, 2]]
+    s[1, 1] = [1001.0, 1998.0]
+    a = np.zeros((T, n, n))
+    a[:, 0, 1] = a[:, 1, 0] = 1
+    F = np.eye(4)
+    F[0, 1] = F[2, 3] = 1.0
+    args = dict(measurements=z, sensor_positions=s, adjacency=a, x0=x0, P0=100 * np.eye(4), F=F,
+                Q=0.1 * np.eye(4), R=np.diag([25.0, 1e-4]))
+    xn, Pn = run_filter(kind, **args)
+    monkeypatch.setattr(recorded, "USE_NATIVE", False)
+    xj, Pj = run_filter(kind, **args)
+    np.testing.assert_allclose(xn, xj, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(Pn, Pj, rtol=1e-12, atol=1e-9)
+    if kind == "local":
+        np.testing.assert_array_equal(xn[0, 0], x0)  # the sensor on the prior: no update
