@@ -63,6 +63,18 @@ def _check_environment() -> None:
     if raw is not None and not (raw.strip().isdigit() and int(raw) >= 1):
         _fail(f"MCJAX_CPU_DEVICES must be a positive integer (CPU devices to use; unset = one per core); "
               f"got {raw!r}")
+    raw = os.environ.get("MCJAX_CACHE_MAX_GB")
+    if raw is not None:
+        try:
+            ok = 0 < float(raw) < float("inf")
+        except ValueError:
+            ok = False
+        if not ok:
+            _fail(f"MCJAX_CACHE_MAX_GB must be a positive number of gigabytes (the stored programs' size limit; "
+                  f"unset = 2), e.g. 2 or 0.5; got {raw!r}")
+    raw = os.environ.get("MCJAX_NATIVE")
+    if raw is not None and raw.strip().lower() not in ("on", "off"):
+        _fail(f"MCJAX_NATIVE must be 'on' or 'off' (the native filter kernels of run_filter; unset = on); got {raw!r}")
 
 
 def _exit_now(code: int) -> None:

@@ -11,9 +11,12 @@
   ``MCJAX_CACHE_DIR=off`` turns it off. It is safe to delete at any time. For the built-in
   scenarios the engine stores its batch programs whole (:func:`load_executable`), keyed on
   mcjax's source code, the JAX version, the CPU, the scenario, its Config and the input
-  shapes — a second sweep of the same spec starts computing at once. A user's own scenario
-  (a file or a plugin) is compiled every time: its code is not in the key. (JAX's own
-  persistent cache is not used: loading from it failed in some runs, see :func:`_apply`.)
+  shapes — a second sweep of the same spec loads them (1–2 s) instead of compiling them
+  (~20 s for Sun et al. 2011's closed loop). A user's own scenario (a file or a plugin) is
+  compiled every time: its code is not in the key. (JAX's own persistent cache is not used:
+  loading from it failed in some runs, see :func:`_apply`.) The stored programs are kept under
+  ``$MCJAX_CACHE_MAX_GB`` gigabytes (default 2; a program of the closed loop is ~8 MB): past
+  it, the least recently used ones are deleted when a new one is stored.
 
 If JAX's backend is already running when mcjax is first imported (a program that computed with
 JAX before importing mcjax), the device count cannot change any more: mcjax then uses the
@@ -23,6 +26,7 @@ devices JAX has, and says nothing. Call :func:`settings` to see what applies.
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import pickle
 import platform
@@ -36,7 +40,10 @@ import jax
 #: Environment variables read here.
 DEVICES_ENV = "MCJAX_CPU_DEVICES"
 CACHE_ENV = "MCJAX_CACHE_DIR"
+CACHE_MAX_ENV = "MCJAX_CACHE_MAX_GB"
 OFF = ("off", "none", "0", "")
+#: The program store's size limit when ``MCJAX_CACHE_MAX_GB`` is not set, in gigabytes.
+CACHE_MAX_GB = 2.0
 
 
 def _device_count() -> int:
@@ -59,6 +66,43 @@ def cache_dir() -> Path | None:
         return None if raw.strip().lower() in OFF else Path(raw).expanduser()
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
     return Path(base) / "mcjax" / "jax"
+
+
+def cache_max_bytes() -> int:
+    """The program store's size limit (``$MCJAX_CACHE_MAX_GB``, default :data:`CACHE_MAX_GB`)."""
+    raw = os.environ.get(CACHE_MAX_ENV)
+    if raw is None:
+        return int(CACHE_MAX_GB * 1e9)
+    try:
+        gb = float(raw)
+    except ValueError:
+        gb = math.nan
+    if not (math.isfinite(gb) and gb > 0):
+        raise ValueError(f"{CACHE_MAX_ENV} must be a positive number of gigabytes, e.g. 2 or 0.5; got {raw!r}")
+    return int(gb * 1e9)
+
+
+def _prune(folder: Path, limit: int, keep: Path) -> None:
+    """Delete the least recently used programs (oldest modification time: loading one touches
+    it) until the folder's ``*.pkl`` files total at most ``limit`` bytes; never ``keep``."""
+    files = []
+    for f in folder.glob("*.pkl"):
+        try:
+            st = f.stat()
+        except OSError:  # deleted meanwhile by another process
+            continue
+        files.append((st.st_mtime, st.st_size, f))
+    total = sum(size for _, size, _ in files)
+    for _, size, f in sorted(files, key=lambda item: item[0]):
+        if total <= limit:
+            break
+        if f == keep:
+            continue
+        try:
+            f.unlink()
+            total -= size
+        except OSError:
+            pass
 
 
 def _apply() -> None:
@@ -158,6 +202,10 @@ def load_executable(key: str, device):
             return None
         with _LOCK:
             STATS["loaded"] += 1
+        try:
+            os.utime(path)  # recently used: the last to be pruned
+        except OSError:
+            pass
         return program
     except Exception:  # a damaged or foreign file: compile again and overwrite it
         return None
@@ -171,6 +219,7 @@ def store_executable(key: str, device, compiled, targets: frozenset) -> None:
     path = _executable_path(f"{key}|{device.id}")
     if path is None:
         return
+    limit = cache_max_bytes()  # a bad MCJAX_CACHE_MAX_GB is the user's to see, not swallowed below
     try:
         data = pickle.dumps((*serialize_executable.serialize(compiled), tuple(sorted(targets))))
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -178,6 +227,7 @@ def store_executable(key: str, device, compiled, targets: frozenset) -> None:
         tmp.write_bytes(data)
         os.replace(tmp, path)
         STATS["stored"] += 1
+        _prune(path.parent, limit, keep=path)
     except Exception:
         pass
 

@@ -209,3 +209,32 @@ def test_scenario_compiler_options_apply_and_unknown_ones_are_dropped():
     fn = engine.compiled(lf.SCENARIO, cfg, records=True)
     nested = jax.jit(lambda p, k: fn(p, k))(params, keys)
     np.testing.assert_allclose(np.asarray(nested.error), np.asarray(a.error), rtol=1e-9, atol=1e-9)
+
+
+def test_the_program_store_keeps_under_its_limit_dropping_the_least_recently_used(tmp_path, monkeypatch):
+    """runtime._prune: past the limit the oldest files go (loading a program touches its time),
+    never the one just stored; MCJAX_CACHE_MAX_GB sets the limit and a bad value names itself."""
+    import os
+
+    from mcjax import runtime
+
+    files = []
+    for i in range(5):  # 5 programs of 100 bytes, used at times 1000, 2000, … (file 0 the least recent)
+        f = tmp_path / f"p{i}.pkl"
+        f.write_bytes(bytes(100))
+        os.utime(f, (1000.0 * (i + 1), 1000.0 * (i + 1)))
+        files.append(f)
+    (tmp_path / "other.txt").write_bytes(bytes(1000))  # not a program: neither counted nor deleted
+    runtime._prune(tmp_path, 350, keep=files[0])  # the just-stored one is kept even though oldest
+    assert [f.exists() for f in files] == [True, False, False, True, True]
+    assert (tmp_path / "other.txt").exists()
+    runtime._prune(tmp_path, 10_000, keep=files[4])
+    assert [f.exists() for f in files] == [True, False, False, True, True]
+    monkeypatch.setenv("MCJAX_CACHE_MAX_GB", "0.25")
+    assert runtime.cache_max_bytes() == 250_000_000
+    monkeypatch.delenv("MCJAX_CACHE_MAX_GB")
+    assert runtime.cache_max_bytes() == int(runtime.CACHE_MAX_GB * 1e9)
+    for bad in ("0", "-1", "nan", "two"):
+        monkeypatch.setenv("MCJAX_CACHE_MAX_GB", bad)
+        with pytest.raises(ValueError, match="MCJAX_CACHE_MAX_GB must be a positive number of gigabytes"):
+            runtime.cache_max_bytes()

@@ -205,6 +205,23 @@ def test_a_bad_cpu_device_count_is_one_line_naming_the_variable(value, tmp_path)
     assert r.exit_code == 0, r.output
 
 
+@pytest.mark.parametrize("name, value, message", [
+    ("MCJAX_CACHE_MAX_GB", "-1", "MCJAX_CACHE_MAX_GB must be a positive number of gigabytes"),
+    ("MCJAX_CACHE_MAX_GB", "0", "MCJAX_CACHE_MAX_GB must be a positive number of gigabytes"),
+    ("MCJAX_CACHE_MAX_GB", "lots", "MCJAX_CACHE_MAX_GB must be a positive number of gigabytes"),
+    ("MCJAX_CACHE_MAX_GB", "inf", "MCJAX_CACHE_MAX_GB must be a positive number of gigabytes"),
+    ("MCJAX_NATIVE", "maybe", "MCJAX_NATIVE must be 'on' or 'off'"),
+])
+def test_other_bad_environment_variables_are_one_line_naming_them(name, value, message, tmp_path):
+    spec = _spec(tmp_path, seeds=2)
+    r = CliRunner().invoke(main, ["sweep", str(spec), "--dry-run"], env={name: value})
+    assert r.exit_code == 2 and message in _one_line(r) and repr(value) in r.output, r.output
+    assert "Traceback" not in r.output
+    good = {"MCJAX_CACHE_MAX_GB": "0.5", "MCJAX_NATIVE": "off"}[name]
+    r = CliRunner().invoke(main, ["sweep", str(spec), "--dry-run"], env={name: good})
+    assert r.exit_code == 0, r.output
+
+
 def test_axes_of_vectors_stack_into_one_array_per_field(tmp_path):
     """A per-agent axis may mix one number for all agents with one per agent; every axis's
     points stack into one array with a leading point axis (what the engine is given)."""
