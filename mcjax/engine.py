@@ -108,7 +108,8 @@ class _Program:
 
 def compiler_options(scenario: Scenario) -> dict | None:
     """The scenario's XLA options (:attr:`mcjax.contract.Scenario.compiler_options`) that this
-    JAX knows; an unknown one is dropped rather than failing every compilation."""
+    JAX knows; an unknown one is dropped (with a RuntimeWarning) rather than failing every
+    compilation."""
     return runtime.known_compiler_options(scenario.compiler_options)
 
 

@@ -32,6 +32,7 @@ import pickle
 import platform
 import re
 import threading
+import warnings
 from functools import lru_cache
 from pathlib import Path
 
@@ -234,8 +235,9 @@ def store_executable(key: str, device, compiled, targets: frozenset) -> None:
 
 def known_compiler_options(options) -> dict | None:
     """The XLA options of ``options`` (a mapping, or None) that this JAX knows, for
-    ``jax.jit(..., compiler_options=…)``; an unknown one is dropped (the program is then
-    compiled with XLA's default for it) rather than failing every compilation."""
+    ``jax.jit(..., compiler_options=…)``; an unknown one is dropped, with a RuntimeWarning naming
+    it once per process (the program is then compiled with XLA's default for it), rather than
+    failing every compilation."""
     return _known_options(tuple(sorted((options or {}).items())))
 
 
@@ -246,6 +248,8 @@ def _known_options(items: tuple) -> dict | None:
         try:  # a one-line program, compiled once per option and process
             jax.jit(lambda x: x + 1, compiler_options={name: value}).lower(0.0).compile()
         except Exception:  # noqa: BLE001 — jaxlib's error for an unknown option ("No such compile option")
+            warnings.warn(f"this JAX ({jax.__version__}) does not know the XLA compiler option {name}={value!r}: "
+                          "programs are compiled without it", RuntimeWarning, stacklevel=2)
             continue
         known[name] = value
     return known or None
