@@ -19,9 +19,11 @@
 // run's numbers do not depend on the batch size or the split.
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include <sys/mman.h>
@@ -461,11 +463,10 @@ ffi::Error IcfImpl(ffi::Buffer<ffi::F64> z, ffi::Buffer<ffi::F64> s, ffi::Buffer
 // entry other than 0 or 1 (NaN included), 2 an asymmetric pair, 4 a nonzero diagonal entry, the
 // last two judged on the bytes (0: the graph is valid).
 extern "C" int mcjax_adjacency_bytes(const double* a, int64_t mats, int64_t n, uint8_t* out, int64_t threads) {
-  int64_t k = std::max<int64_t>(1, std::min<int64_t>(threads, mats));
-  std::vector<int> found(k, 0);
-  auto work = [&](int64_t c) {
+  std::atomic<int> found{0};
+  over_threads(mats, threads, [&](int64_t g0, int64_t g1) {
     int bad = 0;
-    int64_t g0 = mats * c / k, g1 = mats * (c + 1) / k, nn = n * n;
+    int64_t nn = n * n;
     const double* __restrict A = a + g0 * nn;
     uint8_t* __restrict O = out + g0 * nn;
     for (int64_t e = 0; e < (g1 - g0) * nn; ++e) {  // values, and the bytes: one flat loop
@@ -479,43 +480,34 @@ extern "C" int mcjax_adjacency_bytes(const double* a, int64_t mats, int64_t n, u
         bad |= row[i] ? 4 : 0;
         for (int64_t j = i + 1; j < n; ++j) bad |= row[j] != O[g * nn + j * n + i] ? 2 : 0;
       }
-    found[c] = bad;
-  };
-  if (k == 1) {
-    work(0);
-  } else {
-    std::vector<std::thread> pool;
-    for (int64_t c = 0; c < k; ++c) pool.emplace_back(work, c);
-    for (auto& th : pool) th.join();
-  }
-  int bad = 0;
-  for (int f : found) bad |= f;
-  return bad;
+    found |= bad;
+  });
+  return found.load();
+}
+
+// The handlers' arguments: the data (and, for the modified ICF, the 0/1 graph), then the
+// model (x0, P0, F, Q, R) both share; attributes; the estimates and covariances.
+template <typename Binding>
+auto model_args(Binding b) {
+  return std::move(b)
+      .template Arg<ffi::Buffer<ffi::F64>>()
+      .template Arg<ffi::Buffer<ffi::F64>>()
+      .template Arg<ffi::Buffer<ffi::F64>>()
+      .template Arg<ffi::Buffer<ffi::F64>>()
+      .template Arg<ffi::Buffer<ffi::F64>>();
 }
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(McjaxLocalEkf, LocalImpl,
-                              ffi::Ffi::Bind()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
+                              model_args(ffi::Ffi::Bind().Arg<ffi::Buffer<ffi::F64>>().Arg<ffi::Buffer<ffi::F64>>())
                                   .Attr<int64_t>("threads")
                                   .Ret<ffi::Buffer<ffi::F64>>()
                                   .Ret<ffi::Buffer<ffi::F64>>());
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(McjaxModifiedIcf, IcfImpl,
-                              ffi::Ffi::Bind()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::U8>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
+                              model_args(ffi::Ffi::Bind()
+                                             .Arg<ffi::Buffer<ffi::F64>>()
+                                             .Arg<ffi::Buffer<ffi::F64>>()
+                                             .Arg<ffi::Buffer<ffi::U8>>())
                                   .Attr<int64_t>("threads")
                                   .Attr<int64_t>("steps")
                                   .Attr<int64_t>("weights")
