@@ -163,9 +163,33 @@ def custom_call_targets(lowered) -> frozenset:
 _LOCK = threading.Lock()
 
 
+def prepare_loading() -> None:
+    """Do now what :func:`load_executable` must do once per process before a stored program
+    runs (set up LAPACK, ~0.1 s): the engine calls it while its threads deserialise."""
+    _ready_targets()
+
+
 def _ready_targets() -> frozenset:
-    """:func:`_lowered_targets`, computed once per process even when several threads ask."""
+    """:func:`_lapack_targets`, computed once per process even when several threads ask."""
     with _LOCK:
+        return _lapack_targets()
+
+
+@lru_cache(maxsize=1)
+def _lapack_targets() -> frozenset:
+    """Set up JAX's LAPACK kernels in this process and return their custom-call targets: the
+    library kernels a stored program may call without being lowered again. (JAX registers the
+    targets when it is imported but binds LAPACK's functions only when it first lowers a call
+    to one, ``jaxlib.lapack.prepare_lapack_call``; a program loaded from disk is not lowered,
+    so it is done here. That is a call into jaxlib's internals: if it is missing, a small
+    program of the dense linear algebra mcjax uses is lowered instead, which does the same in
+    ~0.5 s.)"""
+    try:
+        from jaxlib import lapack
+
+        lapack._lapack.initialize()
+        return frozenset(name for name, *_ in lapack.registrations()["cpu"])
+    except Exception:  # noqa: BLE001 — another jaxlib: fall back on lowering
         return _lowered_targets()
 
 

@@ -44,6 +44,18 @@ def test_1000_runs_bit_identical_for_chunk_sizes_100_and_1000():
 
 
 @pytest.mark.xdist_group("test_engine.records")  # one worker compiles the 6-run records program once
+@pytest.mark.parametrize("base_seed", [0, 1, 2**31 - 1, 2**32 - 1, 2**32, 2**40 + 5, -1, -2**63, 2**63 - 1])
+def test_numpy_run_keys_are_jax_keys(base_seed):
+    """The engine's numpy Threefry gives JAX's own PRNGKey/fold_in keys, bit for bit (seed
+    indices from 0 up, random 32-bit ones and the largest), also for base seeds past 32 bits."""
+    idx = np.concatenate([np.arange(40), np.random.default_rng(3).integers(0, 2**32, 100), [2**32 - 1]]).astype(np.uint32)
+    want = np.stack([np.asarray(jax.random.fold_in(jax.random.PRNGKey(base_seed), int(i))) for i in idx[::7]])
+    got = engine.run_keys(base_seed, idx)
+    assert got.dtype == np.uint32 and got.shape == (len(idx), 2)
+    np.testing.assert_array_equal(got[::7], want)
+    np.testing.assert_array_equal(got, np.asarray(jax.vmap(lambda s: engine.run_key(base_seed, s))(idx)))
+
+
 def test_common_random_numbers_across_points():
     """Seed s draws the same target and the same measurement noise at every point: with a comm
     radius that changes nothing for the CIF (it ignores the graph), the target path, the
