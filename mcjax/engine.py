@@ -11,8 +11,9 @@ noise at every sweep point (common random numbers) and results do not depend on 
 size. Step t's key is ``fold_in(run_key, t)`` (noise drawn per step, never pre-drawn).
 
 Every CPU core works: the process has one CPU device per core (:mod:`mcjax.runtime`), the
-B-run batch program is compiled once for each device (in parallel; an XLA program is bound
-to its device), with the scenario's ``compiler_options``, and the batches of a
+B-run batch program is compiled once, with the scenario's ``compiler_options``, and loaded
+on every device (an XLA program is bound to its device; the copies run the same machine
+code: :func:`mcjax.runtime.deserialise`), and the batches of a
 chunk go to the devices in turn, each device called from its own thread so they compute side
 by side (from one thread the CPU devices ran mostly one after the other).
 Every device runs the same program on B-aligned slices, so the numbers do not depend on the
@@ -158,11 +159,11 @@ _PROGRAMS_MAX = 64
 
 
 def _programs(fn, params, keys, devs, label: str | None = None) -> list:
-    """``fn`` compiled ahead of time for each device of ``devs`` (the same B-run program on
-    every device; compiled in parallel threads, so D devices cost about one compilation of
-    wall time when there are D cores). With a ``label`` (a built-in scenario's name, Config
-    and flags), the programs are also stored on disk and loaded from there next time
-    (:func:`mcjax.runtime.load_executable`)."""
+    """``fn`` compiled ahead of time for each device of ``devs``: the same B-run program on
+    every device, compiled once and loaded on the other devices (~1 s each,
+    :func:`mcjax.runtime.on_devices`; should that fail, compiled for each in parallel threads).
+    With a ``label`` (a built-in scenario's name, Config and flags), the program is also stored
+    on disk and loaded from there next time (:func:`mcjax.runtime.load_executable`)."""
     leaves = jax.tree.leaves(params)
     shapes = (str(jax.tree.structure(params)), tuple((np.shape(a), np.asarray(a).dtype.str) for a in leaves),
               np.shape(keys))
@@ -177,12 +178,19 @@ def _programs(fn, params, keys, devs, label: str | None = None) -> list:
                 programs = [f.result() for f in loading]
         todo = [i for i, p in enumerate(programs) if p is None]
         if todo:
-            lowered = {i: fn.lower(jax.device_put(params, devs[i]), jax.device_put(keys, devs[i])) for i in todo}
-            with ThreadPoolExecutor(len(todo)) as pool:
-                for i, prog in zip(todo, pool.map(lambda i: lowered[i].compile(), todo)):
-                    programs[i] = prog
-                    if disk_key is not None:
-                        runtime.store_executable(disk_key, devs[i], prog, runtime.custom_call_targets(lowered[i]))
+            lowered = fn.lower(jax.device_put(params, devs[todo[0]]), jax.device_put(keys, devs[todo[0]]))
+            first = lowered.compile()
+            if disk_key is not None:
+                runtime.store_executable(disk_key, first, runtime.custom_call_targets(lowered))
+            for i, prog in zip(todo, runtime.on_devices(first, [devs[i] for i in todo])):
+                programs[i] = prog
+            rest = [i for i in todo if programs[i] is None]
+            if rest:  # this JAX could not load the program on another device
+                with ThreadPoolExecutor(len(rest)) as pool:
+                    compiled = pool.map(lambda i: fn.lower(jax.device_put(params, devs[i]),
+                                                           jax.device_put(keys, devs[i])).compile(), rest)
+                    for i, prog in zip(rest, compiled):
+                        programs[i] = prog
         if len(_PROGRAMS) >= _PROGRAMS_MAX:
             _PROGRAMS.pop(next(iter(_PROGRAMS)))
         _PROGRAMS[sig] = programs

@@ -26,6 +26,7 @@ devices JAX has, and says nothing. Call :func:`settings` to see what applies.
 from __future__ import annotations
 
 import hashlib
+import io
 import math
 import os
 import pickle
@@ -33,10 +34,12 @@ import platform
 import re
 import threading
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 from pathlib import Path
 
 import jax
+import numpy as np
 
 #: Environment variables read here.
 DEVICES_ENV = "MCJAX_CPU_DEVICES"
@@ -209,20 +212,75 @@ def _lowered_targets() -> frozenset:
     return custom_call_targets(jax.jit(zoo).lower(jnp.eye(2, dtype=jnp.float32), jnp.eye(2, dtype=jnp.float64)))
 
 
-def load_executable(key: str, device):
-    """The program stored under ``key`` for ``device`` (:func:`store_executable`), or None when
-    there is none, the cache is off, the file cannot be loaded, or the program calls a library
-    kernel this process has not set up (then the caller compiles it again)."""
+def serialise(compiled) -> tuple | None:
+    """A compiled one-device program as ``(bytes, in_tree, out_tree)`` for :func:`deserialise`
+    (JAX's ``serialize_executable``), or None if JAX cannot serialise it."""
     from jax.experimental import serialize_executable
 
-    path = _executable_path(f"{key}|{device.id}")
+    try:
+        return serialize_executable.serialize(compiled)
+    except Exception:  # noqa: BLE001 — e.g. a program JAX does not serialise
+        return None
+
+
+def deserialise(data: tuple, device):
+    """The program :func:`serialise` gave, loaded to run on ``device`` — whichever device it
+    was compiled for: XLA's machine code does not depend on the device, only the program's
+    device assignment does, and that is replaced here (one device, one replica). So a
+    program is compiled once and loaded on every CPU device (~1 s each) instead of being
+    compiled once per device. Raises if this JAX cannot do it (the caller then compiles).
+
+    This goes beyond JAX's public ``deserialize_and_load`` (which keeps the device the
+    program was compiled for): its unpickler is given the target device for every device it
+    names, and the executable is deserialised with compile options assigning it there."""
+    from jax._src import compiler
+    from jax.experimental import serialize_executable
+
+    blob, in_tree, out_tree = data
+
+    class OnDevice(serialize_executable._JaxPjrtUnpickler):
+        def persistent_load(self, pid):
+            if pid[0] == "device":
+                return device
+            if pid[0] == "exec":
+                options = compiler.get_compile_options(1, 1, device_assignment=np.array([[device]]),
+                                                       backend=self.backend)
+                return self.backend.deserialize_executable(pid[1], executable_devices=self.execution_devices,
+                                                           compile_options=options)
+            return super().persistent_load(pid)
+
+    unloaded, args_info, no_kwargs = OnDevice(io.BytesIO(blob), device.client, [device]).load()
+    return jax.stages.Compiled(unloaded.load(), [], in_tree.unflatten(args_info), out_tree, no_kwargs=no_kwargs)
+
+
+def on_devices(compiled, devices: list) -> list:
+    """``compiled`` (a one-device program compiled for ``devices[0]``) and copies of it loaded
+    on each further device (:func:`deserialise`, in parallel threads; None where that failed,
+    for the caller to compile)."""
+    if len(devices) == 1:
+        return [compiled]
+    data = serialise(compiled)
+
+    def copy(device):
+        try:
+            return None if data is None else deserialise(data, device)
+        except Exception:  # noqa: BLE001 — another JAX: the caller compiles for this device
+            return None
+
+    with ThreadPoolExecutor(len(devices) - 1) as pool:
+        return [compiled, *pool.map(copy, devices[1:])]
+
+
+def load_executable(key: str, device):
+    """The program stored under ``key`` (:func:`store_executable`), loaded on ``device``, or
+    None when there is none, the cache is off, the file cannot be loaded, or the program calls
+    a library kernel this process has not set up (then the caller compiles it again)."""
+    path = _executable_path(key)
     if path is None or not path.is_file():
         return None
     try:
         blob, in_tree, out_tree, targets = pickle.loads(path.read_bytes())
-        # deserialise first: with one thread per device, one thread's lowering in
-        # _ready_targets overlaps the others' deserialising (which runs outside the GIL)
-        program = serialize_executable.deserialize_and_load(blob, in_tree, out_tree, execution_devices=[device])
+        program = deserialise((blob, in_tree, out_tree), device)
         if not set(targets) <= _ready_targets():
             return None
         with _LOCK:
@@ -236,20 +294,22 @@ def load_executable(key: str, device):
         return None
 
 
-def store_executable(key: str, device, compiled, targets: frozenset) -> None:
-    """Store a compiled program for :func:`load_executable`, with the custom-call ``targets``
-    its lowering calls (atomically; failures are ignored: the cache is an optimisation)."""
-    from jax.experimental import serialize_executable
-
-    path = _executable_path(f"{key}|{device.id}")
+def store_executable(key: str, compiled, targets: frozenset) -> None:
+    """Store a compiled one-device program for :func:`load_executable` (on any device), with
+    the custom-call ``targets`` its lowering calls (atomically; failures are ignored: the
+    cache is an optimisation)."""
+    path = _executable_path(key)
     if path is None:
         return
     limit = cache_max_bytes()  # a bad MCJAX_CACHE_MAX_GB is the user's to see, not swallowed below
+    data = serialise(compiled)
+    if data is None:
+        return
     try:
-        data = pickle.dumps((*serialize_executable.serialize(compiled), tuple(sorted(targets))))
+        blob = pickle.dumps((*data, tuple(sorted(targets))))
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_bytes(data)
+        tmp.write_bytes(blob)
         os.replace(tmp, path)
         STATS["stored"] += 1
         _prune(path.parent, limit, keep=path)

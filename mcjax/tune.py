@@ -476,17 +476,19 @@ _PROGRAMS: dict = {}
 
 
 def _compiled_programs(fn, args, devs) -> list:
-    """``fn`` compiled for the shapes of ``args`` on each device of ``devs`` (in parallel
-    threads), kept per (function, shapes, devices) for the process."""
+    """``fn`` compiled for the shapes of ``args`` once and loaded on each device of ``devs``
+    (:func:`mcjax.runtime.on_devices`; compiled for a device where that fails), kept per
+    (function, shapes, devices) for the process."""
     import jax
-    from concurrent.futures import ThreadPoolExecutor
+
+    from mcjax import runtime
 
     shapes = tuple((np.shape(a), np.asarray(a).dtype.str) for a in jax.tree.leaves(args))
     sig = (fn, shapes, tuple(devs))
     if sig not in _PROGRAMS:
-        lowered = [fn.lower(*jax.device_put(args, d)) for d in devs]
-        with ThreadPoolExecutor(len(devs)) as pool:
-            _PROGRAMS[sig] = list(pool.map(lambda lo: lo.compile(), lowered))
+        programs = runtime.on_devices(fn.lower(*jax.device_put(args, devs[0])).compile(), list(devs))
+        _PROGRAMS[sig] = [p if p is not None else fn.lower(*jax.device_put(args, d)).compile()
+                          for p, d in zip(programs, devs)]
     return _PROGRAMS[sig]
 
 
@@ -496,7 +498,7 @@ RUNS_PER_DEVICE = 16
 
 class Evaluator:
     """The training batch's loss and gradient at any ``z``: the batch is cut into one slice
-    per device, each compiled once (in parallel) and run side by side."""
+    per device, one program compiled once and loaded on each device, run side by side."""
 
     def __init__(self, spec: TuneSpec):
         import jax
