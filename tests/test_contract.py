@@ -81,6 +81,54 @@ def test_every_builtin_scenario_declares_every_field_and_output():
         assert meta["filters"] == list(cfg.filters) and set(meta["params"]) == set(sc.params_table)
 
 
+@pytest.mark.parametrize("config", ["sun2011", "ren2017", "chen2022", "lou2013", "chen2013"])
+def test_no_state_entry_turns_per_run_in_the_first_step(config):
+    """Under the engine's vmap, an init state entry shared by all runs (a constant) that the
+    step makes per-run costs a second batching of the time loop's body (~2 s of tracing for
+    the closed loop): such entries start per-run (kit.per_run). A new state field that starts
+    as a constant shows up here."""
+    import jax
+    from jax._src.interpreters import batching
+
+    from mcjax import engine
+    from mcjax.sweep import load_config_file
+
+    sc, cfg, values = load_config_file(Path(__file__).resolve().parents[1] / "configs" / f"{config}.toml")
+    params, keys = engine.chunk_inputs(engine.stack_points([sc.default_params(cfg, **values)]), 2, 0, 0, 2, 2)
+
+    def per_run(x):
+        return isinstance(x, batching.BatchTracer) and isinstance(x.batch_dim, int)
+
+    turned = []
+
+    def one(p, k):
+        state = sc.init(cfg, p, jax.random.fold_in(k, 0x7FFFFFFF))
+        after, _ = sc.step(cfg, p, state, jax.random.fold_in(k, 1))
+        before = jax.tree_util.tree_flatten_with_path(state)[0]
+        turned.extend(jax.tree_util.keystr(path) for (path, a), b in zip(before, jax.tree.leaves(after))
+                      if not per_run(a) and per_run(b))
+        assert any(per_run(b) for b in jax.tree.leaves(after))  # the check sees per-run entries at all
+        return 0
+
+    jax.make_jaxpr(jax.vmap(one))(params, keys)
+    assert turned == []
+
+
+def test_per_run_keeps_the_values_bits():
+    import jax
+    import jax.numpy as jnp
+
+    from mcjax.scenarios import kit
+
+    x = jnp.array([-0.0, 1.5, jnp.nan, jnp.inf])
+    for like in (1.0, jnp.nan, jnp.array([jnp.nan, 2.0])):
+        y, flag = kit.per_run(like, x, jnp.asarray(True))
+        assert y.shape == x.shape and np.array_equal(np.asarray(y).view(np.uint64), np.asarray(x).view(np.uint64))
+        assert bool(flag)
+    batched = jax.vmap(lambda p: kit.per_run(p, x))(jnp.array([1.0, jnp.nan, 3.0]))
+    assert batched.shape == (3, 4) and np.array_equal(np.asarray(batched), np.tile(np.asarray(x), (3, 1)), equal_nan=True)
+
+
 def test_default_params_rejects_unknown_fields():
     with pytest.raises(ValueError, match=r"unknown Params field\(s\) \['nope'\]; allowed: dt, "):
         leader_follower.SCENARIO.default_params(nope=1.0)

@@ -239,7 +239,7 @@ def init(cfg, params, key) -> State:
     first = jnp.argmax(ok)
     found = jnp.any(ok)
     pick = jnp.where(found, first, cfg.start_attempts - 1)
-    flock = fl.FlockState(q[pick], v[pick], jnp.zeros((n, n), dtype))
+    flock = fl.FlockState(q[pick], v[pick], kit.per_run(p.dt, jnp.zeros((n, n), dtype)))  # per-run: kit.per_run
     x0 = target_state(cfg, p, jnp.asarray(0.0, dtype))
     P0 = jnp.diag(p.p0_diag)
     g = Gaussian(x0, P0, symmetrize(spd_inverse(P0)))

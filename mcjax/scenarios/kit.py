@@ -70,6 +70,20 @@ def agents(p, n: int, dtype):
     return jnp.broadcast_to(jnp.asarray(p, dtype), (n,))
 
 
+def per_run(like, *values):
+    """``values`` unchanged (same bits), but made to depend on ``like`` (any value of the run,
+    e.g. a parameter): under the engine's ``vmap`` over runs they become per-run values.
+
+    For an ``init`` state entry that starts as a constant (zeros) but that the first step
+    makes per-run: JAX would otherwise batch the time loop's body twice (once with the entry
+    shared by all runs, then again with it per run), which cost ~2 s of the closed loop's
+    ~5 s of tracing. The engine's program is the same either way."""
+    p = jnp.asarray(like)
+    same = jnp.any(p == p)  # a per-run boolean (False for NaN: then the second branch, the same value)
+    out = tuple(jnp.where(same, v, v) for v in values)
+    return out[0] if len(out) == 1 else out
+
+
 def team_measurements(key, target, sensors, sigma_range, sigma_bearing, sensing_radius, alive):
     """Every agent's noisy range–bearing measurement of ``target`` (n, 2), NaN where the
     target is out of the agent's ``sensing_radius`` (n,) or the agent is not ``alive`` (n,)

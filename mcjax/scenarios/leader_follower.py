@@ -212,9 +212,10 @@ def init(cfg, params, key) -> State:
     ], axis=-1)
     x0 = jnp.asarray(params.target_x0, dtype)
     P0 = jnp.diag(jnp.asarray(params.p0_diag, dtype))
-    plan = jnp.zeros((cfg.max_horizon, n), dtype)
+    # the plan entries become per-run at the first re-plan: per-run from the start (kit.per_run)
+    plan, cost = kit.per_run(params.dt, jnp.zeros((cfg.max_horizon, n), dtype), jnp.zeros((), dtype))
     return State(jnp.asarray(0, jnp.int32), x0, uavs, init_states(cfg.filters, x0, P0, n),
-                 plan, plan, jnp.asarray(0, jnp.int32), jnp.zeros((), dtype))
+                 plan, plan, jnp.asarray(0, jnp.int32), cost)
 
 
 def _plan(cfg, params, state: State, uavs, filters, age, key):

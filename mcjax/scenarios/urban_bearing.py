@@ -210,10 +210,11 @@ def init(cfg, params, key) -> State:
     filters = []
     for name in cfg.filters:
         m = 3 if name == "imm" else 1
-        mu = p.mu0 if m == 3 else jnp.ones(1, dtype)
+        mu = p.mu0 if m == 3 else kit.per_run(p.prior_sigma, jnp.ones(1, dtype))  # per-run: kit.per_run
         filters.append(IMMState(mu, jnp.broadcast_to(x0, (m, 2)), jnp.broadcast_to(P0, (m, 2, 2))))
     fim0 = jnp.broadcast_to(jnp.eye(2, dtype=dtype) / p.prior_sigma**2, (3, 2, 2))
-    return State(jnp.asarray(0, jnp.int32), p.uav0, jnp.zeros(2, dtype), jnp.asarray(True), tuple(filters), fim0)
+    command, measured = kit.per_run(p.prior_sigma, jnp.zeros(2, dtype), jnp.asarray(True))
+    return State(jnp.asarray(0, jnp.int32), p.uav0, command, measured, tuple(filters), fim0)
 
 
 def _mode_filter(x, P, model, z, uav, q):

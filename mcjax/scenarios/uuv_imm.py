@@ -164,10 +164,10 @@ def init(cfg, params, key) -> State:
     states = []
     for f in cfg.filters:
         m = len(FILTER_MODES[f])
-        mu = params.mu0 if m == 2 else jnp.ones(1, dtype)
+        mu = params.mu0 if m == 2 else kit.per_run(params.dt, jnp.ones(1, dtype))  # per-run: kit.per_run
         states.append(IMMState(jnp.broadcast_to(mu, (n, m)), jnp.broadcast_to(x0, (n, m, 4)),
                                jnp.broadcast_to(P0, (n, m, 4, 4))))
-    return State(jnp.asarray(0, jnp.int32), x0, jnp.asarray(CV, jnp.int32), tuple(states))
+    return State(jnp.asarray(0, jnp.int32), x0, kit.per_run(params.dt, jnp.asarray(CV, jnp.int32)), tuple(states))
 
 
 def _true_mode(cfg, params, state: State, key):

@@ -200,7 +200,7 @@ def init(cfg, params, key) -> State:
     p = kit.cast(params, dtype)
     n = cfg.n_agents
     P0 = jnp.eye(2, dtype=dtype) * p.sigma_wind_prior ** 2
-    g = Gaussian(jnp.zeros(2, dtype), P0, symmetrize(spd_inverse(P0)))
+    g = Gaussian(kit.per_run(p.dt, jnp.zeros(2, dtype)), P0, symmetrize(spd_inverse(P0)))  # per-run: kit.per_run
     per_agent = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), g)
     filters = tuple(g if k == "cif" else per_agent for k in cfg.filters)
     return State(jnp.asarray(0, jnp.int32), p.start, filters, g)
