@@ -1,0 +1,94 @@
+"""How long `mcjax sweep` takes to start computing: with an empty program store (the batch
+program is traced and compiled) and again with it filled (the program is loaded from disk).
+
+What is run. ``mcjax sweep SPEC`` (default: ``sweeps/default.toml``, Sun et al. 2011's closed
+loop with three filters; every CPU core, as shipped) in a fresh Python process each time,
+through the CLI's own entry point, stopped the moment the engine has the batch program on
+every device — when the first batch starts computing. Each round uses a new, empty program
+store (``MCJAX_CACHE_DIR`` pointed at a temporary folder): one cold start, then ``--warm``
+warm starts on the store the cold one filled.
+
+Prints per start the seconds from launching the process to: JAX imported, the engine asking
+for its programs (mcjax imported, spec read, first inputs made), and the programs ready on
+every device. Python's own start-up is included: it is what a researcher waits for.
+
+How to run (~1 min per round on the 2-core VM)::
+
+    python benchmarks/sweep_start.py
+    python benchmarks/sweep_start.py --rounds 3 --warm 2 --spec sweeps/default.toml
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# Run in the child: time marks against the parent's launch time (argv[1]), then the CLI.
+CHILD = r"""
+import json, os, sys, time
+t0 = float(sys.argv[1]); marks = {}
+import jax
+marks["jax imported"] = time.time() - t0
+from mcjax import cli, engine
+build = engine._programs
+
+def ready(*a, **k):
+    marks["programs asked"] = time.time() - t0
+    build(*a, **k)
+    marks["programs ready"] = time.time() - t0
+    print("MARKS " + json.dumps(marks), flush=True)
+    os._exit(0)
+
+engine._programs = ready
+sys.argv = ["mcjax", "sweep", *sys.argv[2:]]
+cli.main()
+"""
+
+
+def start(spec: str, out: Path, cache: Path) -> dict:
+    env = {**os.environ, "MCJAX_CACHE_DIR": str(cache)}
+    t0 = time.time()
+    r = subprocess.run([sys.executable, "-c", CHILD, repr(t0), spec, "--out", str(out), "--force"],
+                       env=env, cwd=ROOT, capture_output=True, text=True, timeout=900)
+    line = next((x for x in r.stdout.splitlines() if x.startswith("MARKS ")), None)
+    if line is None:
+        raise SystemExit(f"the sweep did not reach its programs (exit {r.returncode}):\n{r.stderr[-2000:]}")
+    return json.loads(line[6:])
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--spec", default="sweeps/default.toml")
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--warm", type=int, default=2, help="warm starts per round")
+    args = ap.parse_args(argv)
+    if args.rounds < 1 or args.warm < 0:
+        ap.error("--rounds must be >= 1 and --warm >= 0")
+    print(f"mcjax sweep {args.spec}: seconds from launching the process, {time.strftime('%Y-%m-%d %H:%M')}, "
+          f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}")
+    cols = ("jax imported", "programs asked", "programs ready")
+    print(f"{'round':>5s}  {'start':6s} " + " ".join(f"{c:>15s}" for c in cols))
+    ready = {"cold": [], "warm": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(args.rounds):
+            cache = Path(tmp) / f"store{r}"
+            for kind in ["cold"] + ["warm"] * args.warm:
+                marks = start(args.spec, Path(tmp) / "out", cache)
+                ready[kind].append(marks["programs ready"])
+                print(f"{r + 1:5d}  {kind:6s} " + " ".join(f"{marks[c]:15.2f}" for c in cols), flush=True)
+    for kind, v in ready.items():
+        if v:
+            print(f"{kind}: programs ready after {min(v):.2f}-{max(v):.2f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
