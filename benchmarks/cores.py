@@ -24,7 +24,7 @@ How to run::
 
 Prints one row per workload: runs, wall time per run on 1 and on N devices (compilation
 excluded), their ratio, the time until the batch programs are ready on N devices with an
-empty cache (tracing and compiling, one program per device in parallel) and with the cache
+empty cache (tracing and compiling once, then loading the program on the other devices) and with the cache
 filled (loading) — both estimated as the first chunk's time less its computing at the
 measured rate —, and whether the outputs are bit-identical. Times exclude starting Python
 and importing JAX and mcjax (~2 s here).

@@ -3,16 +3,18 @@
 * **Every CPU core.** XLA runs one compiled program on one CPU device mostly on one thread, so
   mcjax asks JAX for one CPU device per core and the engine sends consecutive batches of a
   chunk to the devices in turn (:func:`mcjax.engine.run_chunks`). Each device runs the same
-  compiled batch program, so results are bit-identical to a one-device run.
+  compiled batch program (compiled once, loaded on each device: :func:`deserialise`), so
+  results are bit-identical to a one-device run.
   ``MCJAX_CPU_DEVICES=N`` sets the count (``1``: one device, the old behaviour).
 * **A persistent compilation cache.** Compiled programs are kept on disk, so a second sweep of
   the same spec (or any run of the same Config) skips compilation. The folder is
   ``$MCJAX_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/mcjax/jax`` (default ``~/.cache/mcjax/jax``);
   ``MCJAX_CACHE_DIR=off`` turns it off. It is safe to delete at any time. For the built-in
-  scenarios the engine stores its batch programs whole (:func:`load_executable`), keyed on
-  mcjax's source code, the JAX version, the CPU, the scenario, its Config and the input
-  shapes — a second sweep of the same spec loads them (1–2 s) instead of compiling them
-  (~20 s for Sun et al. 2011's closed loop). A user's own scenario (a file or a plugin) is
+  scenarios the engine stores its batch programs whole (:func:`load_executable`; one file,
+  loaded on every device), keyed on mcjax's source code, the JAX version, the CPU, the
+  scenario, its Config and the input shapes — a second sweep of the same spec loads them
+  (~1 s, both devices in parallel) instead of compiling them (~18 s for Sun et al. 2011's
+  closed loop). A user's own scenario (a file or a plugin) is
   compiled every time: its code is not in the key. (JAX's own persistent cache is not used:
   loading from it failed in some runs, see :func:`_apply`.) The stored programs are kept under
   ``$MCJAX_CACHE_MAX_GB`` gigabytes (default 2; a program of the closed loop is ~8 MB): past

@@ -122,7 +122,9 @@ def test_nan_aware_max_and_min_keep_a_nan_in_a_large_batch():
 
 def test_results_do_not_depend_on_the_device_count(tmp_path):
     """The same sweep on 3 CPU devices (a subprocess: the count is fixed when JAX starts) and on
-    one (chunks of one batch use one device) gives the same bits; the subprocess really has 3."""
+    one (chunks of one batch use one device) gives the same bits; the subprocess really has 3.
+    There the program is compiled once and loaded on the other two devices; and again with that
+    loading failing (as with a JAX that refuses it), when each device compiles its own."""
     import os
     import subprocess
     import sys
@@ -141,14 +143,22 @@ def test_results_do_not_depend_on_the_device_count(tmp_path):
         "assert runtime.settings()['cpu_devices'] == 3, runtime.settings()\n"
         "cfg = wf.Config(n_steps=20)\n"
         "pts = engine.stack_points([wf.default_params(cfg), wf.default_params(cfg, comm_radius=2500.0)])\n"
-        "out = [o for *_, o in engine.run_chunks(wf.SCENARIO, cfg, pts, 150, chunk_size=1000)]\n"
-        "np.savez(sys.argv[1], **{k: np.concatenate([o[k] for o in out]) for k in out[0]})\n")
-    env = {**os.environ, "MCJAX_CPU_DEVICES": "3"}
-    subprocess.run([sys.executable, str(script), str(tmp_path / "three.npz")], check=True, env=env, timeout=300)
-    three = np.load(tmp_path / "three.npz")
-    assert set(three.files) == set(one)
-    for key in one:
-        np.testing.assert_array_equal(one[key], three[key], err_msg=key)
+        "def run(name):\n"
+        "    out = [o for *_, o in engine.run_chunks(wf.SCENARIO, cfg, pts, 150, chunk_size=1000)]\n"
+        "    np.savez(sys.argv[1] + name, **{k: np.concatenate([o[k] for o in out]) for k in out[0]})\n"
+        "run('three.npz')\n"
+        "def refuse(*args):\n"
+        "    raise RuntimeError('no')\n"
+        "runtime.deserialise = refuse\n"
+        "engine._PROGRAMS.clear()\n"
+        "run('fallback.npz')\n")
+    env = {**os.environ, "MCJAX_CPU_DEVICES": "3", "MCJAX_CACHE_DIR": "off"}  # compiled here, not loaded
+    subprocess.run([sys.executable, str(script), str(tmp_path) + "/"], check=True, env=env, timeout=300)
+    for name in ("three.npz", "fallback.npz"):
+        three = np.load(tmp_path / name)
+        assert set(three.files) == set(one)
+        for key in one:
+            np.testing.assert_array_equal(one[key], three[key], err_msg=f"{name}: {key}")
 
 
 def test_a_second_process_loads_the_stored_program_and_gets_the_same_bits(tmp_path):
