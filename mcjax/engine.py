@@ -180,9 +180,10 @@ def _programs(fn, params, keys, devs, label: str | None = None) -> list:
         if todo:
             lowered = fn.lower(jax.device_put(params, devs[todo[0]]), jax.device_put(keys, devs[todo[0]]))
             first = lowered.compile()
+            data = runtime.serialise(first) if disk_key is not None or len(todo) > 1 else None
             if disk_key is not None:
-                runtime.store_executable(disk_key, first, runtime.custom_call_targets(lowered))
-            for i, prog in zip(todo, runtime.on_devices(first, [devs[i] for i in todo])):
+                runtime.store_executable(disk_key, data, runtime.custom_call_targets(lowered))
+            for i, prog in zip(todo, runtime.on_devices(first, [devs[i] for i in todo], data)):
                 programs[i] = prog
             rest = [i for i in todo if programs[i] is None]
             if rest:  # this JAX could not load the program on another device

@@ -255,13 +255,13 @@ def deserialise(data: tuple, device):
     return jax.stages.Compiled(unloaded.load(), [], in_tree.unflatten(args_info), out_tree, no_kwargs=no_kwargs)
 
 
-def on_devices(compiled, devices: list) -> list:
+def on_devices(compiled, devices: list, data: tuple | None = None) -> list:
     """``compiled`` (a one-device program compiled for ``devices[0]``) and copies of it loaded
-    on each further device (:func:`deserialise`, in parallel threads; None where that failed,
-    for the caller to compile)."""
+    on each further device (:func:`deserialise` of ``data``, its :func:`serialise` if the
+    caller has it, in parallel threads; None where that failed, for the caller to compile)."""
     if len(devices) == 1:
         return [compiled]
-    data = serialise(compiled)
+    data = data if data is not None else serialise(compiled)
 
     def copy(device):
         try:
@@ -296,15 +296,14 @@ def load_executable(key: str, device):
         return None
 
 
-def store_executable(key: str, compiled, targets: frozenset) -> None:
-    """Store a compiled one-device program for :func:`load_executable` (on any device), with
-    the custom-call ``targets`` its lowering calls (atomically; failures are ignored: the
-    cache is an optimisation)."""
+def store_executable(key: str, data: tuple | None, targets: frozenset) -> None:
+    """Store a compiled one-device program, as :func:`serialise` gave it, for
+    :func:`load_executable` (on any device), with the custom-call ``targets`` its lowering
+    calls (atomically; failures are ignored: the cache is an optimisation)."""
     path = _executable_path(key)
     if path is None:
         return
     limit = cache_max_bytes()  # a bad MCJAX_CACHE_MAX_GB is the user's to see, not swallowed below
-    data = serialise(compiled)
     if data is None:
         return
     try:
