@@ -234,19 +234,24 @@ def deserialise(data: tuple, device):
 
     This goes beyond JAX's public ``deserialize_and_load`` (which keeps the device the
     program was compiled for): its unpickler is given the target device for every device it
-    names, and the executable is deserialised with compile options assigning it there."""
-    from jax._src import compiler
+    names, and the executable is deserialised with compile options assigning it there. A JAX
+    without those internals gets the public function (the device it was compiled for only)."""
     from jax.experimental import serialize_executable
 
     blob, in_tree, out_tree = data
+    try:
+        from jax._src import compiler
 
-    class OnDevice(serialize_executable._JaxPjrtUnpickler):
+        unpickler, compile_options = serialize_executable._JaxPjrtUnpickler, compiler.get_compile_options
+    except (ImportError, AttributeError):
+        return serialize_executable.deserialize_and_load(blob, in_tree, out_tree, execution_devices=[device])
+
+    class OnDevice(unpickler):
         def persistent_load(self, pid):
             if pid[0] == "device":
                 return device
             if pid[0] == "exec":
-                options = compiler.get_compile_options(1, 1, device_assignment=np.array([[device]]),
-                                                       backend=self.backend)
+                options = compile_options(1, 1, device_assignment=np.array([[device]]), backend=self.backend)
                 return self.backend.deserialize_executable(pid[1], executable_devices=self.execution_devices,
                                                            compile_options=options)
             return super().persistent_load(pid)

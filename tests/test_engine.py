@@ -161,6 +161,24 @@ def test_results_do_not_depend_on_the_device_count(tmp_path):
             np.testing.assert_array_equal(one[key], three[key], err_msg=f"{name}: {key}")
 
 
+def test_deserialise_runs_a_program_as_compiled_with_and_without_jax_internals(monkeypatch):
+    """runtime.deserialise (the engine's way of loading one compiled program on every device)
+    gives the compiled program's bits; on a JAX without the internals it uses, it falls back
+    on JAX's public deserialize_and_load (same device only) and still does."""
+    import jax.numpy as jnp
+    from jax._src import compiler
+
+    from mcjax import runtime
+
+    x = jnp.linspace(-3.0, 3.0, 7)
+    compiled = jax.jit(lambda v: jnp.sin(v) * jnp.exp(v) - v**3).lower(x).compile()
+    want = np.asarray(compiled(x))
+    data = runtime.serialise(compiled)
+    np.testing.assert_array_equal(np.asarray(runtime.deserialise(data, jax.devices()[0])(x)), want)
+    monkeypatch.delattr(compiler, "get_compile_options")
+    np.testing.assert_array_equal(np.asarray(runtime.deserialise(data, jax.devices()[0])(x)), want)
+
+
 def test_a_second_process_loads_the_stored_program_and_gets_the_same_bits(tmp_path):
     """The persistent cache: the first process compiles and stores the batch program, the
     second loads it (no compilation) and computes the same numbers; a damaged file is
