@@ -23,7 +23,7 @@ differ from the one-device program's in the last place.)
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from functools import lru_cache
 from typing import Callable, Iterator
 
@@ -153,49 +153,91 @@ def devices() -> list:
     return jax.local_devices()
 
 
-#: Compiled programs per (jitted function, input signature, device): see :func:`_programs`.
+#: Futures of compiled programs per (jitted function, input signature, devices): see
+#: :func:`_program_futures`.
 _PROGRAMS: dict = {}
 _PROGRAMS_MAX = 64
 
 
 def _programs(fn, params, keys, devs, label: str | None = None) -> list:
-    """``fn`` compiled ahead of time for each device of ``devs``: the same B-run program on
-    every device, compiled once and loaded on the other devices (~1 s each,
-    :func:`mcjax.runtime.on_devices`; should that fail, compiled for each in parallel threads).
-    With a ``label`` (a built-in scenario's name, Config and flags), the program is also stored
-    on disk and loaded from there next time (:func:`mcjax.runtime.load_executable`)."""
+    """``fn`` compiled ahead of time for each device of ``devs`` (:func:`_program_futures`,
+    waiting for every device's)."""
+    return [f.result() for f in _program_futures(fn, params, keys, devs, label)]
+
+
+def _program_futures(fn, params, keys, devs, label: str | None = None) -> list:
+    """Futures of ``fn`` compiled ahead of time for each device of ``devs``: the same B-run
+    program on every device, compiled once and loaded on the other devices (~1 s each,
+    :func:`mcjax.runtime.deserialise`; should that fail, the device compiles its own). With a
+    ``label`` (a built-in scenario's name, Config and flags), the program is also stored on
+    disk and loaded from there next time (:func:`mcjax.runtime.load_executable`).
+
+    The first device's program is ready when this returns; the others' may still be loading
+    in background threads (the engine's thread for a device waits for its own), so the first
+    device starts computing as soon as its program is there."""
     leaves = jax.tree.leaves(params)
     shapes = (str(jax.tree.structure(params)), tuple((np.shape(a), np.asarray(a).dtype.str) for a in leaves),
               np.shape(keys))
     sig = (fn, shapes, tuple(devs))
-    if sig not in _PROGRAMS:
-        disk_key = None if label is None else f"{label}|{shapes}"
-        programs = [None] * len(devs)
-        if disk_key is not None:  # one thread per device: deserialising runs outside the GIL
-            with ThreadPoolExecutor(len(devs)) as pool:
-                loading = [pool.submit(runtime.load_executable, disk_key, d) for d in devs]
-                runtime.prepare_loading()  # meanwhile, on this otherwise idle thread
-                programs = [f.result() for f in loading]
-        todo = [i for i, p in enumerate(programs) if p is None]
-        if todo:
-            lowered = fn.lower(jax.device_put(params, devs[todo[0]]), jax.device_put(keys, devs[todo[0]]))
-            first = lowered.compile()
-            data = runtime.serialise(first) if disk_key is not None or len(todo) > 1 else None
-            if disk_key is not None:
-                runtime.store_executable(disk_key, data, runtime.custom_call_targets(lowered))
-            for i, prog in zip(todo, runtime.on_devices(first, [devs[i] for i in todo], data)):
-                programs[i] = prog
-            rest = [i for i in todo if programs[i] is None]
-            if rest:  # this JAX could not load the program on another device
-                with ThreadPoolExecutor(len(rest)) as pool:
-                    compiled = pool.map(lambda i: fn.lower(jax.device_put(params, devs[i]),
-                                                           jax.device_put(keys, devs[i])).compile(), rest)
-                    for i, prog in zip(rest, compiled):
-                        programs[i] = prog
-        if len(_PROGRAMS) >= _PROGRAMS_MAX:
-            _PROGRAMS.pop(next(iter(_PROGRAMS)))
-        _PROGRAMS[sig] = programs
-    return _PROGRAMS[sig]
+    if sig in _PROGRAMS:
+        return _PROGRAMS[sig]
+    disk_key = None if label is None else f"{label}|{shapes}"
+
+    def compile_for(i):  # the last resort: device i compiles its own
+        return fn.lower(jax.device_put(params, devs[i]), jax.device_put(keys, devs[i])).compile()
+
+    def copy_to(i, first, data=None):
+        try:
+            program = runtime.deserialise(data if data is not None else runtime.serialise(first), devs[i])
+        except Exception:  # noqa: BLE001 — this JAX cannot load it on another device
+            program = None
+        return program if program is not None else compile_for(i)
+
+    pool = ThreadPoolExecutor(len(devs), thread_name_prefix="mcjax-program")
+    futures = None
+    if disk_key is not None:  # one thread per device: deserialising runs outside the GIL
+        loading = [pool.submit(runtime.load_executable, disk_key, d) for d in devs]
+        runtime.prepare_loading()  # meanwhile, on this otherwise idle thread
+        first = loading[0].result()
+        if first is not None:
+            futures = [loading[0], *(_or_else(f, lambda i=i: copy_to(i, first)) for i, f in enumerate(loading) if i)]
+    if futures is None:
+        lowered = fn.lower(jax.device_put(params, devs[0]), jax.device_put(keys, devs[0]))
+        first = lowered.compile()
+        data = runtime.serialise(first) if disk_key is not None or len(devs) > 1 else None
+        if disk_key is not None:
+            runtime.store_executable(disk_key, data, runtime.custom_call_targets(lowered))
+        done = Future()
+        done.set_result(first)
+        futures = [done, *(pool.submit(copy_to, i, first, data) for i in range(1, len(devs)))]
+    pool.shutdown(wait=False)  # the copies still loading finish in the background
+    if len(_PROGRAMS) >= _PROGRAMS_MAX:
+        _PROGRAMS.pop(next(iter(_PROGRAMS)))
+    _PROGRAMS[sig] = futures
+
+    def forget_if_failed(f):  # a program that failed to build is not kept: the next call tries again
+        if f.exception() is not None:
+            _PROGRAMS.pop(sig, None)
+
+    for f in futures:
+        f.add_done_callback(forget_if_failed)
+    return futures
+
+
+def _or_else(future: Future, make: Callable) -> Future:
+    """A future of ``future``'s result, or of ``make()`` (run where ``future`` finished) when
+    that result is None."""
+    out = Future()
+
+    def settle(f):
+        try:
+            result = f.result()
+            out.set_result(result if result is not None else make())
+        except BaseException as e:  # noqa: BLE001 — handed to whoever waits for the program
+            out.set_exception(e)
+
+    future.add_done_callback(settle)
+    return out
 
 
 def _label(scenario: Scenario, cfg, records: bool, timeseries: bool) -> str | None:
@@ -271,6 +313,7 @@ def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed
     lanes = [ThreadPoolExecutor(1, thread_name_prefix=f"mcjax-device-{i}") for i in range(len(devs))]
 
     def call(program, dev, params, keys):
+        program = program.result()  # this device's program: it may still be loading
         out = program(jax.device_put(params, dev), jax.device_put(keys, dev))
         return jax.tree.map(np.asarray, out)
 
@@ -283,7 +326,7 @@ def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed
                 e = min(s + b, stop)
                 params, keys = chunk_inputs(point_params, n_seeds, base_seed, s, e, b)
                 if programs is None:
-                    programs = _programs(fn, params, keys, devs, _label(scenario, cfg, records, timeseries))
+                    programs = _program_futures(fn, params, keys, devs, _label(scenario, cfg, records, timeseries))
                 d = k % len(devs)
                 parts.append((e - s, lanes[d].submit(call, programs[d], devs[d], params, keys)))
             parts = [(m, f.result()) for m, f in parts]

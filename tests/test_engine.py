@@ -179,6 +179,29 @@ def test_deserialise_runs_a_program_as_compiled_with_and_without_jax_internals(m
     np.testing.assert_array_equal(np.asarray(runtime.deserialise(data, jax.devices()[0])(x)), want)
 
 
+def test_a_devices_program_future_falls_back_only_when_loading_gave_nothing():
+    """engine._or_else: a device's program is the loaded one, else what the fallback makes; a
+    failure reaches whoever waits for the program."""
+    from concurrent.futures import Future
+
+    def settled(value=None, error=None):
+        f = Future()
+        f.set_exception(error) if error else f.set_result(value)
+        return f
+
+    assert engine._or_else(settled("loaded"), lambda: "made").result() == "loaded"
+    assert engine._or_else(settled(None), lambda: "made").result() == "made"
+    pending = Future()
+    later = engine._or_else(pending, lambda: "made")
+    assert not later.done()
+    pending.set_result(None)
+    assert later.result() == "made"
+    with pytest.raises(RuntimeError, match="no program"):
+        engine._or_else(settled(error=RuntimeError("no program")), lambda: "made").result()
+    with pytest.raises(ValueError, match="fallback failed"):
+        engine._or_else(settled(None), lambda: (_ for _ in ()).throw(ValueError("fallback failed"))).result()
+
+
 def test_a_second_process_loads_the_stored_program_and_gets_the_same_bits(tmp_path):
     """The persistent cache: the first process compiles and stores the batch program, the
     second loads it (no compilation) and computes the same numbers; a damaged file is
