@@ -402,3 +402,33 @@ def test_reverse_mode_gradient_matches_central_differences(spec, evaluator):
     assert ev.dropped == 0 and np.all(np.isfinite(ev.grad))
     np.testing.assert_allclose(ev.loss, fwd.loss, rtol=1e-9)  # two programs: rounding differs
     _assert_central_differences(spec, evaluator, z0, ev.grad)
+
+
+def test_two_devices_give_the_one_device_loss_and_gradient(tmp_path):
+    """The training batch split over 2 CPU devices (a subprocess: the count is fixed when JAX
+    starts; the gradient program compiled once and loaded on the second device) gives the same
+    loss and gradient bits as one device."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    p = _write(tmp_path, SPEC.replace("train_seeds = 2", f"train_seeds = {2 * tune.RUNS_PER_DEVICE}"))
+    spec = tune.load_tune_spec(p)
+    z0 = tune.to_unconstrained(spec.bounds, spec.initial())
+    one = tune.Evaluator(spec)(z0)
+    script = tmp_path / "two.py"
+    script.write_text(
+        "import json, sys\n"
+        "from mcjax import tune\n"
+        "spec = tune.load_tune_spec(sys.argv[1])\n"
+        "ev = tune.Evaluator(spec)\n"
+        "assert len(ev.devs) == 2, ev.devs\n"
+        "r = ev(tune.to_unconstrained(spec.bounds, spec.initial()))\n"
+        "print(json.dumps({'loss': float(r.loss).hex(), 'grad': [float(g).hex() for g in r.grad]}))\n")
+    env = {**os.environ, "MCJAX_CPU_DEVICES": "2"}
+    r = subprocess.run([sys.executable, str(script), str(p)], env=env, capture_output=True, text=True,
+                       timeout=600, check=True)
+    two = json.loads(r.stdout.strip().splitlines()[-1])
+    assert two["loss"] == float(one.loss).hex()
+    assert two["grad"] == [float(g).hex() for g in one.grad]
