@@ -22,6 +22,8 @@ from typing import NamedTuple
 
 import click
 
+from mcjax import envvars
+
 #: What the first Ctrl-C of a sweep or run prints, at once.
 ACK = "stopping after the chunk in flight; press Ctrl-C again to stop now"
 #: The same for a sweep on a Dask cluster, which cancels its chunks in flight.
@@ -59,22 +61,10 @@ def _fail(message: str) -> None:
 
 def _check_environment() -> None:
     """The environment variables mcjax reads, checked before JAX starts (one line, exit 2)."""
-    raw = os.environ.get("MCJAX_CPU_DEVICES")
-    if raw is not None and not (raw.strip().isdigit() and int(raw) >= 1):
-        _fail(f"MCJAX_CPU_DEVICES must be a positive integer (CPU devices to use; unset = one per core); "
-              f"got {raw!r}")
-    raw = os.environ.get("MCJAX_CACHE_MAX_GB")
-    if raw is not None:
-        try:
-            ok = 0 < float(raw) < float("inf")
-        except ValueError:
-            ok = False
-        if not ok:
-            _fail(f"MCJAX_CACHE_MAX_GB must be a positive number of gigabytes (the stored programs' size limit; "
-                  f"unset = 2), e.g. 2 or 0.5; got {raw!r}")
-    raw = os.environ.get("MCJAX_NATIVE")
-    if raw is not None and raw.strip().lower() not in ("on", "off"):
-        _fail(f"MCJAX_NATIVE must be 'on' or 'off' (the native filter kernels of run_filter; unset = on); got {raw!r}")
+    try:
+        envvars.check()
+    except ValueError as exc:
+        _fail(str(exc))
 
 
 def _exit_now(code: int) -> None:

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import hashlib
 import io
-import math
 import os
 import pickle
 import platform
@@ -43,49 +42,22 @@ from pathlib import Path
 import jax
 import numpy as np
 
-#: Environment variables read here.
-DEVICES_ENV = "MCJAX_CPU_DEVICES"
-CACHE_ENV = "MCJAX_CACHE_DIR"
-CACHE_MAX_ENV = "MCJAX_CACHE_MAX_GB"
+from mcjax import envvars
+
 OFF = ("off", "none", "0", "")
-#: The program store's size limit when ``MCJAX_CACHE_MAX_GB`` is not set, in gigabytes.
-CACHE_MAX_GB = 2.0
 
 
 def _device_count() -> int:
-    raw = os.environ.get(DEVICES_ENV)
-    if raw is None:
-        return max(1, os.cpu_count() or 1)
-    try:
-        n = int(raw)
-    except ValueError:
-        raise ValueError(f"{DEVICES_ENV} must be a positive integer; got {raw!r}") from None
-    if n < 1:
-        raise ValueError(f"{DEVICES_ENV} must be a positive integer; got {raw!r}")
-    return n
+    return envvars.cpu_devices() or max(1, os.cpu_count() or 1)
 
 
 def cache_dir() -> Path | None:
     """The persistent compilation cache's folder, or None when turned off."""
-    raw = os.environ.get(CACHE_ENV)
+    raw = os.environ.get(envvars.CACHE_ENV)
     if raw is not None:
         return None if raw.strip().lower() in OFF else Path(raw).expanduser()
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
     return Path(base) / "mcjax" / "jax"
-
-
-def cache_max_bytes() -> int:
-    """The program store's size limit (``$MCJAX_CACHE_MAX_GB``, default :data:`CACHE_MAX_GB`)."""
-    raw = os.environ.get(CACHE_MAX_ENV)
-    if raw is None:
-        return int(CACHE_MAX_GB * 1e9)
-    try:
-        gb = float(raw)
-    except ValueError:
-        gb = math.nan
-    if not (math.isfinite(gb) and gb > 0):
-        raise ValueError(f"{CACHE_MAX_ENV} must be a positive number of gigabytes, e.g. 2 or 0.5; got {raw!r}")
-    return int(gb * 1e9)
 
 
 def _prune(folder: Path, limit: int, keep: Path) -> None:
@@ -308,7 +280,7 @@ def store_executable(key: str, data: tuple | None, targets: frozenset) -> None:
     path = _executable_path(key)
     if path is None:
         return
-    limit = cache_max_bytes()  # a bad MCJAX_CACHE_MAX_GB is the user's to see, not swallowed below
+    limit = envvars.cache_max_bytes()  # a bad MCJAX_CACHE_MAX_GB is the user's to see, not swallowed below
     if data is None:
         return
     try:

@@ -365,7 +365,7 @@ def test_plugin_is_seen_by_a_real_process(tmp_path):
 
 #: Layers from the bottom: a module may import its own layer or lower ones only.
 LAYERS = [
-    {"contract", "runtime", "numerics", "results"},
+    {"contract", "envvars", "runtime", "numerics", "results"},
     {"models"},
     {"graph"},
     {"metrics"},

@@ -280,7 +280,7 @@ def test_the_program_store_keeps_under_its_limit_dropping_the_least_recently_use
     never the one just stored; MCJAX_CACHE_MAX_GB sets the limit and a bad value names itself."""
     import os
 
-    from mcjax import runtime
+    from mcjax import envvars, runtime
 
     files = []
     for i in range(5):  # 5 programs of 100 bytes, used at times 1000, 2000, … (file 0 the least recent)
@@ -295,10 +295,10 @@ def test_the_program_store_keeps_under_its_limit_dropping_the_least_recently_use
     runtime._prune(tmp_path, 10_000, keep=files[4])
     assert [f.exists() for f in files] == [True, False, False, True, True]
     monkeypatch.setenv("MCJAX_CACHE_MAX_GB", "0.25")
-    assert runtime.cache_max_bytes() == 250_000_000
+    assert envvars.cache_max_bytes() == 250_000_000
     monkeypatch.delenv("MCJAX_CACHE_MAX_GB")
-    assert runtime.cache_max_bytes() == int(runtime.CACHE_MAX_GB * 1e9)
+    assert envvars.cache_max_bytes() == int(envvars.CACHE_MAX_GB * 1e9)
     for bad in ("0", "-1", "nan", "two"):
         monkeypatch.setenv("MCJAX_CACHE_MAX_GB", bad)
         with pytest.raises(ValueError, match="MCJAX_CACHE_MAX_GB must be a positive number of gigabytes"):
-            runtime.cache_max_bytes()
+            envvars.cache_max_bytes()

@@ -29,7 +29,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mcjax import runtime
+from mcjax import envvars, runtime
 
 SOURCE = Path(__file__).with_name("native_kernels.cc")
 TARGETS = {"local": ("mcjax_local_ekf", "McjaxLocalEkf"), "modified_icf": ("mcjax_modified_icf", "McjaxModifiedIcf")}
@@ -37,9 +37,6 @@ WEIGHT_CODES = {"eq11": 0, "metropolis": 1, "max_degree": 2}
 #: The modified ICF's kernel keeps a run's graph on the stack: at most this many agents
 #: (``kMaxAgents`` in the C++); larger teams run in the pure-JAX kernel.
 MAX_AGENTS = 64
-#: ``off``: never build or use the native kernels in this process; ``on`` (the default): use them
-#: where they can be built.
-NATIVE_ENV = "MCJAX_NATIVE"
 #: Why the native kernels are not in use in this process ("" when they are).
 STATUS = {"reason": "not tried yet"}
 _LIB: list = []  # the loaded library, once :func:`available` has succeeded
@@ -84,11 +81,8 @@ def available() -> bool:
     """Build (once per machine), load and register the native kernels; False (with the reason in
     :data:`STATUS`) if ``MCJAX_NATIVE=off``, there is no C++ compiler, or the build fails.
     Another value of ``MCJAX_NATIVE`` raises ValueError naming it."""
-    raw = os.environ.get(NATIVE_ENV)
-    if raw is not None and raw.strip().lower() not in ("on", "off"):
-        raise ValueError(f"{NATIVE_ENV} must be 'on' or 'off'; got {raw!r}")
-    if raw is not None and raw.strip().lower() == "off":
-        STATUS["reason"] = f"{NATIVE_ENV}=off"
+    if not envvars.native_on():  # ``off``: never build or use them in this process
+        STATUS["reason"] = f"{envvars.NATIVE_ENV}=off"
         return False
     cxx = _compiler()
     if cxx is None:
