@@ -159,15 +159,16 @@ _PROGRAMS: dict = {}
 _PROGRAMS_MAX = 64
 
 
-def _programs(fn, params, keys, devs, label: str | None = None) -> list:
-    """``fn`` compiled ahead of time for each device of ``devs`` (:func:`_program_futures`,
-    waiting for every device's)."""
-    return [f.result() for f in _program_futures(fn, params, keys, devs, label)]
+def _programs(fn, args: tuple, devs, label: str | None = None) -> list:
+    """``fn`` compiled ahead of time for ``args`` on each device of ``devs``
+    (:func:`_program_futures`, waiting for every device's)."""
+    return [f.result() for f in _program_futures(fn, args, devs, label)]
 
 
-def _program_futures(fn, params, keys, devs, label: str | None = None) -> list:
-    """Futures of ``fn`` compiled ahead of time for each device of ``devs``: the same B-run
-    program on every device, compiled once and loaded on the other devices (~1 s each,
+def _program_futures(fn, args: tuple, devs, label: str | None = None) -> list:
+    """Futures of ``fn`` compiled ahead of time for arguments shaped as ``args`` (e.g. a batch's
+    Params and keys) for each device of ``devs``: the same program on every device, compiled
+    once and loaded on the other devices (~1 s each,
     :func:`mcjax.runtime.deserialise`; should that fail, the device compiles its own). With a
     ``label`` (a built-in scenario's name, Config and flags), the program is also stored on
     disk and loaded from there next time (:func:`mcjax.runtime.load_executable`).
@@ -175,16 +176,15 @@ def _program_futures(fn, params, keys, devs, label: str | None = None) -> list:
     The first device's program is ready when this returns; the others' may still be loading
     in background threads (the engine's thread for a device waits for its own), so the first
     device starts computing as soon as its program is there."""
-    leaves = jax.tree.leaves(params)
-    shapes = (str(jax.tree.structure(params)), tuple((np.shape(a), np.asarray(a).dtype.str) for a in leaves),
-              np.shape(keys))
+    shapes = (str(jax.tree.structure(args)),
+              tuple((np.shape(a), np.asarray(a).dtype.str) for a in jax.tree.leaves(args)))
     sig = (fn, shapes, tuple(devs))
     if sig in _PROGRAMS:
         return _PROGRAMS[sig]
     disk_key = None if label is None else f"{label}|{shapes}"
 
     def compile_for(i):  # the last resort: device i compiles its own
-        return fn.lower(jax.device_put(params, devs[i]), jax.device_put(keys, devs[i])).compile()
+        return fn.lower(*jax.device_put(args, devs[i])).compile()
 
     def copy_to(i, first, data=None):
         try:
@@ -202,7 +202,7 @@ def _program_futures(fn, params, keys, devs, label: str | None = None) -> list:
         if first is not None:
             futures = [loading[0], *(_or_else(f, lambda i=i: copy_to(i, first)) for i, f in enumerate(loading) if i)]
     if futures is None:
-        lowered = fn.lower(jax.device_put(params, devs[0]), jax.device_put(keys, devs[0]))
+        lowered = fn.lower(*jax.device_put(args, devs[0]))
         first = lowered.compile()
         data = runtime.serialise(first) if disk_key is not None or len(devs) > 1 else None
         if disk_key is not None:
@@ -326,7 +326,7 @@ def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed
                 e = min(s + b, stop)
                 params, keys = chunk_inputs(point_params, n_seeds, base_seed, s, e, b)
                 if programs is None:
-                    programs = _program_futures(fn, params, keys, devs, _label(scenario, cfg, records, timeseries))
+                    programs = _program_futures(fn, (params, keys), devs, _label(scenario, cfg, records, timeseries))
                 d = k % len(devs)
                 parts.append((e - s, lanes[d].submit(call, programs[d], devs[d], params, keys)))
             parts = [(m, f.result()) for m, f in parts]

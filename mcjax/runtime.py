@@ -35,7 +35,6 @@ import platform
 import re
 import threading
 import warnings
-from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 from pathlib import Path
 
@@ -230,24 +229,6 @@ def deserialise(data: tuple, device):
 
     unloaded, args_info, no_kwargs = OnDevice(io.BytesIO(blob), device.client, [device]).load()
     return jax.stages.Compiled(unloaded.load(), [], in_tree.unflatten(args_info), out_tree, no_kwargs=no_kwargs)
-
-
-def on_devices(compiled, devices: list, data: tuple | None = None) -> list:
-    """``compiled`` (a one-device program compiled for ``devices[0]``) and copies of it loaded
-    on each further device (:func:`deserialise` of ``data``, its :func:`serialise` if the
-    caller has it, in parallel threads; None where that failed, for the caller to compile)."""
-    if len(devices) == 1:
-        return [compiled]
-    data = data if data is not None else serialise(compiled)
-
-    def copy(device):
-        try:
-            return None if data is None else deserialise(data, device)
-        except Exception:  # noqa: BLE001 — another JAX: the caller compiles for this device
-            return None
-
-    with ThreadPoolExecutor(len(devices) - 1) as pool:
-        return [compiled, *pool.map(copy, devices[1:])]
 
 
 def load_executable(key: str, device):

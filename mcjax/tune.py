@@ -472,26 +472,6 @@ class Evaluation(NamedTuple):
     dropped: int              # runs whose loss or gradient was not finite
 
 
-_PROGRAMS: dict = {}
-
-
-def _compiled_programs(fn, args, devs) -> list:
-    """``fn`` compiled for the shapes of ``args`` once and loaded on each device of ``devs``
-    (:func:`mcjax.runtime.on_devices`; compiled for a device where that fails), kept per
-    (function, shapes, devices) for the process."""
-    import jax
-
-    from mcjax import runtime
-
-    shapes = tuple((np.shape(a), np.asarray(a).dtype.str) for a in jax.tree.leaves(args))
-    sig = (fn, shapes, tuple(devs))
-    if sig not in _PROGRAMS:
-        programs = runtime.on_devices(fn.lower(*jax.device_put(args, devs[0])).compile(), list(devs))
-        _PROGRAMS[sig] = [p if p is not None else fn.lower(*jax.device_put(args, d)).compile()
-                          for p, d in zip(programs, devs)]
-    return _PROGRAMS[sig]
-
-
 #: Fewest training runs per device before a second device is used.
 RUNS_PER_DEVICE = 16
 
@@ -531,7 +511,7 @@ class Evaluator:
         z = np.asarray(z, np.float64)
         base = self.spec.sweep.base_params
         if self.programs is None:
-            self.programs = _compiled_programs(self.fn, (z, self.keys[0], base), self.devs)
+            self.programs = engine._programs(self.fn, (z, self.keys[0], base), self.devs)
         outs = [prog(jax.device_put(z, d), jax.device_put(k, d), jax.device_put(base, d))
                 for prog, d, k in zip(self.programs, self.devs, self.keys)]
         parts = [[np.asarray(x)[:b - a] for x in o] for o, (a, b) in zip(outs, self.slices)]
