@@ -72,7 +72,7 @@ def main(argv=None) -> int:
     for r in range(args.rounds):
         for name, (scenario, cfg) in _variants(sc, base).items():
             w0, c0 = time.perf_counter(), time.process_time()
-            program = engine._programs(engine.compiled(scenario, cfg), (params, keys), dev, None)[0]
+            program = engine.programs(engine.compiled(scenario, cfg), (params, keys), dev, None)[0]
             w1, c1 = time.perf_counter(), time.process_time()
             jax.block_until_ready(program(params, keys))
             t = time.perf_counter()

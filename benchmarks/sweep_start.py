@@ -39,7 +39,7 @@ t0 = float(sys.argv[1]); marks = {}
 import jax
 marks["jax imported"] = time.time() - t0
 from mcjax import cli, engine
-build = engine._program_futures
+build = engine.program_futures
 
 def ready(*a, **k):
     marks["programs asked"] = time.time() - t0
@@ -51,7 +51,7 @@ def ready(*a, **k):
     print("MARKS " + json.dumps(marks), flush=True)
     os._exit(0)
 
-engine._program_futures = ready
+engine.program_futures = ready
 sys.argv = ["mcjax", "sweep", *sys.argv[2:]]
 cli.main()
 """

@@ -74,13 +74,54 @@ def run_keys(base_seed: int, seed_index) -> np.ndarray:
     return np.stack([y0, y1], axis=-1).reshape(idx.shape + (2,))
 
 
-def _run(scenario, cfg, params, key):
-    state = scenario.init(cfg, params, jax.random.fold_in(key, 0x7FFFFFFF))
+#: Run ``key``'s draw for ``init``: ``fold_in(key, INIT_KEY)`` (step t draws ``fold_in(key, t)``).
+INIT_KEY = 0x7FFFFFFF
+
+
+def init_key(key) -> jax.Array:
+    """The key a run's ``init`` draws from (:data:`INIT_KEY`)."""
+    return jax.random.fold_in(key, INIT_KEY)
+
+
+def time_loop(step: Callable, state, key, n_steps: int, *, block: int | None = None, remat: bool = False):
+    """The one time-loop driver: ``step(state, key_t, t) -> (state, out)`` for ``t = 0 … n_steps−1``
+    with ``key_t = fold_in(key, t)``; returns ``(final state, outs stacked over time)``.
+
+    Serves the exact simulation (:func:`simulate`, ``block=None``: one ``lax.scan`` over the
+    steps) and the smooth one of ``mcjax tune`` (``block = K``: a scan over blocks of K steps,
+    each block under ``jax.checkpoint`` when ``remat``, so reverse mode keeps one state per
+    block; steps past ``n_steps`` in the last block leave the state as it is and output zeros,
+    trimmed from the result)."""
 
     def body(state, t):
-        return scenario.step(cfg, params, state, jax.random.fold_in(key, t))
+        return step(state, jax.random.fold_in(key, t), t)
 
-    _, records = jax.lax.scan(body, state, jnp.arange(cfg.n_steps))
+    if block is None:
+        return jax.lax.scan(body, state, jnp.arange(n_steps))
+    n_blocks = -(-n_steps // block)
+    if n_steps % block:
+        shapes = jax.eval_shape(body, state, jnp.asarray(0))[1]
+
+        def idle(state, t):
+            return state, jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), shapes)
+
+        def padded(state, t):
+            return jax.lax.cond(t < n_steps, body, idle, state, t)
+    else:
+        padded = body
+
+    def run_block(state, ts):
+        return jax.lax.scan(padded, state, ts)
+
+    if remat:
+        run_block = jax.checkpoint(run_block)
+    state, outs = jax.lax.scan(run_block, state, jnp.arange(n_blocks * block).reshape(n_blocks, block))
+    return state, jax.tree.map(lambda a: a.reshape((n_blocks * block,) + a.shape[2:])[:n_steps], outs)
+
+
+def _run(scenario, cfg, params, key):
+    state = scenario.init(cfg, params, init_key(key))
+    _, records = time_loop(lambda s, k, t: scenario.step(cfg, params, s, k), state, key, cfg.n_steps)
     return records
 
 
@@ -154,18 +195,19 @@ def devices() -> list:
 
 
 #: Futures of compiled programs per (jitted function, input signature, devices): see
-#: :func:`_program_futures`.
+#: :func:`program_futures`.
 _PROGRAMS: dict = {}
 _PROGRAMS_MAX = 64
 
 
-def _programs(fn, args: tuple, devs, label: str | None = None) -> list:
-    """``fn`` compiled ahead of time for ``args`` on each device of ``devs``
-    (:func:`_program_futures`, waiting for every device's)."""
-    return [f.result() for f in _program_futures(fn, args, devs, label)]
+def programs(fn, args: tuple, devs, label: str | None = None) -> list:
+    """``fn`` (a jitted function) compiled ahead of time for arguments shaped as ``args`` on
+    each device of ``devs``: compiled once, loaded on the other devices
+    (:func:`program_futures`, waiting for every device's)."""
+    return [f.result() for f in program_futures(fn, args, devs, label)]
 
 
-def _program_futures(fn, args: tuple, devs, label: str | None = None) -> list:
+def program_futures(fn, args: tuple, devs, label: str | None = None) -> list:
     """Futures of ``fn`` compiled ahead of time for arguments shaped as ``args`` (e.g. a batch's
     Params and keys) for each device of ``devs``: the same program on every device, compiled
     once and loaded on the other devices (~1 s each,
@@ -326,7 +368,7 @@ def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed
                 e = min(s + b, stop)
                 params, keys = chunk_inputs(point_params, n_seeds, base_seed, s, e, b)
                 if programs is None:
-                    programs = _program_futures(fn, (params, keys), devs, _label(scenario, cfg, records, timeseries))
+                    programs = program_futures(fn, (params, keys), devs, _label(scenario, cfg, records, timeseries))
                 d = k % len(devs)
                 parts.append((e - s, lanes[d].submit(call, programs[d], devs[d], params, keys)))
             parts = [(m, f.result()) for m, f in parts]

@@ -331,9 +331,10 @@ def params_at(bounds, base, x):
 def run_loss(scenario, cfg, loss: Loss, smoothing, block: int, params, key, window: int = 0, remat: bool = True):
     """The training loss of one run (module docstring) with its parts:
     ``(loss, (soft RMSE, soft divergence))``. The closed loop runs the scenario's surrogate
-    step over ``ceil(T / block)`` blocks of ``block`` steps, each block under
+    step through the engine's time-loop driver (:func:`mcjax.engine.time_loop`: the exact
+    simulation's keys) over ``ceil(T / block)`` blocks of ``block`` steps, each block under
     ``jax.checkpoint`` when ``remat`` (reverse mode; forward mode stores no intermediates and
-    skips it) (steps past T in the last block leave the state as it is).
+    skips it); the loss is computed from the stacked errors (T, n) of the loss's filter.
 
     ``window = K > 0`` truncates the gradient (not the value): at steps ``K, 2K, …`` the state
     enters the next step through ``stop_gradient``, so the derivative counts how the Params act
@@ -343,53 +344,31 @@ def run_loss(scenario, cfg, loss: Loss, smoothing, block: int, params, key, wind
     import jax
     import jax.numpy as jnp
 
+    from mcjax import engine
+
     sur = scenario.surrogate
     f = cfg.filters.index(loss.filter)
     weights = sur.weights(cfg, params)
-    state = scenario.init(cfg, params, jax.random.fold_in(key, 0x7FFFFFFF))
+    state = scenario.init(cfg, params, engine.init_key(key))
     T = cfg.n_steps
-    n_blocks = -(-T // block)
     c, tm = loss.error_scale, loss.max_temperature
     dtype = weights.dtype
     neg = jnp.asarray(-1e30, dtype)
 
-    def body(carry, t):
-        state, (sq, count, lse) = carry
-
+    def advance(state, key_t, t):
         if window > 0:  # a new window: the state's derivative is dropped (the value is kept)
             cut = (t % window == 0) & (t > 0)
             state = jax.tree.map(lambda a: jnp.where(cut, jax.lax.stop_gradient(a), a), state)
+        state, errors = sur.step(cfg, params, state, key_t, smoothing)
+        return state, errors[f]
 
-        def advance(state):
-            return sur.step(cfg, params, state, jax.random.fold_in(key, t), smoothing)
-
-        if T % block == 0:
-            state, errors = advance(state)
-        else:
-            state, errors = jax.lax.cond(t < T, advance,
-                                         lambda s: (s, jnp.zeros((len(cfg.filters), weights.shape[0]), dtype)), state)
-        e = errors[f]
-        ok = jnp.isfinite(e)
-        e = jnp.where(ok, e, NONFINITE_ERROR * c)
-        mask = (t >= loss.warmup_steps) & (t < T) & (weights > 0)
-        clipped = c * jnp.tanh(e / c)
-        sq = sq + jnp.sum(jnp.where(mask, clipped**2, 0.0))
-        count = count + jnp.sum(mask.astype(dtype))
-        lse = jnp.logaddexp(lse, jax.nn.logsumexp(jnp.where(mask, e / tm, neg)))
-        return (state, (sq, count, lse)), None
-
-    def run_block(carry, ts):
-        return jax.lax.scan(body, carry, ts)[0]
-
-    if remat:  # reverse mode: keep one state per block, recompute the block's steps backwards
-        run_block = jax.checkpoint(run_block)
-
-    def outer(carry, ts):
-        return run_block(carry, ts), None
-
-    zero = jnp.zeros((), dtype)
-    ts = jnp.arange(n_blocks * block).reshape(n_blocks, block)
-    (_, (sq, count, lse)), _ = jax.lax.scan(outer, (state, (zero, zero, neg)), ts)
+    _, e = engine.time_loop(advance, state, key, T, block=block, remat=remat)  # (T, n)
+    e = jnp.where(jnp.isfinite(e), e, NONFINITE_ERROR * c)
+    mask = (jnp.arange(T)[:, None] >= loss.warmup_steps) & (weights > 0)
+    clipped = c * jnp.tanh(e / c)
+    sq = jnp.sum(jnp.where(mask, clipped**2, 0.0))
+    count = jnp.sum(mask.astype(dtype))
+    lse = jax.nn.logsumexp(jnp.where(mask, e / tm, neg))
     rmse = jnp.sqrt(sq / jnp.maximum(count, 1.0))
     soft_div = jax.nn.sigmoid((tm * lse - loss.divergence_threshold) / loss.divergence_temperature)
     return rmse / c + loss.divergence_weight * soft_div, (rmse, soft_div)
@@ -511,7 +490,7 @@ class Evaluator:
         z = np.asarray(z, np.float64)
         base = self.spec.sweep.base_params
         if self.programs is None:
-            self.programs = engine._programs(self.fn, (z, self.keys[0], base), self.devs)
+            self.programs = engine.programs(self.fn, (z, self.keys[0], base), self.devs)
         outs = [prog(jax.device_put(z, d), jax.device_put(k, d), jax.device_put(base, d))
                 for prog, d, k in zip(self.programs, self.devs, self.keys)]
         parts = [[np.asarray(x)[:b - a] for x in o] for o, (a, b) in zip(outs, self.slices)]
