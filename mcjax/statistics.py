@@ -6,8 +6,7 @@ binomial proportion with its Wilson score interval.
 * :func:`mean_ci` -- ``(mean, low, high)``: mean of the finite values and the interval
   ``mean ± t·sd/√n`` (``sd`` with ``ddof=1``); NaN interval for fewer than two values.
 * :func:`wilson_interval` -- ``(low, high)``: Wilson score interval of ``k/n`` without
-  continuity correction (the closed form with ``scipy.stats.norm.ppf``; the same numbers as
-  ``scipy.stats.binomtest(k, n).proportion_ci(method="wilson")``).
+  continuity correction (``scipy.stats.binomtest(k, n).proportion_ci(method="wilson")``).
 
 Both return :class:`typing.NamedTuple` records, which compare equal to plain tuples.
 Pure functions of numbers; no pandas, no JAX.
@@ -92,12 +91,7 @@ def wilson_interval(k: int, n: int, confidence: float = CONFIDENCE) -> Interval:
         raise ValueError(f"wilson_interval needs 0 <= k <= n, got k={k}, n={n}")
     if n == 0:
         return Interval(math.nan, math.nan)
-    z = float(stats.norm.ppf(0.5 + confidence / 2))
-    p = k / n
-    z2n = z * z / n
-    denom = 1 + z2n
-    center = (p + z2n / 2) / denom
-    half = z / denom * math.sqrt(p * (1 - p) / n + z2n / (4 * n))
-    low = 0.0 if k == 0 else max(0.0, center - half)
-    high = 1.0 if k == n else min(1.0, center + half)
+    ci = stats.binomtest(k, n).proportion_ci(confidence_level=confidence, method="wilson")
+    low = 0.0 if k == 0 else max(0.0, float(ci.low))  # exact ends (scipy's can be off by round-off)
+    high = 1.0 if k == n else min(1.0, float(ci.high))
     return Interval(low, high)
