@@ -17,16 +17,21 @@ Rules:
   *sibling* of the dataset folders: DuckDB and Polars globs (``runs/**/*.parquet``) also
   read hidden folders, so a temporary file inside ``runs/`` could be picked up half written.
 * A part is written to ``OUT/_staging/`` first, flushed to disk, then moved into place with
-  :func:`os.replace` (atomic on the same file system).  A reader therefore sees either the
-  old part, the new part, or no part, never a torn file.  An interrupted writer leaves at
-  most a file in ``OUT/_staging/`` (removed by :func:`clean_staging`).
+  :func:`os.replace` (atomic on the same file system; :func:`mcjax.files.atomic_write`).
+  A reader therefore sees either the old part, the new part, or no part, never a torn file.
+  An interrupted writer leaves at most a file in ``OUT/_staging/`` (removed by
+  :func:`clean_staging`).
 * A dataset may be hive-partitioned: a part written with ``partition={"point_id": 3}``
   lands in ``<table>/point_id=3/`` and its ``point_id`` column lives in the folder name,
   not the file (``pd.read_parquet("OUT/runs")`` and
   ``pyarrow.dataset.dataset("OUT/runs", partitioning="hive")`` both restore it; pandas
   reads it as a categorical). The other key columns (``seed_index``, ``filter``, swept
-  parameters) are ordinary columns. :func:`read_table` returns the partition keys as
-  ordinary integer columns. Unpartitioned parts (``<table>/<part>.parquet``) are read too.
+  parameters) are ordinary columns. :func:`read_table` reads the folder names with
+  :mod:`pyarrow.dataset`'s hive partitioning and returns the keys as ordinary integer
+  columns. Parts are written one file at a time (:func:`write_part`), not with
+  ``pyarrow.dataset.write_dataset``, which writes in place (no staging and rename) and
+  names files by its own template. Unpartitioned parts (``<table>/<part>.parquet``) are
+  read too.
 * Run-level metadata (config, environment, ...) is stored in the Parquet schema metadata
   as JSON strings under keys ``mcjax.<key>``; pandas' own ``pandas`` key is kept so dtypes
   round-trip.
@@ -42,7 +47,6 @@ import os
 import platform
 import re
 import subprocess
-import uuid
 from datetime import datetime, timezone
 from importlib import metadata as importlib_metadata
 from pathlib import Path
@@ -50,7 +54,11 @@ from typing import Any, Mapping
 
 import pandas as pd
 import pyarrow as pa
+import pyarrow.dataset as ds
 import pyarrow.parquet as pq
+from pyarrow import fs as pafs
+
+from mcjax.files import atomic_write
 
 __all__ = [
     "STAGING_DIR",
@@ -147,22 +155,6 @@ def _decode_metadata(raw: Mapping[bytes, bytes] | None) -> dict[str, Any]:
     return out
 
 
-def _fsync_dir(path: Path) -> None:
-    """Best-effort fsync of a directory (makes a rename durable on POSIX)."""
-    if os.name != "posix":
-        return
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
 class DamagedPartError(ValueError):
     """A part file cannot be read (truncated, empty, not Parquet); the message names it."""
 
@@ -204,7 +196,8 @@ def write_part(
     that *named* index levels are first turned into ordinary columns); add ``metadata`` to
     the schema metadata (each value JSON-encoded under ``mcjax.<key>``, pandas' own
     ``pandas`` key kept); write it zstd-compressed to a uniquely named file in
-    ``OUT/_staging/``; fsync; then :func:`os.replace` it onto the final path.
+    ``OUT/_staging/``; fsync; then :func:`os.replace` it onto the final path
+    (:func:`mcjax.files.atomic_write`).
 
     * Readers never see a partial file; if the process dies mid-write only a staging file
       remains (see :func:`clean_staging`).  If the write fails with an exception the
@@ -248,27 +241,14 @@ def write_part(
         raise TypeError(f"df cannot be converted to a pyarrow Table: {exc}") from exc
     table = table.replace_schema_metadata({**(table.schema.metadata or {}), **extra})
 
-    staging = out / STAGING_DIR
     final_dir = out / table_name / subdir
-    staging.mkdir(parents=True, exist_ok=True)
     final_dir.mkdir(parents=True, exist_ok=True)
-    final_path = final_dir / f"{part_name}{_PARQUET_SUFFIX}"
-    tmp_path = staging / f"{table_name}.{subdir.replace('/', '.')}{part_name}.{os.getpid()}.{uuid.uuid4().hex}.tmp"
 
-    try:
-        with open(tmp_path, "wb") as fh:
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as fh:
             pq.write_table(table, fh, compression=COMPRESSION)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp_path, final_path)
-    except BaseException:
-        try:
-            tmp_path.unlink()
-        except OSError:
-            pass
-        raise
-    _fsync_dir(final_dir)
-    return final_path
+
+    return atomic_write(final_dir / f"{part_name}{_PARQUET_SUFFIX}", write, staging=out / STAGING_DIR)
 
 
 def _scan_parts(folder: Path, prefix: str = "") -> list[str]:
@@ -298,12 +278,46 @@ def existing_parts(out_dir: str | os.PathLike, table_name: str) -> list[str]:
     return sorted(_scan_parts(folder))
 
 
+def _dataset(out: Path, table_name: str, files: list[Path]) -> ds.Dataset:
+    """The parts ``files`` of ``OUT/<table_name>/`` as one :mod:`pyarrow.dataset`: hive
+    partition keys (``point_id=3/``) read from the folder names as columns, the parts'
+    schemas unified permissively (a column missing from a part is null there)."""
+    options = ds.FileSystemFactoryOptions(partition_base_dir=os.path.abspath(out / table_name),
+                                          partitioning=ds.partitioning(flavor="hive"))
+    factory = ds.FileSystemDatasetFactory(pafs.LocalFileSystem(), [os.path.abspath(f) for f in files],
+                                          ds.ParquetFileFormat(), options)
+    return factory.finish(factory.inspect(promote_options="permissive"))
+
+
+def _arrow_table(out: Path, table_name: str, files: list[Path]) -> pa.Table:
+    """The rows of :func:`_dataset`, partition keys first (integers as int64); a part that
+    cannot be read is a :class:`DamagedPartError` naming it."""
+    try:
+        dataset = _dataset(out, table_name, files)
+        table = dataset.to_table()
+    except _READ_ERRORS as exc:
+        for f in files:  # which part is damaged?
+            try:
+                pq.read_table(f)
+            except _READ_ERRORS as part_exc:
+                raise _damaged(out, f, part_exc) from None
+        raise
+    found = {k for f in dataset.get_fragments() for k in ds.get_partition_keys(f.partition_expression)}
+    keys = [name for name in dataset.schema.names if name in found]  # in the folders' order
+    for key in keys:
+        i = table.schema.get_field_index(key)
+        if pa.types.is_integer(table.schema.field(i).type):  # discovery infers int32
+            table = table.set_column(i, key, table.column(i).cast(pa.int64()))
+    return table.select([*keys, *(n for n in table.column_names if n not in keys)])
+
+
 def read_table(out_dir: str | os.PathLike, table_name: str = "runs") -> pd.DataFrame:
     """Read every part of ``OUT/<table_name>/`` into one pandas DataFrame.
 
-    Uses :mod:`pyarrow.dataset` over the files listed by :func:`existing_parts` (so the
-    staging folder and stray files are never read).  Part schemas are unified permissively
-    (a column missing from some parts is read as null there).  Rows are sorted (stable) by
+    Uses :mod:`pyarrow.dataset` with hive partitioning over the files listed by
+    :func:`existing_parts` (so the staging folder and stray files are never read).  Part
+    schemas are unified permissively (a column missing from some parts is read as null
+    there); partition keys come first, integer ones as int64.  Rows are sorted (stable) by
     whichever of ``point_id``, ``seed_index``, ``filter`` are present, with a fresh
     ``RangeIndex``.  Returns an empty DataFrame if nothing has been written.
     """
@@ -311,22 +325,7 @@ def read_table(out_dir: str | os.PathLike, table_name: str = "runs") -> pd.DataF
     files = _part_files(out, table_name)
     if not files:
         return pd.DataFrame()
-    frames = []
-    for f in files:
-        try:
-            table = pq.read_table(f)
-        except _READ_ERRORS as exc:
-            raise _damaged(out, f, exc) from None
-        keys = [p.split("=", 1) for p in f.relative_to(out / table_name).parts[:-1]]
-        for i, (key, value) in enumerate(keys):
-            column = pa.array([int(value) if value.lstrip("-").isdigit() else value] * table.num_rows)
-            table = table.add_column(i, key, column)
-        frames.append(table)
-    try:
-        merged = pa.concat_tables(frames, promote_options="permissive")
-    except TypeError:  # pyarrow < 14 has no promote_options
-        merged = pa.concat_tables(frames, promote=True)
-    frame = merged.to_pandas()
+    frame = _arrow_table(out, table_name, files).to_pandas()
     keys = [c for c in SORT_COLUMNS if c in frame.columns]
     if keys:
         frame = frame.sort_values(keys, kind="stable")
