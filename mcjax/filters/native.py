@@ -30,6 +30,7 @@ import jax
 import numpy as np
 
 from mcjax import envvars, runtime
+from mcjax.files import atomic_write
 
 SOURCE = Path(__file__).with_name("native_kernels.cc")
 TARGETS = {"local": ("mcjax_local_ekf", "McjaxLocalEkf"), "modified_icf": ("mcjax_modified_icf", "McjaxModifiedIcf")}
@@ -62,18 +63,18 @@ def _library_path(cxx: str) -> Path:
 
 def _build(cxx: str, target: Path) -> None:
     """Compile, with glibc's vector math library (libmvec: a vectorised atan2) where it links,
-    else without it."""
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.with_suffix(f".{os.getpid()}.tmp")
-    cmd = [cxx, "-O3", "-march=native", "-fno-math-errno", "-std=c++17", "-shared", "-fPIC", "-pthread",
-           f"-I{jax.ffi.include_dir()}", str(SOURCE), "-o", str(tmp)]
-    for extra in (["-DMCJAX_LIBMVEC", "-lmvec"], []):
-        done = subprocess.run(cmd + extra, capture_output=True, text=True, timeout=300)
-        if done.returncode == 0:
-            break
-    if done.returncode != 0:
+    else without it; atomically (:func:`mcjax.files.atomic_write`): a concurrent process sees
+    the whole library or none."""
+    def compile_to(tmp: Path) -> None:
+        cmd = [cxx, "-O3", "-march=native", "-fno-math-errno", "-std=c++17", "-shared", "-fPIC", "-pthread",
+               f"-I{jax.ffi.include_dir()}", str(SOURCE), "-o", str(tmp)]
+        for extra in (["-DMCJAX_LIBMVEC", "-lmvec"], []):
+            done = subprocess.run(cmd + extra, capture_output=True, text=True, timeout=300)
+            if done.returncode == 0:
+                return
         raise RuntimeError(f"{' '.join(cmd)} failed: {done.stderr.strip()[-500:]}")
-    os.replace(tmp, target)  # atomic: a concurrent process sees the whole library or none
+
+    atomic_write(target, compile_to, durable=False)
 
 
 @lru_cache(maxsize=1)
