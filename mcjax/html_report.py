@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import base64
 import html
-import json
 import math
 import os
 from datetime import datetime, timezone
@@ -26,8 +25,10 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import pandas as pd
+import tomli_w
 
 from mcjax import tables
+from mcjax.files import atomic_write
 from mcjax.statistics import CONFIDENCE
 
 __all__ = ["PAGE_NAME", "page", "write_page", "spec_toml", "glance"]
@@ -68,7 +69,7 @@ pre { background: #f4f4f4; padding: 0.8rem; overflow-x: auto; font-size: 0.85rem
 table { border-collapse: collapse; font-size: 0.82rem; margin: 0.6rem 0; }
 th, td { border: 1px solid #ddd; padding: 0.2rem 0.45rem; }
 th { background: #f0f0f0; text-align: left; }
-td.num { text-align: right; font-variant-numeric: tabular-nums; }
+table.numbers td { text-align: right; font-variant-numeric: tabular-nums; }
 figure { margin: 1.4rem 0; }
 figure img { max-width: 100%; height: auto; border: 1px solid #eee; }
 figcaption { color: #333; font-size: 0.9rem; max-width: 900px; }
@@ -83,54 +84,22 @@ def _e(value: Any) -> str:
 # ------------------------------------------------------------------------------ spec as TOML
 
 
-def _toml_value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "nan"
-        if math.isinf(value):
-            return "inf" if value > 0 else "-inf"
-        return repr(value)
-    if isinstance(value, str):
-        return json.dumps(value, ensure_ascii=False)  # a TOML basic string
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    if isinstance(value, Mapping):
-        return "{" + ", ".join(f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items()) + "}"
-    return json.dumps(str(value))
-
-
-def _toml_key(key: Any) -> str:
-    key = str(key)
-    if key and all(c.isalnum() or c in "_-" for c in key):
-        return key
-    return json.dumps(key, ensure_ascii=False)
-
-
 def spec_toml(spec: Mapping[str, Any]) -> str:
-    """A sweep spec (as read from TOML, with its ``--set`` values applied) as TOML text:
-    the top-level values, then one ``[table]`` per table (nested tables inline)."""
-    lines = [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in spec.items() if not isinstance(v, Mapping)]
-    for k, v in spec.items():
-        if isinstance(v, Mapping):
-            lines += ["", f"[{_toml_key(k)}]"]
-            lines += [f"{_toml_key(kk)} = {_toml_value(vv)}" for kk, vv in v.items()]
-    return "\n".join(lines).strip() + "\n"
+    """A sweep spec (as read from TOML, with its ``--set`` values applied) as TOML text
+    (:func:`tomli_w.dumps`: the top-level values, then one ``[table]`` per table)."""
+    return tomli_w.dumps(dict(spec))
 
 
 # ------------------------------------------------------------------------------ tables
 
 
-def _html_table(headers: Sequence[str], rows: Sequence[Sequence[str]], numeric: Sequence[bool],
-                cls: str = "") -> str:
-    head = "".join(f"<th>{_e(h)}</th>" for h in headers)
-    body = "\n".join("<tr>" + "".join(f'<td class="num">{_e(c)}</td>' if num else f"<td>{_e(c)}</td>"
-                                      for c, num in zip(row, numeric)) + "</tr>" for row in rows)
-    return (f'<div class="scroll"><table{f" class={cls!r}" if cls else ""}><thead><tr>{head}</tr></thead>'
-            f"<tbody>\n{body}\n</tbody></table></div>")
+def _html_table(headers: Sequence[str], rows: Sequence[Sequence[str]], numbers: bool = False) -> str:
+    """A table of texts (escaped) by :meth:`pandas.DataFrame.to_html`; ``numbers``: its cells
+    right-aligned in tabular figures."""
+    frame = pd.DataFrame([list(r) for r in rows], columns=list(headers), dtype=object)
+    table = frame.to_html(index=False, escape=True, border=0, justify="left",
+                          classes="numbers" if numbers else None)
+    return f'<div class="scroll">{table}</div>'
 
 
 def _scaled(value: Any, factor: float) -> Any:
@@ -242,7 +211,7 @@ def page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, An
         parts.append("<h3>Config (as run)</h3>")
         rows = [[str(k), tables.format_number(v, tables.KEY_DIGITS) if not isinstance(v, str) else v]
                 for k, v in config.items()]
-        parts.append(_html_table(["field", "value"], rows, [False, False]))
+        parts.append(_html_table(["field", "value"], rows))
     parts.append("</section>")
 
     # provenance
@@ -254,7 +223,7 @@ def page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, An
             value = metadata[key]
             rows.append([name, str(value).lower() if isinstance(value, bool) else str(value)])
     rows.append(["report written (UTC)", now.astimezone(timezone.utc).isoformat(timespec="seconds")])
-    parts.append(_html_table(["what", "value"], rows, [False, False]))
+    parts.append(_html_table(["what", "value"], rows))
     parts.append("</section>")
 
     # summary
@@ -265,11 +234,11 @@ def page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, An
                  f"interval" + (f", the same over the non-divergent runs and the divergence rate with its {pct} "
                                 f"Wilson interval" if sch.divergence else "") + ".</p>")
     g = glance(summary, sch, axes)
-    parts.append(_html_table(*tables.format_cells(g)))
+    parts.append(_html_table(*tables.format_cells(g)[:2], numbers=True))
     parts.append("<h3>Every statistic</h3><p>As <code>mcjax report</code> prints it (the dataset's units).</p>")
     parts.append('<ul class="legend">' + "".join(f"<li>{_e(line)}</li>"
                                                 for line in tables.legend_lines(sch, axes)) + "</ul>")
-    parts.append(_html_table(*tables.format_cells(summary)))
+    parts.append(_html_table(*tables.format_cells(summary)[:2], numbers=True))
     parts.append("</section>")
 
     # plots
@@ -292,12 +261,6 @@ def page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, An
 
 def write_page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, Any], plots: Sequence[Any],
                skipped: Sequence[Any] = (), warning: str | None = None) -> Path:
-    """Write :func:`page` to ``OUT/report/index.html`` (atomically: a temporary name, then a
-    rename) and return its path."""
-    report_dir = Path(out_dir) / "report"
-    report_dir.mkdir(parents=True, exist_ok=True)
-    path = report_dir / PAGE_NAME
-    tmp = report_dir / f".{PAGE_NAME}.tmp"
-    tmp.write_text(page(out_dir, df, metadata, plots, skipped, warning), encoding="utf-8")
-    os.replace(tmp, path)
-    return path
+    """Write :func:`page` to ``OUT/report/index.html`` (atomically:
+    :func:`mcjax.files.atomic_write`) and return its path."""
+    return atomic_write(Path(out_dir) / "report" / PAGE_NAME, page(out_dir, df, metadata, plots, skipped, warning))
