@@ -18,8 +18,9 @@ from test_tables import FILTERS, make_metadata, synthetic_runs, write_dataset
 from mcjax import report as rp
 from mcjax import results, tables
 
-REPORT_MODULES = ("report.py", "statistics.py", "tables.py", "plots.py")
 PACKAGE = Path(rp.__file__).parent
+REPORT_MODULES = ("report.py", "html_report.py", "statistics.py", "tables.py",
+                  *sorted(str(p.relative_to(PACKAGE)) for p in (PACKAGE / "plots").glob("*.py")))
 
 
 def _pyplot_state():
@@ -161,7 +162,7 @@ def test_dataset_from_older_mcjax(tmp_path):
 
 
 def test_no_jax_import():
-    code = ("import sys, mcjax.report as r, mcjax.plots, mcjax.tables, mcjax.statistics; "
+    code = ("import sys, mcjax.report as r, mcjax.plots, mcjax.html_report, mcjax.tables, mcjax.statistics; "
             "assert 'jax' not in sys.modules, 'imported jax'")
     subprocess.run([sys.executable, "-c", code], check=True)
 
