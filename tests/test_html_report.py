@@ -20,7 +20,7 @@ from test_tables import make_metadata, synthetic_runs, write_dataset
 
 from mcjax import results
 from mcjax.cli import main
-from mcjax.html_report import spec_toml
+from mcjax.html_report import page, spec_toml
 
 PNG = b"\x89PNG\r\n\x1a\n"
 GRID = {"comm_radius": [50e3, 100e3], "eps": [0.01, 1.0]}
@@ -176,6 +176,18 @@ def test_incomplete_dataset_warns_on_the_page(tmp_path):
     assert CliRunner().invoke(main, ["report", str(tmp_path / "inc")]).exit_code == 0
     page = parse(tmp_path / "inc" / "report" / "index.html")
     assert any("incomplete dataset: 12 of 20 planned runs present" in t for t in page.text.get("p", []))
+
+
+def test_table_cells_are_escaped(tmp_path):
+    grid = {"eps": [0.1, 1.0]}
+    meta = make_metadata(grid)
+    meta["config"] = {"label": "<b>bold</b> & co", "n_steps": 50}
+    text = page(tmp_path, synthetic_runs(grid, seeds=2), meta, [])
+    assert "&lt;b&gt;bold&lt;/b&gt; &amp; co" in text and "<b>bold" not in text
+    parsed = Page()
+    parsed.feed(text)
+    config = next(t for t in parsed.tables if t and t[0] == ["field", "value"])
+    assert config[1:] == [["label", "<b>bold</b> & co"], ["n_steps", "50"]]
 
 
 def test_spec_toml_round_trips():
