@@ -171,6 +171,7 @@ def test_interrupted_parquet_write_leaves_dataset_untouched(tmp_path, monkeypatc
     real_write = pq.write_table
 
     def torn_write(table, where, **kwargs):
+        assert os.path.dirname(where.name) == str(tmp_path / results.STAGING_DIR)  # never inside runs/
         where.write(b"PAR1 half a file")
         raise KeyboardInterrupt
 
@@ -189,10 +190,11 @@ def test_killed_writer_leftover_is_ignored_and_cleaned(tmp_path):
     staging = tmp_path / results.STAGING_DIR
     staging.mkdir(exist_ok=True)
     (staging / "runs.part-000003.123.deadbeef.tmp").write_bytes(b"PAR1 torn")
+    (staging / ".part-000004.parquet.123.0123456789ab.tmp").write_bytes(b"PAR1 torn")  # files.atomic_write's name
 
     pd.testing.assert_frame_equal(read_table(tmp_path), _expected([0, 1, 2]))
     pd.testing.assert_frame_equal(_sorted(pd.read_parquet(tmp_path / "runs")), _expected([0, 1, 2]))
-    assert clean_staging(tmp_path) == 1
+    assert clean_staging(tmp_path) == 2
     assert not staging.exists() or list(staging.iterdir()) == []
     pd.testing.assert_frame_equal(read_table(tmp_path), _expected([0, 1, 2]))
 
