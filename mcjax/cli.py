@@ -10,11 +10,8 @@ tqdm draws the progress bar.
 from __future__ import annotations
 
 import contextlib
-import os
 import shlex
-import signal
 import sys
-import threading
 import time
 import tomllib
 from pathlib import Path
@@ -22,35 +19,18 @@ from typing import NamedTuple
 
 import click
 
-from mcjax import envvars
-
-#: What the first Ctrl-C of a sweep or run prints, at once.
-ACK = "stopping after the chunk in flight; press Ctrl-C again to stop now"
-#: The same for a sweep on a Dask cluster, which cancels its chunks in flight.
-ACK_DASK = "stopping: cancelling the chunks in flight (the chunks written stay); press Ctrl-C again to stop now"
-
-
-def _set_value(raw: str):
-    """A ``--set`` value: TOML (``80e3``, ``true``, ``"name"``, ``[1, 2]``), else a bracketed
-    list of bare words (``[name1,name2]``), else the text itself (``name``)."""
-    try:
-        return tomllib.loads(f"v = {raw}")["v"]
-    except tomllib.TOMLDecodeError:
-        pass
-    if raw.startswith("[") and raw.endswith("]"):
-        items = [item.strip() for item in raw[1:-1].split(",")]
-        return [_set_value(item) for item in items if item]
-    return raw
-
+from mcjax import configure, envvars
+from mcjax.study.checks import set_value
+from mcjax.interrupt import ACK, ACK_DASK, ctrl_c, exit_now, finish, own_process
 
 def _parse_set(values: tuple[str, ...]) -> dict:
-    """``--set key=value`` pairs (see :func:`_set_value`)."""
+    """``--set key=value`` pairs (see :func:`mcjax.study.checks.set_value`)."""
     out = {}
     for item in values:
         key, eq, raw = item.partition("=")
         if not eq or not key.strip():
             _fail(f"--set {item!r}: must be KEY=VALUE, e.g. --set params.sensing_radius=100e3")
-        out[key.strip()] = _set_value(raw.strip())
+        out[key.strip()] = set_value(raw.strip())
     return out
 
 
@@ -65,79 +45,6 @@ def _check_environment() -> None:
         envvars.check()
     except ValueError as exc:
         _fail(str(exc))
-
-
-def _exit_now(code: int) -> None:
-    """Leave at once, without the interpreter's teardown: JAX's compute and compile threads may
-    still run, and tearing the runtime down under them can crash the process."""
-    for stream in (sys.stdout, sys.stderr):
-        with contextlib.suppress(Exception):
-            stream.flush()
-    os._exit(code)
-
-
-def _own_process() -> bool:
-    """Whether this process is the mcjax command itself (the ``mcjax`` script or ``python -m
-    mcjax.cli``), not a program that calls it (click's test runner): only then does a command
-    keep its Ctrl-C handling to the end and leave without the interpreter's teardown."""
-    return Path(sys.argv[0]).name in ("mcjax", "cli.py")
-
-
-def _done(stop: threading.Event) -> None:
-    """The end of a sweep or run that completed: in the command's own process, leave now (130
-    if a Ctrl-C came meanwhile), so no Ctrl-C can land in the teardown."""
-    if _own_process():
-        _exit_now(130 if stop.is_set() else 0)
-
-
-@contextlib.contextmanager
-def _ctrl_c(last_words, ack: str = ACK):
-    """Ctrl-C during a sweep or run. The first one is acknowledged at once (``ack``) and sets
-    the yielded Event: the sweep stops after the chunk in flight. The second stops now:
-    ``last_words()`` is printed and the process exits with 130. A watcher thread hears the
-    signal through Python's wakeup fd, so the acknowledgement comes even while XLA holds the
-    main thread. Outside the main thread (no signals there) the Event is never set."""
-    stop = threading.Event()
-    if threading.current_thread() is not threading.main_thread():
-        yield stop
-        return
-    read_fd, write_fd = os.pipe()
-    os.set_blocking(write_fd, False)
-
-    def say(text: str) -> None:
-        with contextlib.suppress(OSError):
-            os.write(2, (text + "\n").encode())
-
-    def watch() -> None:
-        count = 0
-        while True:
-            try:
-                data = os.read(read_fd, 64)
-            except OSError:
-                return
-            if not data:
-                return
-            count += data.count(bytes([signal.SIGINT]))
-            if count >= 2:
-                say(f"\nstopped now; {last_words()}")
-                os._exit(130)
-            if count == 1 and not stop.is_set():
-                stop.set()
-                say(f"\n{ack}")
-
-    old_handler = signal.signal(signal.SIGINT, lambda signum, frame: None)
-    old_fd = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
-    watcher = threading.Thread(target=watch, name="mcjax-ctrl-c", daemon=True)
-    watcher.start()
-    try:
-        yield stop
-    finally:
-        if not _own_process():  # in its own process the handler stays to the end (see _done)
-            signal.set_wakeup_fd(old_fd)
-            signal.signal(signal.SIGINT, old_handler)
-            os.close(write_fd)
-            watcher.join(timeout=1.0)
-            os.close(read_fd)
 
 
 def _read_kind(path: Path) -> dict | None:
@@ -218,10 +125,10 @@ def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, execut
         return (f"interrupted: {done} written to {state['out']}; finish with: mcjax sweep "
                 f"{shlex.quote(str(spec))} --out {shlex.quote(str(state['out']))} --resume{state['words']}")
 
-    with _ctrl_c(hint, ACK_DASK if executor == "dask" else ACK) as stop:
+    with ctrl_c(hint, ACK_DASK if executor == "dask" else ACK) as stop:
         remote = _executor_options(executor, scheduler, workers)
         state["words"] = remote.words
-        from mcjax.sweep import default_out_dir
+        from mcjax.study import default_out_dir
 
         state["out"] = out_dir = out_dir or default_out_dir(spec)
         _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state, stop, hint, remote)
@@ -254,10 +161,10 @@ def _executor_options(executor: str, scheduler: str | None, workers: int | None)
         _fail(f"--workers must be at least 1; got {workers}")
     if scheduler is not None and not scheduler.strip():
         _fail("--scheduler must be an address such as tcp://10.0.0.5:8786")
-    from mcjax.cluster import DaskMissing, _distributed
+    from mcjax.study.dask import DaskMissing, load_distributed
 
     try:
-        _distributed()
+        load_distributed()
     except DaskMissing as exc:
         _fail(str(exc))
     words = f" --executor dask --scheduler {shlex.quote(scheduler)}" if scheduler else f" --executor dask --workers {workers}"
@@ -271,7 +178,7 @@ def _executor(remote: _Remote):
     if not remote.dask:
         yield None
         return
-    from mcjax.cluster import connect
+    from mcjax.study.dask import connect
 
     with contextlib.ExitStack() as stack:
         try:
@@ -285,8 +192,7 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
     overrides = _parse_set(sets)
     from mcjax import results
     from mcjax.engine import chunk_plan
-    from mcjax.sweep import (OutputError, SpecError, load_spec, points, prepare_output, read_identity,
-                             run_sweep)
+    from mcjax.study import OutputError, SpecError, load_spec, prepare_output, read_identity, run_sweep
 
     if resume and not dry_run:  # what the interrupted sweep was given, unless given again
         try:
@@ -297,7 +203,7 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
         chunk_size = chunk_size if chunk_size is not None else saved["chunk_size"]
         overrides = overrides if sets else saved.get("set", {})
     try:
-        s = load_spec(spec, seeds=seeds, chunk_size=chunk_size, overrides=overrides)
+        s = load_spec(spec, seeds=seeds, chunk_size=chunk_size, overrides=overrides, out_dir=out_dir)
     except SpecError as exc:
         _fail(str(exc))
     plan = chunk_plan(s.n_runs, s.chunk_size)
@@ -308,15 +214,16 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
         from mcjax.tables import format_table
 
         click.echo(headline)
-        click.echo(format_table(points(s)), nl=False)  # numbers as in the summary (mcjax.tables)
+        click.echo(format_table(s.points), nl=False)  # numbers as in the summary (mcjax.tables)
         for i, (a, b) in enumerate(plan):
             click.echo(f"chunk {i}: runs {a}..{b - 1}")
         if stop.is_set():
-            _exit_now(130)
+            exit_now(130)
         return
     if stop.is_set():
         click.echo(hint(), err=True)
-        _exit_now(130)
+        exit_now(130)
+    configure()  # JAX's process settings, before anything computes (mcjax.configure)
     failure = None
     with contextlib.ExitStack() as session:
         # the cluster first: a scheduler that cannot be reached leaves the output folder untouched
@@ -334,7 +241,7 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
             click.echo(f"resuming: {len(plan) - len(todo)} of {len(plan)} chunk(s) already written")
         from tqdm import tqdm
 
-        from mcjax.sweep import ChunkError
+        from mcjax.study import ChunkError
 
         remaining = s.n_runs if todo is None else sum(plan[i][1] - plan[i][0] for i in todo)
         t0 = time.perf_counter()
@@ -345,24 +252,24 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
 
         with tqdm(total=len(plan) if todo is None else len(todo), unit="chunk", desc="sweep", disable=None) as bar:
             try:
-                run_sweep(s, out_dir, chunks=todo, progress=progress, should_stop=stop.is_set, executor=executor)
+                run_sweep(s, chunks=todo, progress=progress, should_stop=stop.is_set, executor=executor)
             except ChunkError as exc:
                 failure = exc
     if failure is not None:
         click.echo(f"error: {failure}; {state['done']} of {state['plan']} chunk(s) written to {out_dir} (they stay)",
                    err=True)
-        if _own_process():
-            _exit_now(1)
+        if own_process():
+            exit_now(1)
         sys.exit(1)
     if stop.is_set():
         click.echo(hint(), err=True)
-        _exit_now(130)
+        exit_now(130)
     elapsed = time.perf_counter() - t0
     df = results.read_table(out_dir, "runs")
     click.echo(f"{len(df)} rows in {out_dir / 'runs'}; {remaining} runs in {elapsed:.1f} s "
                f"({remaining / max(elapsed, 1e-9):.1f} runs/s incl. compilation)")
     _print_summary(df, s)
-    _done(stop)
+    finish(stop)
 
 
 @main.command(short_help="Run one point of a config (configs/*.toml); print a summary.")
@@ -377,14 +284,14 @@ def run(config, seeds, sets):
     """Run one parameter point of CONFIG (configs/*.toml) and print a summary table
     (nothing is written to disk). The first Ctrl-C stops after the chunk in flight, a second
     one at once (exit code 130)."""
-    with _ctrl_c(lambda: "nothing was written") as stop:
+    with ctrl_c(lambda: "nothing was written") as stop:
         overrides = _parse_set(sets)
         data = _read_kind(config)
         if data is not None and "base" in data:
             _fail(f"{config} is a sweep spec (it names a base config), not a config file: run it with "
                   f"`mcjax sweep {shlex.quote(str(config))}`")
         from mcjax.engine import BATCH_SIZE, devices
-        from mcjax.sweep import SpecError, build_spec, run_sweep
+        from mcjax.study import SpecError, build_spec, run_sweep
 
         if not config.is_file():
             _fail(f"config file not found: {config}" if not config.exists() else f"{config} is a folder, not a file")
@@ -394,15 +301,16 @@ def run(config, seeds, sets):
                            chunk_size=BATCH_SIZE * len(devices()))
         except SpecError as exc:
             _fail(str(exc))
+        configure()
         click.echo(f"scenario {s.scenario.name}: {s.n_points} point(s) x {s.seeds} seed(s) = {s.n_runs} runs, "
                    f"filters {', '.join(s.config.filters)}")
         df = run_sweep(s, should_stop=stop.is_set)
         if stop.is_set():
             click.echo(f"interrupted: {len(df) // max(len(s.config.filters), 1)} of {s.n_runs} run(s) done, "
                        f"nothing written", err=True)
-            _exit_now(130)
+            exit_now(130)
         _print_summary(df, s)
-        _done(stop)
+        finish(stop)
 
 
 @main.command(short_help="A sweep dataset's tables, plots and OUT_DIR/report/index.html.")
@@ -468,8 +376,8 @@ def tune(spec, out_dir, resume, force):
         return (f"interrupted: progress saved in {state['out']}; finish with: mcjax tune "
                 f"{shlex.quote(str(spec))} --out {shlex.quote(str(state['out']))} --resume")
 
-    with _ctrl_c(hint) as stop:
-        from mcjax.sweep import default_out_dir
+    with ctrl_c(hint) as stop:
+        from mcjax.study import default_out_dir
 
         state["out"] = out_dir = out_dir or default_out_dir(spec)
         _tune(spec, out_dir, resume, force, state, stop, hint)
@@ -478,7 +386,7 @@ def tune(spec, out_dir, resume, force):
 def _tune(spec_path, out_dir, resume, force, state, stop, hint):
     from mcjax import results
     from mcjax import tune as tuning
-    from mcjax.sweep import OutputError, SpecError
+    from mcjax.study import OutputError, SpecError
 
     try:
         spec = tuning.load_tune_spec(spec_path)
@@ -490,11 +398,12 @@ def _tune(spec_path, out_dir, resume, force, state, stop, hint):
     except OutputError as exc:
         _fail(str(exc))
     state["started"] = True
+    configure()
     if stop.is_set():
         click.echo(hint(), err=True)
-        _exit_now(130)
+        exit_now(130)
     names = ", ".join(f"{b.name} in ({b.low:g}, {b.high:g}) {b.scale}" for b in spec.bounds)
-    click.echo(f"scenario {spec.sweep.scenario.name}: tuning {names} with {spec.optimizer} (learning rate "
+    click.echo(f"scenario {spec.study.scenario.name}: tuning {names} with {spec.optimizer} (learning rate "
                f"{spec.learning_rate:g}) for {spec.steps} step(s) on {spec.train_seeds} training seed(s); "
                f"loss on {spec.loss.filter}")
     saved = tuning.load_state(out_dir, spec)
@@ -512,7 +421,7 @@ def _tune(spec_path, out_dir, resume, force, state, stop, hint):
         trace = tuning.optimise(spec, out_dir, progress=progress, should_stop=stop.is_set)
     if stop.is_set() and not tuning.finished(spec, trace):
         click.echo(hint(), err=True)
-        _exit_now(130)
+        exit_now(130)
     tuning.plot_trace(spec, trace, out_dir / "trace.png")
     first, last = trace.iloc[0], trace.iloc[-1]
     for b in spec.bounds:
@@ -525,7 +434,7 @@ def _tune(spec_path, out_dir, resume, force, state, stop, hint):
     except (SpecError, OutputError) as exc:
         _fail(str(exc))
     from mcjax.engine import chunk_plan
-    from mcjax.sweep import run_sweep
+    from mcjax.study import run_sweep
 
     plan = chunk_plan(ev.n_runs, ev.chunk_size)
     remaining = ev.n_runs if todo is None else sum(plan[i][1] - plan[i][0] for i in todo)
@@ -535,10 +444,10 @@ def _tune(spec_path, out_dir, resume, force, state, stop, hint):
         run_sweep(ev, out_dir, chunks=todo, progress=bar.update, should_stop=stop.is_set)
     if stop.is_set():
         click.echo(hint(), err=True)
-        _exit_now(130)
+        exit_now(130)
     _print_summary(results.read_table(out_dir, "runs"), ev)
     click.echo(f"point 0 = initial, point 1 = tuned Params; report: mcjax report {shlex.quote(str(out_dir))}")
-    _done(stop)
+    finish(stop)
 
 
 @main.command(name="list", short_help="List the scenarios; with SCENARIO, its params, settings, outputs.")
@@ -550,8 +459,6 @@ def list_scenarios(scenario, config_file):
     """List the scenarios (built-in and installed plugins); with SCENARIO, every Params field
     (unit, default, allowed values, description), every Config field and every output; with
     --config FILE, that file's values beside the defaults ("<-" marks the fields it changes)."""
-    import numpy as np
-
     from mcjax import scenarios
 
     if scenario is None and config_file is None:
@@ -565,7 +472,7 @@ def list_scenarios(scenario, config_file):
         return
     file = None
     if config_file is not None:
-        from mcjax.sweep import SpecError, read_config_file
+        from mcjax.study import SpecError, read_config_file
 
         try:
             file = read_config_file(config_file)
@@ -578,61 +485,9 @@ def list_scenarios(scenario, config_file):
     if file is not None and file.scenario.name != sc.name:
         _fail(f"{config_file} is a config of scenario {file.scenario.name!r}, not {sc.name!r}: "
               f"`mcjax list {file.scenario.name} --config {shlex.quote(str(config_file))}`")
-    cfg = sc.Config()
-    defaults = sc.default_params(cfg)
-    mine = sc.default_params(file.config, **file.params) if file is not None else None
-    tag = config_file.name if file is not None else ""
+    from mcjax.listing import scenario_text
 
-    from mcjax.tables import format_number
-
-    def shown(value):  # numbers as in every table (mcjax.tables.format_number), arrays as lists
-        value = np.asarray(value)
-        if value.size > 48:
-            return f"array{value.shape}"
-        return format_number(value.tolist() if value.ndim else value.item(), 8).replace("(", "[").replace(")", "]")
-
-    def beside(default, value, given: bool) -> str:
-        if file is None:
-            return f"default {shown(default)}"
-        same = (np.shape(default) == np.shape(value) and bool(np.all(np.asarray(default) == np.asarray(value)))
-                if not isinstance(default, (str, tuple)) else default == value)
-        if same:
-            return f"default {shown(default)}" + (f" ({tag}: the same)" if given else "")
-        return f"default {shown(default)}  <- {tag}: {shown(value)}"
-
-    click.echo(f"{sc.name}: {sc.title}")
-    if file is not None:
-        seeds = f"; seeds {file.seeds} (the paper's run count)" if file.seeds is not None else ""
-        click.echo(f"values of {config_file} beside the defaults (\"<-\": the file changes it){seeds}")
-    click.echo("\nParams (sweepable, no recompilation):")
-    for name, p in sc.params_table.items():
-        unit = f" [{p.unit}]" if p.unit else ""
-        agent = ", scalar or per agent" if p.per_agent else ""
-        if p.shape is not None:
-            agent += ", shape " + "x".join("n_agents" if d == "n" else str(d) for d in p.shape)
-        value = getattr(mine, name) if mine is not None else None
-        text = beside(getattr(defaults, name), value, file is not None and name in file.params)
-        click.echo(f"  {name}{unit}: {p.description}\n      {text}; allowed {p.allowed()}{agent}")
-    click.echo("\nConfig (fixes shapes / the program; changing it recompiles):")
-    from mcjax.contract import ceiling
-
-    for name, st in sc.settings.items():
-        unit = f" [{st.unit}]" if st.unit else ""
-        top = ceiling(name, st)
-        most = f" (at most {top})" if top is not None else ""
-        if file is None:
-            text = f"default {st.default!r}"
-        else:
-            value = getattr(file.config, name)
-            text = (f"default {st.default!r}" if value == st.default
-                    else f"default {st.default!r}  <- {tag}: {value!r}")
-        click.echo(f"  {name}{unit}: {st.description}\n      {text}; allowed {st.allowed()}{most}")
-    click.echo("\nOutputs (one row per run and filter in OUT/runs):")
-    for name, o in sc.outputs(file.config if file is not None else cfg).items():
-        unit = f" [{o.unit}]" if o.unit else ""
-        role = f" (role: {o.role})" if o.role else ""
-        click.echo(f"  {name}{unit}{'' if o.per_filter else ' per run'}: {o.description}{role}")
-
+    click.echo(scenario_text(sc, file, config_file))
 
 if __name__ == "__main__":
     main()

@@ -23,7 +23,7 @@ def case_rows(name: str):
     """The tidy rows of one case."""
     import tempfile
 
-    from mcjax.sweep import build_spec, run_sweep
+    from mcjax.study import build_spec, run_sweep
 
     with tempfile.TemporaryDirectory() as tmp:
         base = docs_example(Path(tmp)) if name == "static_sensors" else ROOT / "configs" / f"{name}.toml"

@@ -9,7 +9,7 @@ How the work is shared:
 * The unit of work is a chunk of the sweep's chunk plan (its batch-aligned runs). One Dask
   task computes one chunk and returns its rows (pandas DataFrames); Dask carries them back to
   this process, which writes them as part files exactly as a local sweep does (temporary
-  file, then rename: :func:`mcjax.sweep.publish_chunk`). Workers therefore never need to see
+  file, then rename: :func:`mcjax.study.execute.publish_chunk`). Workers therefore never need to see
   the output folder: a cloud pool or another site's nodes work as well as a lab's machines
   with a shared disk, only this process touches ``--out``, and ``--resume`` works across
   executors (start on Dask, finish locally, or the reverse).
@@ -27,7 +27,7 @@ How the work is shared:
 * A worker that dies (killed, out of memory) has its chunk re-run by Dask on another worker
   (up to Dask's ``distributed.scheduler.allowed-failures`` times, 3 by default); nothing is
   written twice since only whole chunks are published. A chunk that raises stops the sweep
-  with :class:`mcjax.sweep.ChunkError` (one line: the chunk, its points, the error); the
+  with :class:`mcjax.study.execute.ChunkError` (one line: the chunk, its points, the error); the
   chunks already written stay.
 
 Dask is an optional dependency: ``pip install -e ".[dask]"``.
@@ -48,7 +48,9 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any, Callable, Iterator, NamedTuple
 
-from mcjax.sweep import ChunkError, ChunkRows, SweepSpec, _one_line, chunk_rows, describe_chunk
+from mcjax.study.checks import one_line
+from mcjax.study.execute import ChunkError, ChunkRows, chunk_rows
+from mcjax.study.plan import Study, describe_chunk
 
 #: What to run when Dask is missing.
 INSTALL_HINT = 'pip install -e ".[dask]"  (or: pip install "dask[distributed]")'
@@ -59,7 +61,7 @@ POLL = 0.05
 #: Specs a worker keeps unpickled (each with its compiled program in the engine's caches).
 _WORKER_SPECS_MAX = 4
 #: The specs a worker process has unpickled, by their spec token (:class:`Shipment`).
-_WORKER_SPECS: dict[str, SweepSpec] = {}
+_WORKER_SPECS: dict[str, Study] = {}
 #: The first copy of each scenario a worker process has unpickled, by scenario token.
 _WORKER_SCENARIOS: dict[str, Any] = {}
 
@@ -68,7 +70,7 @@ class DaskMissing(ImportError):
     """``dask.distributed`` is not installed; the message says how to install it."""
 
 
-def _distributed():
+def load_distributed():
     """The ``distributed`` module, or :class:`DaskMissing`."""
     try:
         import distributed
@@ -97,7 +99,7 @@ def software_fingerprint() -> str:
 #: This process among the clients of a cluster (names what it sends).
 _CLIENT = uuid.uuid4().hex[:12]
 #: The specs sent from here, by id (each kept alive with its tokens and pickled bytes).
-_SENT: dict[int, tuple[SweepSpec, str, str, bytes]] = {}
+_SENT: dict[int, tuple[Study, str, str, bytes]] = {}
 #: The scenarios named from here, by id (kept alive, so an id is never reused).
 _NAMED: dict[int, Any] = {}
 
@@ -112,7 +114,7 @@ class Shipment(NamedTuple):
     blob: bytes
 
 
-def ship(spec: SweepSpec) -> Shipment:
+def ship(spec: Study) -> Shipment:
     """The spec pickled for the workers (:func:`spec_bytes`), pickled once per spec object."""
     sent = _SENT.get(id(spec))
     if sent is None or sent[0] is not spec:
@@ -124,7 +126,7 @@ def ship(spec: SweepSpec) -> Shipment:
     return Shipment(*sent[1:])
 
 
-def spec_bytes(spec: SweepSpec) -> bytes:
+def spec_bytes(spec: Study) -> bytes:
     """The spec pickled for the workers. The module of a scenario loaded from a file
     (``file.py:SCENARIO``, which workers may not see) is pickled by value; everything else
     by reference (mcjax and installed plugins must be importable on the workers)."""
@@ -142,7 +144,12 @@ def spec_bytes(spec: SweepSpec) -> bytes:
             cloudpickle.unregister_pickle_by_value(m)
 
 
-def _worker_spec(shipment: Shipment) -> SweepSpec:
+def worker_specs() -> dict[str, Study]:
+    """The specs this (worker) process keeps unpickled, by spec token (a copy of the dict)."""
+    return dict(_WORKER_SPECS)
+
+
+def _worker_spec(shipment: Shipment) -> Study:
     """The shipped spec in this worker process: unpickled the first time, then kept, with the
     first copy of its scenario that came from the same client. The engine caches compiled
     programs per scenario and Config, so a worker compiles once for every chunk of a sweep,
@@ -188,9 +195,9 @@ def _error_text(exc: BaseException) -> str:
     if "Traceback (most recent call last)" in text:
         lines = [line.strip() for line in text.splitlines() if line.strip()]
         if lines:
-            text = _one_line(lines[-1])
+            text = one_line(lines[-1])
             return text if len(text) <= 300 else text[:280] + " …"
-    text = _one_line(text)
+    text = one_line(text)
     text = text if len(text) <= 300 else text[:280] + " …"
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
@@ -198,13 +205,13 @@ def _error_text(exc: BaseException) -> str:
 @dataclass(frozen=True)
 class DaskExecutor:
     """Computes a sweep's chunks as Dask tasks on the workers of ``client``'s cluster
-    (:class:`mcjax.sweep.Executor`); rows come back to this process as chunks complete."""
+    (:class:`mcjax.study.execute.Executor`); rows come back to this process as chunks complete."""
 
     client: Any  # distributed.Client
 
-    def map_chunks(self, spec: SweepSpec, chunks: list[int],
+    def map_chunks(self, spec: Study, chunks: list[int],
                    should_stop: Callable[[], bool]) -> Iterator[ChunkRows]:
-        distributed = _distributed()
+        distributed = load_distributed()
         if not chunks or should_stop():
             return
         shipment = ship(spec)
@@ -249,7 +256,7 @@ def connect(scheduler: str | None = None, workers: int | None = None) -> Iterato
     (one thread each; the machine's cores are shared among them as JAX CPU devices) and shut
     down on leaving. Raises :class:`DaskMissing` without Dask, OSError when the scheduler
     cannot be reached."""
-    distributed = _distributed()
+    distributed = load_distributed()
     if (scheduler is None) == (workers is None):
         raise ValueError("give a scheduler address or a number of workers")
     with contextlib.ExitStack() as stack:
@@ -257,7 +264,7 @@ def connect(scheduler: str | None = None, workers: int | None = None) -> Iterato
             try:
                 client = distributed.Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False)
             except (OSError, TimeoutError) as exc:
-                raise OSError(f"cannot reach the Dask scheduler at {scheduler}: {_one_line(exc)}") from None
+                raise OSError(f"cannot reach the Dask scheduler at {scheduler}: {one_line(exc)}") from None
         else:
             cluster = stack.enter_context(local_cluster(workers))
             client = distributed.Client(cluster, set_as_default=False)
@@ -272,7 +279,7 @@ def local_cluster(workers: int, **kwargs):
     once, by the client). ``kwargs`` go to ``LocalCluster``."""
     import logging
 
-    distributed = _distributed()
+    distributed = load_distributed()
     devices = os.environ.get("MCJAX_CPU_DEVICES") or str(max(1, (os.cpu_count() or 1) // workers))
     env = {**kwargs.pop("env", {}), "MCJAX_CPU_DEVICES": devices}
     options = dict(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,

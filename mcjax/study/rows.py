@@ -1,0 +1,103 @@
+"""A study's tidy rows: one row per run and filter (:func:`run_rows`, also used by the
+benchmarks), the per-step rows, the part names a chunk writes and the schema metadata every
+part carries. The declared outputs are checked against what ``reduce`` returned. No JAX.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Mapping
+
+import numpy as np
+import pandas as pd
+
+from mcjax.contract import Scenario
+from mcjax.study.plan import Study
+
+
+def _per_run(value, n: int, filters: int, per_filter: bool, name: str, where: str) -> np.ndarray:
+    value = np.asarray(value)
+    want = (n, filters) if per_filter else (n,)
+    if value.shape[:len(want)] != want or value.ndim != len(want):
+        raise ValueError(f"{where}: output {name!r} has shape {value.shape[1:]} per run; its declaration "
+                         f"({'per filter' if per_filter else 'per run'}) needs {want[1:]}")
+    return value
+
+
+def _check_declared(got, declared, scenario: Scenario, what: str) -> None:
+    missing, extra = [k for k in declared if k not in got], [k for k in got if k not in declared]
+    if missing or extra:
+        raise ValueError(f"scenario {scenario.name!r}: {what} returned {sorted(got)}; undeclared: {extra}, "
+                         f"declared but missing: {missing}")
+
+
+def run_rows(scenario: Scenario, cfg, outputs: Mapping[str, Any], keys: Mapping[str, Any]) -> pd.DataFrame:
+    """Tidy rows, one per run and filter, of a batch's reduced ``outputs`` (each (runs, F) or
+    (runs,), as declared by ``scenario.outputs(cfg)``). ``keys``: per-run key columns (e.g.
+    ``point_id``, ``seed_index``, swept values, a benchmark's case) — arrays of length runs or
+    scalars. Columns: ``scenario``, the keys, ``filter``, then the outputs in declaration
+    order. Sorted by point, seed and filter."""
+    declared = scenario.outputs(cfg)
+    _check_declared(outputs, declared, scenario, "reduce")
+    n = len(np.asarray(next(iter(outputs.values()))))
+    frames = []
+    for f, name in enumerate(cfg.filters):
+        cols = {"scenario": scenario.name}
+        cols.update({k: (v if np.ndim(v) == 0 else np.asarray(v)) for k, v in keys.items()})
+        cols["filter"] = name
+        for key, out in declared.items():
+            value = _per_run(outputs[key], n, len(cfg.filters), out.per_filter, key, "reduce")
+            cols[key] = value[:, f] if out.per_filter else value
+        frames.append(pd.DataFrame(cols, index=range(n)))
+    df = pd.concat(frames, ignore_index=True)
+    order = [c for c in ("point_id", "seed_index", "filter") if c in df.columns]
+    return df.sort_values(order, kind="stable").reset_index(drop=True)
+
+
+def chunk_keys(study: Study, start: int, n: int) -> dict:
+    """``point_id``, ``seed_index`` and the swept values of runs ``start … start+n−1``: the
+    values of the Params that ran (:meth:`~mcjax.study.plan.Study.swept_values`)."""
+    runs = np.arange(start, start + n)
+    point_idx = runs // study.seeds
+    keys = {"point_id": point_idx.astype(np.int64), "seed_index": (runs % study.seeds).astype(np.int64)}
+    for axis in study.axes:
+        keys[axis] = study.swept_values(axis, point_idx)
+    return keys
+
+
+def timeseries_rows(study: Study, start: int, series: dict) -> pd.DataFrame:
+    """Tidy rows (one per run, step and filter) from a chunk's per-step series, each (runs, T)
+    or (runs, T, F) as declared by ``scenario.timeseries_outputs``."""
+    declared = study.scenario.timeseries_outputs(study.config)
+    _check_declared(series, declared, study.scenario, "timeseries")
+    filters = study.config.filters
+    first = np.asarray(next(iter(series.values())))
+    n, T = first.shape[:2]
+    runs = np.arange(start, start + n)
+    shape = (n, T, len(filters))
+    cols = {
+        "point_id": np.broadcast_to((runs // study.seeds)[:, None, None], shape).ravel().astype(np.int64),
+        "seed_index": np.broadcast_to((runs % study.seeds)[:, None, None], shape).ravel().astype(np.int64),
+        "t": np.broadcast_to(np.arange(T)[None, :, None], shape).ravel().astype(np.int64),
+        "filter": np.broadcast_to(np.asarray(filters)[None, None, :], shape).ravel(),
+    }
+    for key, out in declared.items():
+        value = np.asarray(series[key])
+        cols[key] = (value if out.per_filter else np.broadcast_to(value[..., None], shape)).ravel()
+    return pd.DataFrame(cols)
+
+
+def chunk_parts(study: Study, index: int, start: int, stop: int) -> list[str]:
+    """The part names chunk ``index`` (runs ``start … stop−1``) writes, one per point it touches."""
+    return [f"point_id={p}/part-{index:06d}" for p in range(start // study.seeds, (stop - 1) // study.seeds + 1)]
+
+
+def part_metadata(study: Study, chunk_size: int) -> dict:
+    """The schema metadata of every part: the scenario's declarations (outputs, params, filter
+    order), the spec, config, seeds and provenance — everything ``mcjax report`` needs."""
+    from mcjax import results
+
+    return {**study.scenario.metadata(study.config), "spec": study.source, "config": dataclasses.asdict(study.config),
+            "seeds": study.seeds, "base_seed": study.base_seed, "chunk_size": chunk_size,
+            "n_points": study.n_points, "n_runs": study.n_runs, **results.environment_metadata()}
+

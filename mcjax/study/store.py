@@ -1,0 +1,254 @@
+"""A study's output folder: its identity file, the part files on disk, ``--resume`` and
+``--force`` (for sweeps, tunes and a tune's held-out evaluation alike). Every file is written
+atomically (:func:`mcjax.files.atomic_write`); the Parquet parts themselves are written by
+:func:`mcjax.results.write_part`. No JAX.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+from typing import Callable
+
+from mcjax import results
+from mcjax.files import atomic_write
+from mcjax.study.checks import is_int, one_line
+from mcjax.study.plan import Study
+from mcjax.study.rows import chunk_parts
+
+IDENTITY_FILE = "sweep.json"
+#: The keys of sweep.json that make two sweeps the same for ``--resume``.
+IDENTITY_KEYS = ("spec", "seeds", "base_seed", "chunk_size", "n_runs")
+#: Where ``mcjax sweep`` writes when no ``--out`` is given: ``results/<spec name>``.
+RESULTS_DIR = Path("results")
+
+
+class OutputError(ValueError):
+    """The output folder cannot be used as asked (not empty, nothing to resume, another sweep)."""
+
+
+def default_out_dir(spec_path: str | Path) -> Path:
+    """``results/<name>``, the name being the spec file's stem with anything but letters,
+    digits, ``.``, ``_`` and ``-`` replaced and no leading dots (``...toml`` gives
+    ``results/sweep``): always a folder inside ``results/``, never ``results/`` itself."""
+    name = re.sub(r"[^A-Za-z0-9._-]+", "_", Path(spec_path).stem).lstrip("._-")
+    return RESULTS_DIR / (name if name.strip(".") else "sweep")
+
+
+def identity(study: Study) -> dict:
+    """What makes two sweeps the same for ``--resume``: spec, seeds, base seed, chunking."""
+    plan = study.plan
+    return json.loads(json.dumps({"spec": study.source, "seeds": study.seeds, "base_seed": study.base_seed,
+                                  "chunk_size": plan[0][1] - plan[0][0], "n_runs": study.n_runs}, default=str))
+
+
+def read_identity(out_dir: str | Path) -> dict:
+    """The ``sweep.json`` of an output folder; OutputError in one line, saying what to do,
+    when it is missing or damaged."""
+    state = Path(out_dir) / IDENTITY_FILE
+    if not state.is_file():
+        raise OutputError(f"nothing to resume in {out_dir}: no {IDENTITY_FILE} (start the sweep without --resume)")
+    try:
+        saved = json.loads(state.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise OutputError(f"{state} is damaged ({one_line(exc)}); it records which sweep the folder holds, so the "
+                          f"folder cannot be resumed: start again with --force") from None
+    ok = isinstance(saved, dict) and all(k in saved for k in IDENTITY_KEYS)
+    ok = ok and isinstance(saved["spec"], dict) and all(is_int(saved[k]) for k in IDENTITY_KEYS[1:])
+    ok = ok and isinstance(saved.get("set", {}), dict)
+    if not ok:
+        raise OutputError(f"{state} is damaged (it lacks {', '.join(IDENTITY_KEYS)}); the folder cannot be resumed: "
+                          f"start again with --force")
+    return saved
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    return path == folder or folder in path.parents
+
+
+def check_replaceable(out_dir: Path, keep: list[Path], identity_file: str = IDENTITY_FILE,
+                      kind: str = "sweep") -> None:
+    """``--force`` replaces only a folder that is empty or holds a previous ``kind`` of run
+    (its ``identity_file``, ``sweep.json`` for a sweep) and never one that is or holds the
+    current folder, a file of ``keep`` (the spec, its base), your home folder or ``results/``
+    itself."""
+    if out_dir.is_symlink():
+        raise OutputError(f"--force: {out_dir} is a symbolic link; give the folder itself as --out")
+    out = out_dir.resolve()
+    guarded = [Path.cwd().resolve(), RESULTS_DIR.resolve(), Path.home().resolve()]
+    guarded += [Path(p).resolve() for p in keep]
+    for g in guarded:
+        if _inside(g, out):
+            what = ("the current folder" if g == guarded[0] else "results/ itself" if g == guarded[1]
+                    else "your home folder" if g == guarded[2] else str(g))
+            raise OutputError(f"--force: {out_dir} is or holds {what}; it replaces only a {kind}'s own output folder "
+                              f"(choose another --out)")
+    if any(out.iterdir()) and not (out / identity_file).is_file():
+        raise OutputError(f"--force: {out_dir} is not empty and holds no {identity_file}, so it is no {kind}'s output "
+                          f"folder; --force replaces only those (choose another --out)")
+
+
+def write_identity(out_dir: Path, identity_file: str, saved: dict) -> None:
+    """The identity file of an output folder (``sweep.json``, ``tune.json``), atomically."""
+    atomic_write(Path(out_dir) / identity_file, json.dumps(saved, indent=1))
+
+
+def start_fresh(out_dir: str | Path, *, force: bool, keep: list[Path] = (), identity_file: str = IDENTITY_FILE,
+                kind: str = "sweep") -> Path:
+    """Make ``out_dir`` an empty folder for a new ``kind`` of run: a missing or empty folder,
+    or — with ``force`` — one holding a previous run of that kind (:func:`check_replaceable`),
+    which is deleted. :class:`OutputError` in one line otherwise."""
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise OutputError(f"output folder {out_dir} is a file; choose another --out")
+    if out_dir.exists() and any(out_dir.iterdir()):
+        if not force:
+            raise OutputError(f"output folder {out_dir} is not empty; pass --resume to finish it, --force to "
+                              f"replace it, or choose another --out")
+        check_replaceable(out_dir, list(keep), identity_file, kind)
+        shutil.rmtree(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return out_dir
+
+
+def _spec_file(spec_file) -> str | None:
+    return None if spec_file is None else str(Path(spec_file).resolve())
+
+
+def prepare_output(study: Study, out_dir: str | Path, *, resume: bool = False, force: bool = False,
+                   keep: list[Path] = (), spec_file: str | Path | None = None,
+                   note: Callable[[str], None] | None = None) -> list[int] | None:
+    """Make ``out_dir`` ready for ``study``; return the chunks still to run (None: all).
+
+    A fresh sweep needs an empty or missing folder (``force`` replaces one that holds a
+    previous sweep, see :func:`check_replaceable`; ``keep``: files it must not hold) and
+    writes the identity file (with ``spec_file`` and the ``--set`` values, for resuming).
+    ``resume`` needs the same identity, removes half-written staging files and returns the
+    chunks whose parts are missing or damaged (:func:`check_parts`; ``note`` is told about
+    each problem). Raises :class:`OutputError` otherwise."""
+    out_dir = Path(out_dir)
+    ident = identity(study)
+    if resume and force:
+        raise OutputError("--resume and --force exclude each other")
+    try:
+        if resume:
+            saved = read_identity(out_dir)
+            if {k: saved[k] for k in IDENTITY_KEYS} != ident:
+                diff = sorted(k for k in IDENTITY_KEYS if saved.get(k) != ident.get(k))
+                raise OutputError(f"{out_dir} holds a different sweep ({', '.join(diff)} differ); --resume needs the "
+                                  f"same spec, seeds, chunk size and --set values (leave them out to take the saved "
+                                  f"ones)")
+            results.clean_staging(out_dir)
+            todo, problems = check_parts(study, out_dir)
+            for line in problems:
+                (note or (lambda _: None))(line)
+            return todo
+        start_fresh(out_dir, force=force, keep=keep)
+        write_identity(out_dir, IDENTITY_FILE, {**ident, "set": study.overrides, "spec_file": _spec_file(spec_file)})
+    except OSError as exc:
+        raise OutputError(f"output folder {out_dir}: {exc.strerror or exc}") from None
+    return None
+
+
+def check_parts(study: Study, out_dir: str | Path) -> tuple[list[int], list[str]]:
+    """Chunks to run (again) and one line per problem found: a chunk whose part (of ``runs/``,
+    or ``timeseries/`` when the spec asks for it) is missing, or damaged — unreadable, or
+    not holding exactly the rows and runs it should. Damaged parts and parts that belong to
+    no chunk of the plan are removed (a re-run chunk rewrites its parts under the same names)."""
+    out_dir = Path(out_dir)
+    tables = ["runs"] + (["timeseries"] if study.timeseries else [])
+    rows_per_run = {"runs": len(study.config.filters), "timeseries": len(study.config.filters) * study.config.n_steps}
+    have = {t: set(results.existing_parts(out_dir, t)) for t in tables}
+    todo, problems, planned = [], [], {t: set() for t in tables}
+    for i, (a, b) in enumerate(study.plan):
+        bad = []
+        for t in tables:
+            for part in chunk_parts(study, i, a, b):
+                planned[t].add(part)
+                point = int(part.split("/")[0].split("=")[1])
+                lo, hi = max(a, point * study.seeds) - point * study.seeds, min(b, (point + 1) * study.seeds) - point * study.seeds
+                if part not in have[t]:
+                    bad.append(f"{t}/{part}.parquet is missing")
+                    continue
+                why = results.part_problem(out_dir, t, part, range(lo, hi), rows_per_run[t])
+                if why:
+                    bad.append(f"{t}/{part}.parquet is damaged ({why})")
+                    results.remove_part(out_dir, t, part)
+        if bad:
+            todo.append(i)
+            problems += [f"chunk {i}: {line}; re-running it" for line in bad]
+    for t in tables:
+        for part in sorted(have[t] - planned[t]):
+            problems.append(f"{t}/{part}.parquet belongs to no chunk of this sweep; removed")
+            results.remove_part(out_dir, t, part)
+    return todo, problems
+
+
+def missing_chunks(study: Study, out_dir: str | Path) -> list[int]:
+    """Chunks not completely on disk: some part (of ``runs/``, or ``timeseries/`` when the spec
+    asks for it) is missing. Re-running one rewrites its parts under the same names."""
+    tables = ["runs"] + (["timeseries"] if study.timeseries else [])
+    have = {t: set(results.existing_parts(out_dir, t)) for t in tables}
+    return [i for i, (a, b) in enumerate(study.plan)
+            if not all(set(chunk_parts(study, i, a, b)) <= have[t] for t in tables)]
+
+
+# ------------------------------------------------------------------ a tune's folder
+
+#: The identity file of a tune's output folder.
+TUNE_IDENTITY_FILE = "tune.json"
+
+
+def prepare_tune_output(ident: dict, out_dir: str | Path, *, resume: bool = False, force: bool = False,
+                        spec_file: str | Path | None = None, keep: list = ()) -> None:
+    """Make ``out_dir`` ready for a tune whose identity (its spec as written) is ``ident``: a
+    fresh tune needs a missing or empty folder (``force`` replaces one holding a previous tune,
+    ``tune.json``); ``resume`` needs the same spec in ``tune.json`` and removes half-written
+    temporary files. Writes ``tune.json``. :class:`OutputError` otherwise, before anything is
+    written."""
+    out_dir = Path(out_dir)
+    state = out_dir / TUNE_IDENTITY_FILE
+    if resume and force:
+        raise OutputError("--resume and --force exclude each other")
+    try:
+        if resume:
+            if not state.is_file():
+                raise OutputError(f"nothing to resume in {out_dir}: no {TUNE_IDENTITY_FILE} (start the tune without "
+                                  f"--resume)")
+            try:
+                saved = json.loads(state.read_text(encoding="utf-8"))
+            except (UnicodeDecodeError, ValueError) as exc:
+                raise OutputError(f"{state} is damaged ({exc}); start again with --force") from None
+            if not isinstance(saved, dict) or saved.get("spec") != ident["spec"]:
+                raise OutputError(f"{out_dir} holds a different tune (its spec differs); --resume needs the same spec")
+            for tmp in out_dir.glob(".*.tmp"):
+                tmp.unlink()
+            return
+        start_fresh(out_dir, force=force, keep=keep, identity_file=TUNE_IDENTITY_FILE, kind="tune")
+        write_identity(out_dir, TUNE_IDENTITY_FILE, {**ident, "spec_file": _spec_file(spec_file)})
+    except OSError as exc:
+        raise OutputError(f"output folder {out_dir}: {exc.strerror or exc}") from None
+
+
+def prepare_evaluation(ev: Study, out_dir: str | Path, *, spec_file: str | Path | None = None):
+    """Ready ``out_dir`` for a tune's held-out evaluation sweep ``ev``: write its ``sweep.json``
+    (as ``mcjax sweep`` does, so ``mcjax report`` reads the folder), or, when one for the same
+    evaluation is there, return the chunks still missing (a resumed evaluation). None: all."""
+    out_dir = Path(out_dir)
+    ident = identity(ev)
+    path = out_dir / IDENTITY_FILE
+    if path.is_file():
+        try:
+            saved = json.loads(path.read_text(encoding="utf-8"))
+        except (UnicodeDecodeError, ValueError):
+            saved = None
+        if isinstance(saved, dict) and {k: saved.get(k) for k in ident} == ident:
+            results.clean_staging(out_dir)
+            return check_parts(ev, out_dir)[0]
+    for folder in ("runs", results.STAGING_DIR):
+        if (out_dir / folder).exists():
+            shutil.rmtree(out_dir / folder)
+    write_identity(out_dir, IDENTITY_FILE, {**ident, "set": {}, "spec_file": _spec_file(spec_file), "tune": True})
+    return None
