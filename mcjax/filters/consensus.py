@@ -169,14 +169,21 @@ def icf_step(h, angle_mask, opts, post: Gaussian, meas: Measurements, F, Q) -> G
     return from_information(yb + s[:, None] * i, Yb + s[:, None, None] * I)
 
 
-def kcf_step(h, angle_mask, opts, epsilon, post: Gaussian, meas: Measurements, F, Q) -> Gaussian:
-    """Kalman-consensus filter (Olfati-Saber 2009; Lou et al. 2013 Alg. 1).
+class _Neighbourhood(NamedTuple):
+    xb: jax.Array   # predicted means (n, d)
+    Pb: jax.Array   # predicted covariances (n, d, d)
+    A: jax.Array    # adjacency (n, n)
+    S: jax.Array    # Σ_{J_i} U_j, the neighbourhood's measurement information (n, d, d)
+    yv: jax.Array   # Σ_{J_i} u_j (n, d)
+    Yb: jax.Array   # predicted information P̄⁻¹ (n, d, d)
+    Y: jax.Array    # P̄⁻¹ + S (n, d, d)
+    M: jax.Array    # (P̄⁻¹ + S)⁻¹, the posterior covariance (n, d, d)
 
-    ``S_i = Σ_{J_i} U_j``, ``y_i = Σ_{J_i} u_j``, ``M_i = (P̄_i⁻¹ + S_i)⁻¹``,
-    ``x̂_i = x̄_i + M_i (y_i − S_i x̄_i) + G_i Σ_{N_i} (x̄_j − x̄_i)`` with
-    ``G_i = γ M_i, γ = ε/(1+‖M_i‖_F)`` (``kcf_gain="gamma_M"``, Olfati-Saber 2009) or
-    ``G_i = μ P̄_i, μ = ε/(1+‖P̄_i‖_F)`` (``"mu_P"``, Lou et al. 2013). One exchange per step.
-    """
+
+def _neighbourhood_update(h, angle_mask, post: Gaussian, meas: Measurements, F, Q) -> _Neighbourhood:
+    """The part the two consensus Kalman filters share: predict, then pool each agent's and its
+    neighbours' measurement information, ``S_i = Σ_{J_i} U_j``, ``y_i = Σ_{J_i} u_j`` and
+    ``M_i = (P̄_i⁻¹ + S_i)⁻¹`` (Olfati-Saber 2009's KCF; Chen & Lu 2013, eq. 8)."""
     xb, Pb = predict_moments(post.x, post.P, F, Q)
     u, U, _ = contributions(h, meas.z, meas.sensors, xb, meas.R_inv, angle_mask)
     A = meas.adjacency
@@ -186,6 +193,18 @@ def kcf_step(h, angle_mask, opts, epsilon, post: Gaussian, meas: Measurements, F
     Yb = spd_inverse(Pb)
     Y = symmetrize(Yb + S)
     M = symmetrize(spd_inverse(Y))
+    return _Neighbourhood(xb, Pb, A, S, yv, Yb, Y, M)
+
+
+def kcf_step(h, angle_mask, opts, epsilon, post: Gaussian, meas: Measurements, F, Q) -> Gaussian:
+    """Kalman-consensus filter (Olfati-Saber 2009; Lou et al. 2013 Alg. 1).
+
+    ``S_i = Σ_{J_i} U_j``, ``y_i = Σ_{J_i} u_j``, ``M_i = (P̄_i⁻¹ + S_i)⁻¹``,
+    ``x̂_i = x̄_i + M_i (y_i − S_i x̄_i) + G_i Σ_{N_i} (x̄_j − x̄_i)`` with
+    ``G_i = γ M_i, γ = ε/(1+‖M_i‖_F)`` (``kcf_gain="gamma_M"``, Olfati-Saber 2009) or
+    ``G_i = μ P̄_i, μ = ε/(1+‖P̄_i‖_F)`` (``"mu_P"``, Lou et al. 2013). One exchange per step.
+    """
+    xb, Pb, A, S, yv, Yb, Y, M = _neighbourhood_update(h, angle_mask, post, meas, F, Q)
     disagreement = weighted_agent_sum(A, xb) - jnp.sum(A, axis=1)[:, None] * xb
     base = M if opts.kcf_gain == "gamma_M" else Pb
     fro = jnp.sqrt(sum(base[:, i, j] ** 2 for i in range(base.shape[-2]) for j in range(base.shape[-1])))
@@ -213,15 +232,7 @@ def prior_consensus_kcf_step(h, angle_mask, opts, post: Gaussian, meas: Measurem
     (``formation`` (n, n, d) or None for eq. 9). The posterior covariance is ``M_i``; the
     next prediction gives eq. 11, ``A M Aᵀ + B Q Bᵀ``. One consensus exchange per step.
     """
-    xb, Pb = predict_moments(post.x, post.P, F, Q)
-    u, U, _ = contributions(h, meas.z, meas.sensors, xb, meas.R_inv, angle_mask)
-    A = meas.adjacency
-    inclusive = A + jnp.eye(A.shape[0], dtype=A.dtype)
-    S = weighted_agent_sum(inclusive, U)
-    yv = weighted_agent_sum(inclusive, u)
-    Yb = spd_inverse(Pb)
-    Y = symmetrize(Yb + S)
-    M = symmetrize(spd_inverse(Y))
+    xb, Pb, A, S, yv, Yb, Y, M = _neighbourhood_update(h, angle_mask, post, meas, F, Q)
     W = _weights(opts, A)
     offsets = xb[None, :, :] - xb[:, None, :]                     # x̄_j − x̄_i at [i, j]
     if formation is not None:
