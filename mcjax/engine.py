@@ -13,26 +13,37 @@ size. Step t's key is ``fold_in(run_key, t)`` (noise drawn per step, never pre-d
 Every CPU core works: the process has one CPU device per core (:mod:`mcjax.runtime`), the
 B-run batch program is compiled once, with the scenario's ``compiler_options``, and loaded
 on every device (an XLA program is bound to its device; the copies run the same machine
-code: :func:`mcjax.runtime.deserialise`), and the batches of a
+code: :func:`mcjax.jaxcompat.deserialise`), and the batches of a
 chunk go to the devices in turn, each device called from its own thread so they compute side
 by side (from one thread the CPU devices ran mostly one after the other).
 Every device runs the same program on B-aligned slices, so the numbers do not depend on the
 device count either. (A ``shard_map`` over the devices was tried: one program, but its bits
 differ from the one-device program's in the last place.)
+
+The entry points (:func:`simulate`, :func:`compiled`, :func:`run_chunks`,
+:func:`program_futures`, :func:`devices`) first call :func:`mcjax.configure` (64-bit mode, the
+CPU devices; once per process). What the engine keeps in a process — jitted functions and the
+futures of compiled programs — is in one bounded dict, :func:`cached`; on disk, compiled
+programs go to the program store (:mod:`mcjax.runtime`), for built-in scenarios and a user's
+file or plugin scenario alike (:func:`_label`).
 """
 
 from __future__ import annotations
 
+import hashlib
+import inspect
+import sys
+import threading
+from collections import OrderedDict
 from concurrent.futures import Future, ThreadPoolExecutor
-from functools import lru_cache
-from typing import Callable, Iterator
+from pathlib import Path
+from typing import Callable, Hashable, Iterator
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcjax import numerics  # noqa: F401  (its import switches on float64 and sets up the devices)
-from mcjax import runtime
+from mcjax import jaxcompat, runtime
 from mcjax.contract import Scenario
 
 
@@ -134,6 +145,7 @@ def simulate(scenario: Scenario, cfg, params, keys, *, records: bool = False, ti
     returns ``(outputs, scenario.timeseries(...))`` from one simulation. Not jitted: see
     :func:`compiled`.
     """
+    runtime.configure()
 
     def one(p, k):
         recs = _run(scenario, cfg, p, k)
@@ -152,10 +164,11 @@ def compiled(scenario: Scenario, cfg, records: bool = False, timeseries: bool = 
     compiled with the scenario's :func:`compiler_options` when called (or lowered) on arrays.
     Called inside a transformation of your own (``jit``, ``make_jaxpr``, ``grad``), where JAX
     does not allow compiler options, it is the same function without them."""
-    return _compiled(scenario, cfg, bool(records), bool(timeseries))
+    runtime.configure()
+    records, timeseries = bool(records), bool(timeseries)
+    return cached(("jit", scenario, cfg, records, timeseries), lambda: _compiled(scenario, cfg, records, timeseries))
 
 
-@lru_cache(maxsize=32)
 def _compiled(scenario: Scenario, cfg, records: bool, timeseries: bool) -> Callable:
     def run(params, keys):
         return simulate(scenario, cfg, params, keys, records=records, timeseries=timeseries)
@@ -191,13 +204,48 @@ def compiler_options(scenario: Scenario) -> dict | None:
 def devices() -> list:
     """The devices a sweep's batches are spread over: JAX's default backend's (on the CPU, one
     per core: :mod:`mcjax.runtime`)."""
+    runtime.configure()
     return jax.local_devices()
 
 
-#: Futures of compiled programs per (jitted function, input signature, devices): see
-#: :func:`program_futures`.
-_PROGRAMS: dict = {}
-_PROGRAMS_MAX = 64
+#: The engine's in-process cache (:func:`cached`): jitted functions under ``("jit", scenario,
+#: cfg, records, timeseries)``, futures of compiled programs under ``("programs", fn, input
+#: signature, devices)``; other layers add their own kinds (e.g. tune's batch functions).
+_CACHE: OrderedDict = OrderedDict()
+CACHE_MAX = 96  # the two caches it replaced held 32 jitted functions and 64 programs
+_CACHE_LOCK = threading.Lock()
+
+
+def cached(key: Hashable, make: Callable):
+    """What this process keeps under ``key`` (a tuple starting with its kind), made by
+    ``make()`` the first time (outside the lock: two threads may both make it, the first to
+    finish is kept). The least recently used entry goes past :data:`CACHE_MAX`. The one
+    in-process cache of jitted functions and compiled programs (on disk: :mod:`mcjax.runtime`)."""
+    with _CACHE_LOCK:
+        if key in _CACHE:
+            _CACHE.move_to_end(key)
+            return _CACHE[key]
+    value = make()
+    with _CACHE_LOCK:
+        value = _CACHE.setdefault(key, value)
+        while len(_CACHE) > CACHE_MAX:
+            _CACHE.popitem(last=False)
+    return value
+
+
+def forget(kind: str | None = None) -> None:
+    """Drop what :func:`cached` keeps: everything, or the entries of one kind (``"jit"``,
+    ``"programs"``, …)."""
+    with _CACHE_LOCK:
+        for key in [k for k in _CACHE if kind is None or k[0] == kind]:
+            del _CACHE[key]
+
+
+def cached_programs(fn) -> list:
+    """The lists of program futures :func:`program_futures` built for the jitted ``fn`` in this
+    process (oldest first), e.g. to read a compiled program's ``memory_analysis()``."""
+    with _CACHE_LOCK:
+        return [v for k, v in _CACHE.items() if k[0] == "programs" and k[1] is fn]
 
 
 def programs(fn, args: tuple, devs, label: str | None = None) -> list:
@@ -207,30 +255,47 @@ def programs(fn, args: tuple, devs, label: str | None = None) -> list:
     return [f.result() for f in program_futures(fn, args, devs, label)]
 
 
-def program_futures(fn, args: tuple, devs, label: str | None = None) -> list:
+def program_futures(fn, args: tuple, devs, label: str | None = None, local=None) -> list:
     """Futures of ``fn`` compiled ahead of time for arguments shaped as ``args`` (e.g. a batch's
     Params and keys) for each device of ``devs``: the same program on every device, compiled
     once and loaded on the other devices (~1 s each,
-    :func:`mcjax.runtime.deserialise`; should that fail, the device compiles its own). With a
-    ``label`` (a built-in scenario's name, Config and flags), the program is also stored on
-    disk and loaded from there next time (:func:`mcjax.runtime.load_executable`).
+    :func:`mcjax.jaxcompat.deserialise`; should that fail, the device compiles its own). With a
+    ``label`` (what names the program: :func:`_label`), the program is also stored on
+    disk and loaded from there next time (:func:`mcjax.runtime.load_executable`; ``local``: a
+    user's scenario module, whose classes in ``args`` are stored by their name in it).
 
     The first device's program is ready when this returns; the others' may still be loading
     in background threads (the engine's thread for a device waits for its own), so the first
     device starts computing as soon as its program is there."""
+    runtime.configure()
     shapes = (str(jax.tree.structure(args)),
               tuple((np.shape(a), np.asarray(a).dtype.str) for a in jax.tree.leaves(args)))
-    sig = (fn, shapes, tuple(devs))
-    if sig in _PROGRAMS:
-        return _PROGRAMS[sig]
+    sig = ("programs", fn, shapes, tuple(devs))
     disk_key = None if label is None else f"{label}|{shapes}"
+    built = []
+    futures = cached(sig, lambda: built.append(_build(fn, args, devs, disk_key, local)) or built[0])
+
+    def forget_if_failed(f):  # a program that failed to build is not kept: the next call tries again
+        if f.exception() is not None:
+            with _CACHE_LOCK:
+                if _CACHE.get(sig) is futures:
+                    del _CACHE[sig]
+
+    if built and built[0] is futures:  # built here (not found): watch it
+        for f in futures:
+            f.add_done_callback(forget_if_failed)
+    return futures
+
+
+def _build(fn, args: tuple, devs, disk_key: str | None, local) -> list:
+    """:func:`program_futures`' futures, built: loaded from the store, or compiled once."""
 
     def compile_for(i):  # the last resort: device i compiles its own
         return fn.lower(*jax.device_put(args, devs[i])).compile()
 
     def copy_to(i, first, data=None):
         try:
-            program = runtime.deserialise(data if data is not None else runtime.serialise(first), devs[i])
+            program = jaxcompat.deserialise(data if data is not None else jaxcompat.serialise(first), devs[i])
         except Exception:  # noqa: BLE001 — this JAX cannot load it on another device
             program = None
         return program if program is not None else compile_for(i)
@@ -238,7 +303,7 @@ def program_futures(fn, args: tuple, devs, label: str | None = None) -> list:
     pool = ThreadPoolExecutor(len(devs), thread_name_prefix="mcjax-program")
     futures = None
     if disk_key is not None:  # one thread per device: deserialising runs outside the GIL
-        loading = [pool.submit(runtime.load_executable, disk_key, d) for d in devs]
+        loading = [pool.submit(runtime.load_executable, disk_key, d, local) for d in devs]
         runtime.prepare_loading()  # meanwhile, on this otherwise idle thread
         first = loading[0].result()
         if first is not None:
@@ -246,23 +311,13 @@ def program_futures(fn, args: tuple, devs, label: str | None = None) -> list:
     if futures is None:
         lowered = fn.lower(*jax.device_put(args, devs[0]))
         first = lowered.compile()
-        data = runtime.serialise(first) if disk_key is not None or len(devs) > 1 else None
+        data = jaxcompat.serialise(first) if disk_key is not None or len(devs) > 1 else None
         if disk_key is not None:
-            runtime.store_executable(disk_key, data, runtime.custom_call_targets(lowered))
+            runtime.store_executable(disk_key, data, jaxcompat.custom_call_targets(lowered), local)
         done = Future()
         done.set_result(first)
         futures = [done, *(pool.submit(copy_to, i, first, data) for i in range(1, len(devs)))]
     pool.shutdown(wait=False)  # the copies still loading finish in the background
-    if len(_PROGRAMS) >= _PROGRAMS_MAX:
-        _PROGRAMS.pop(next(iter(_PROGRAMS)))
-    _PROGRAMS[sig] = futures
-
-    def forget_if_failed(f):  # a program that failed to build is not kept: the next call tries again
-        if f.exception() is not None:
-            _PROGRAMS.pop(sig, None)
-
-    for f in futures:
-        f.add_done_callback(forget_if_failed)
     return futures
 
 
@@ -283,12 +338,56 @@ def _or_else(future: Future, make: Callable) -> Future:
 
 
 def _label(scenario: Scenario, cfg, records: bool, timeseries: bool) -> str | None:
-    """What names a batch program on disk: only for scenarios defined inside mcjax, whose code
-    the cache key covers (:func:`mcjax.runtime.load_executable`)."""
+    """What names a batch program in the program store (:func:`mcjax.runtime.load_executable`,
+    whose key adds mcjax's own source, JAX's version, the CPU and ``XLA_FLAGS``): the scenario,
+    its Config, the flags, the compiler options, and — for a scenario defined outside mcjax (a
+    file or a plugin) — the content of its source files (:func:`_source_digest`). None (not
+    stored) when those files cannot be read."""
     module = getattr(scenario.init, "__module__", "") or ""
-    if not module.startswith("mcjax."):
+    where = module if module.startswith("mcjax.") else _source_digest(scenario)
+    if where is None:
         return None
-    return f"{scenario.name}|{module}|{cfg!r}|{bool(records)}|{bool(timeseries)}|{compiler_options(scenario)}"
+    return f"{scenario.name}|{where}|{cfg!r}|{bool(records)}|{bool(timeseries)}|{compiler_options(scenario)}"
+
+
+def _user_module(scenario: Scenario):
+    """The module of a scenario defined outside mcjax (None for a built-in one): a scenario file
+    is imported under another name in each process, so its classes are stored by their name in
+    it (:func:`mcjax.runtime.store_executable`)."""
+    module = getattr(scenario.init, "__module__", None) or ""
+    return None if module.startswith("mcjax.") else sys.modules.get(module)
+
+
+def _source_digest(scenario: Scenario) -> str | None:
+    """A hash of the source files of a scenario defined outside mcjax: the files of its
+    functions (``init``, ``step``, ``reduce``, ``timeseries``), every ``.py`` file of the
+    package they belong to (a plugin), and the modules next to a scenario file that it imports
+    (its own helpers). Code it imports from elsewhere (other installed packages) is not
+    covered: after changing such code, delete the program store's folder."""
+    files = set()
+    try:
+        for fn in (scenario.init, scenario.step, scenario.reduce, scenario.timeseries):
+            if fn is None:
+                continue
+            path = Path(inspect.getsourcefile(fn)).resolve()
+            files.add(path)
+            module = sys.modules.get(getattr(fn, "__module__", None) or "")
+            package = (getattr(module, "__package__", None) or "").partition(".")[0]
+            top = sys.modules.get(package) if package else None
+            if top is not None and getattr(top, "__file__", None):
+                files.update(Path(top.__file__).resolve().parent.rglob("*.py"))
+            else:  # a loose file: its helpers beside it
+                for value in vars(module).values() if module is not None else ():
+                    helper = value if inspect.ismodule(value) else sys.modules.get(getattr(value, "__module__", "") or "")
+                    src = getattr(helper, "__file__", None)
+                    if src and Path(src).resolve().parent == path.parent:
+                        files.add(Path(src).resolve())
+        h = hashlib.sha256()
+        for path in sorted(files):
+            h.update(path.name.encode() + b"\0" + path.read_bytes())
+        return "src:" + h.hexdigest()
+    except (TypeError, OSError):  # a function without a readable source file
+        return None
 
 
 def stack_points(points: list) -> object:
@@ -342,6 +441,7 @@ def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed
     last run), sent to the devices in turn (one calling thread per device), so memory is
     bounded by the chunk and the numbers depend neither on it nor on the device count.
     """
+    runtime.configure()
     n_points = int(jax.tree.leaves(point_params)[0].shape[0])
     n_runs = n_points * n_seeds
     b = batch_size_for(n_runs)
@@ -368,7 +468,8 @@ def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed
                 e = min(s + b, stop)
                 params, keys = chunk_inputs(point_params, n_seeds, base_seed, s, e, b)
                 if programs is None:
-                    programs = program_futures(fn, (params, keys), devs, _label(scenario, cfg, records, timeseries))
+                    programs = program_futures(fn, (params, keys), devs, _label(scenario, cfg, records, timeseries),
+                                               _user_module(scenario))
                 d = k % len(devs)
                 parts.append((e - s, lanes[d].submit(call, programs[d], devs[d], params, keys)))
             parts = [(m, f.result()) for m, f in parts]

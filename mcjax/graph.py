@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcjax.numerics import matmul, safe_norm, softmin
+from mcjax.numerics import matmul, require_x64, safe_norm, softmin
 
 WEIGHT_KINDS = ("eq11", "metropolis", "max_degree")
 
@@ -37,6 +37,7 @@ WEIGHT_KINDS = ("eq11", "metropolis", "max_degree")
 
 
 def _float_positions(positions) -> jax.Array:
+    require_x64("mcjax.graph")
     positions = jnp.asarray(positions)
     if not jnp.issubdtype(positions.dtype, jnp.floating):
         positions = positions.astype(jnp.result_type(float))
@@ -55,6 +56,7 @@ def _offdiag_mask(n: int) -> jax.Array:
 
 def _clean_adjacency(adj) -> jax.Array:
     """Adjacency as a float array with its diagonal zeroed (self-loops dropped)."""
+    require_x64("mcjax.graph")
     adj = jnp.asarray(adj)
     if not jnp.issubdtype(adj.dtype, jnp.floating):
         adj = adj.astype(jnp.result_type(float))

@@ -13,18 +13,29 @@ few vectorised loops over the batch (docs/architecture.md). They fall back to
 
 from __future__ import annotations
 
+import warnings
+
 import jax
 import jax.numpy as jnp
 
-from mcjax import runtime  # noqa: F401  (CPU devices and the compilation cache, before JAX starts)
-
-# The one place mcjax switches on JAX's 64-bit mode (docs/architecture.md, "Precision"): every
-# mcjax module that computes with JAX imports this one, so float64 input stays float64 (e.g.
-# graph.algebraic_connectivity of a float64 numpy adjacency) and float32 input, or a Config
-# with dtype = "float32", stays float32.
-jax.config.update("jax_enable_x64", True)
-
 UNROLL_MAX = 6
+
+_X64_WARNED = False
+
+
+def require_x64(what: str) -> None:
+    """Warn once per process (a ``UserWarning``) that ``what`` computes in float32 when JAX's
+    64-bit mode is off: mcjax does not switch it on at import; :func:`mcjax.configure` does
+    (the CLI and the engine call it), so float64 input stays float64 (e.g.
+    ``graph.algebraic_connectivity`` of a float64 numpy adjacency) and float32 input, or a
+    Config with ``dtype = "float32"``, stays float32. Called by the library's entry points that
+    are used on their own (graph, ``run_filter``); costs one flag check."""
+    global _X64_WARNED
+    if _X64_WARNED or jax.config.jax_enable_x64:
+        return
+    _X64_WARNED = True
+    warnings.warn(f"{what}: JAX's 64-bit mode is off, so this computes in float32; call mcjax.configure() "
+                  "first (64-bit mode and the CPU devices mcjax uses)", UserWarning, stacklevel=3)
 
 
 def symmetrize(a: jax.Array) -> jax.Array:

@@ -1,28 +1,33 @@
-"""Process-wide JAX settings, applied once when mcjax is imported (before JAX starts its backend).
+"""Process-wide JAX settings and the engine's program store.
 
+Nothing here happens at import: :func:`configure` (``mcjax.configure()``) applies the settings,
+once per process; the CLI and the engine's entry points call it.
+
+* **64-bit mode.** JAX's ``jax_enable_x64``: computations run in the dtype of their input,
+  float64 by default, float32 where a Config or caller asks for it (docs/architecture.md,
+  "Precision"). A library function called without it says so once
+  (:func:`mcjax.numerics.require_x64`) rather than computing silently in float32.
 * **Every CPU core.** XLA runs one compiled program on one CPU device mostly on one thread, so
   mcjax asks JAX for one CPU device per core and the engine sends consecutive batches of a
   chunk to the devices in turn (:func:`mcjax.engine.run_chunks`). Each device runs the same
-  compiled batch program (compiled once, loaded on each device: :func:`deserialise`), so
-  results are bit-identical to a one-device run.
-  ``MCJAX_CPU_DEVICES=N`` sets the count (``1``: one device, the old behaviour).
-* **A persistent compilation cache.** Compiled programs are kept on disk, so a second sweep of
-  the same spec (or any run of the same Config) skips compilation. The folder is
-  ``$MCJAX_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/mcjax/jax`` (default ``~/.cache/mcjax/jax``);
-  ``MCJAX_CACHE_DIR=off`` turns it off. It is safe to delete at any time. For the built-in
-  scenarios the engine stores its batch programs whole (:func:`load_executable`; one file,
-  loaded on every device), keyed on mcjax's source code, the JAX version, the CPU, the
-  scenario, its Config and the input shapes — a second sweep of the same spec loads them
-  (~1 s, both devices in parallel) instead of compiling them (~18 s for Sun et al. 2011's
-  closed loop). A user's own scenario (a file or a plugin) is
-  compiled every time: its code is not in the key. (JAX's own persistent cache is not used:
-  loading from it failed in some runs, see :func:`_apply`.) The stored programs are kept under
-  ``$MCJAX_CACHE_MAX_GB`` gigabytes (default 2; a program of the closed loop is ~8 MB): past
-  it, the least recently used ones are deleted when a new one is stored.
-
-If JAX's backend is already running when mcjax is first imported (a program that computed with
-JAX before importing mcjax), the device count cannot change any more: mcjax then uses the
-devices JAX has, and says nothing. Call :func:`settings` to see what applies.
+  compiled batch program (compiled once, loaded on each device:
+  :func:`mcjax.jaxcompat.deserialise`), so results are bit-identical to a one-device run.
+  ``MCJAX_CPU_DEVICES=N`` sets the count (``1``: one device, the old behaviour). If JAX's
+  backend already runs when :func:`configure` is first called (a program that computed with
+  JAX before), the count cannot change any more: mcjax then uses the devices JAX has, and
+  says nothing. :func:`settings` tells what applies.
+* **A program store.** The engine stores its compiled batch programs whole (:func:`load_executable`;
+  one file, loaded on every device), keyed on mcjax's source code, the JAX version, the CPU,
+  ``XLA_FLAGS``, the scenario (a user's file or plugin scenario: its source files' content),
+  its Config and the input shapes — a second sweep of the same spec loads them (~1 s, both
+  devices in parallel) instead of compiling them (~18 s for Sun et al. 2011's closed loop). The
+  folder is ``$MCJAX_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/mcjax/jax`` (default
+  ``~/.cache/mcjax/jax``); ``MCJAX_CACHE_DIR=off`` turns it off; it is safe to delete at any
+  time. The stored programs are kept under ``$MCJAX_CACHE_MAX_GB`` gigabytes (default 2; a
+  program of the closed loop is ~8 MB): past it, the least recently used ones are deleted when
+  a new one is stored. (JAX's own persistent compilation cache is not used: it traces and
+  lowers before it can look a program up, ~2-3x the store's warm start, and in some runs the
+  programs it loaded failed; docs/benchmarks.md, 2026-12-02.)
 """
 
 from __future__ import annotations
@@ -32,18 +37,18 @@ import io
 import os
 import pickle
 import platform
-import re
 import threading
 import warnings
 from functools import lru_cache
 from pathlib import Path
 
 import jax
-import numpy as np
 
-from mcjax import envvars
+from mcjax import envvars, jaxcompat
 
 OFF = ("off", "none", "0", "")
+#: Guards :func:`configure`, :func:`prepare_loading` and :data:`STATS` (the engine's loading threads).
+_LOCK = threading.Lock()
 
 
 def _device_count() -> int:
@@ -51,7 +56,7 @@ def _device_count() -> int:
 
 
 def cache_dir() -> Path | None:
-    """The persistent compilation cache's folder, or None when turned off."""
+    """The program store's folder (``$MCJAX_CACHE_DIR``), or None when turned off."""
     raw = os.environ.get(envvars.CACHE_ENV)
     if raw is not None:
         return None if raw.strip().lower() in OFF else Path(raw).expanduser()
@@ -82,19 +87,32 @@ def _prune(folder: Path, limit: int, keep: Path) -> None:
             pass
 
 
-def _apply() -> None:
-    try:
-        jax.config.update("jax_num_cpu_devices", _device_count())
-    except RuntimeError:
-        pass  # the backend already runs: keep its devices
-    # JAX's own persistent compilation cache is not switched on: with it, runs that loaded a
-    # cached program failed with "NOT_FOUND: Function convert_convert_fusion not found" (2 of 3
-    # runs of the default sweep, jax 0.10.2, CPU). Only the engine's program store is used.
+_CONFIGURED = False
+
+
+def configure() -> None:
+    """Switch JAX's 64-bit mode on and ask for one CPU device per core (``MCJAX_CPU_DEVICES``;
+    kept as they are when JAX's backend already runs). Once per process: later calls do
+    nothing. ``mcjax.configure()`` is this function."""
+    global _CONFIGURED
+    if _CONFIGURED:
+        return
+    with _LOCK:
+        if _CONFIGURED:
+            return
+        try:
+            jax.config.update("jax_num_cpu_devices", _device_count())
+        except RuntimeError:
+            pass  # the backend already runs: keep its devices
+        jax.config.update("jax_enable_x64", True)
+        _CONFIGURED = True
 
 
 def settings() -> dict:
-    """What applies in this process: CPU devices in use and the cache folder (or None)."""
-    return {"cpu_devices": len(jax.devices("cpu")), "cache_dir": cache_dir()}
+    """What applies in this process (after :func:`configure`): CPU devices in use, the program
+    store's folder (or None) and 64-bit mode."""
+    configure()
+    return {"x64": bool(jax.config.jax_enable_x64), "cpu_devices": len(jax.devices("cpu")), "cache_dir": cache_dir()}
 
 
 @lru_cache(maxsize=1)
@@ -127,121 +145,58 @@ def _executable_path(key: str) -> Path | None:
 
 #: Programs loaded from and stored to the disk cache in this process.
 STATS = {"loaded": 0, "stored": 0}
-_TARGET = re.compile(r"custom_call @([A-Za-z0-9_.]+)")
 
 
-def custom_call_targets(lowered) -> frozenset:
-    """The custom-call targets (library kernels, e.g. LAPACK's) a lowered program calls."""
-    return frozenset(_TARGET.findall(lowered.as_text()))
-
-
-#: Guards :func:`_ready_targets` and :data:`STATS` against the engine's loading threads.
-_LOCK = threading.Lock()
-
-
-def prepare_loading() -> None:
+def prepare_loading() -> frozenset:
     """Do now what :func:`load_executable` must do once per process before a stored program
-    runs (set up LAPACK, ~0.1 s): the engine calls it while its threads deserialise."""
-    _ready_targets()
-
-
-def _ready_targets() -> frozenset:
-    """:func:`_lapack_targets`, computed once per process even when several threads ask."""
+    runs (set up LAPACK, ~0.1 s: :func:`mcjax.jaxcompat.lapack_targets`), even when several
+    threads ask; returns the library kernels set up. The engine calls it while its threads
+    deserialise."""
     with _LOCK:
-        return _lapack_targets()
+        return jaxcompat.lapack_targets()
 
 
-@lru_cache(maxsize=1)
-def _lapack_targets() -> frozenset:
-    """Set up JAX's LAPACK kernels in this process and return their custom-call targets: the
-    library kernels a stored program may call without being lowered again. (JAX registers the
-    targets when it is imported but binds LAPACK's functions only when it first lowers a call
-    to one, ``jaxlib.lapack.prepare_lapack_call``; a program loaded from disk is not lowered,
-    so it is done here. That is a call into jaxlib's internals: if it is missing, a small
-    program of the dense linear algebra mcjax uses is lowered instead, which does the same in
-    ~0.5 s.)"""
-    try:
-        from jaxlib import lapack
+class _Pickler(pickle.Pickler):
+    """Pickles the classes of module ``local`` (a user's scenario file, imported under a name
+    of its own in each process) by their name in it, not by the module's name."""
 
-        lapack._lapack.initialize()
-        return frozenset(name for name, *_ in lapack.registrations()["cpu"])
-    except Exception:  # noqa: BLE001 — another jaxlib: fall back on lowering
-        return _lowered_targets()
+    def __init__(self, file, local):
+        super().__init__(file)
+        self.local = local
 
-
-@lru_cache(maxsize=1)
-def _lowered_targets() -> frozenset:
-    """Lower (not compile) a small program of the dense linear algebra mcjax uses, in float32
-    and float64, and return the custom-call targets it calls. Lowering is what makes JAX set
-    up those kernels in a process (LAPACK's are bound at their first lowering); a stored
-    program that calls only these can run without being lowered again."""
-    import jax.numpy as jnp
-    from jax.scipy.linalg import solve_triangular
-
-    def zoo(a, b):
-        return [(jnp.linalg.eigvalsh(x), jnp.linalg.cholesky(x), jnp.linalg.solve(x, x),
-                 solve_triangular(x, x, lower=True)) for x in (a, b)]
-
-    return custom_call_targets(jax.jit(zoo).lower(jnp.eye(2, dtype=jnp.float32), jnp.eye(2, dtype=jnp.float64)))
-
-
-def serialise(compiled) -> tuple | None:
-    """A compiled one-device program as ``(bytes, in_tree, out_tree)`` for :func:`deserialise`
-    (JAX's ``serialize_executable``), or None if JAX cannot serialise it."""
-    from jax.experimental import serialize_executable
-
-    try:
-        return serialize_executable.serialize(compiled)
-    except Exception:  # noqa: BLE001 — e.g. a program JAX does not serialise
+    def persistent_id(self, obj):
+        if self.local is not None and isinstance(obj, type) and obj.__module__ == self.local.__name__:
+            return ("local", obj.__qualname__)
         return None
 
 
-def deserialise(data: tuple, device):
-    """The program :func:`serialise` gave, loaded to run on ``device`` — whichever device it
-    was compiled for: XLA's machine code does not depend on the device, only the program's
-    device assignment does, and that is replaced here (one device, one replica). So a
-    program is compiled once and loaded on every CPU device (~1 s each) instead of being
-    compiled once per device. Raises if this JAX cannot do it (the caller then compiles).
+class _Unpickler(pickle.Unpickler):
+    def __init__(self, file, local):
+        super().__init__(file)
+        self.local = local
 
-    This goes beyond JAX's public ``deserialize_and_load`` (which keeps the device the
-    program was compiled for): its unpickler is given the target device for every device it
-    names, and the executable is deserialised with compile options assigning it there. A JAX
-    without those internals gets the public function (the device it was compiled for only)."""
-    from jax.experimental import serialize_executable
-
-    blob, in_tree, out_tree = data
-    try:
-        from jax._src import compiler
-
-        unpickler, compile_options = serialize_executable._JaxPjrtUnpickler, compiler.get_compile_options
-    except (ImportError, AttributeError):
-        return serialize_executable.deserialize_and_load(blob, in_tree, out_tree, execution_devices=[device])
-
-    class OnDevice(unpickler):
-        def persistent_load(self, pid):
-            if pid[0] == "device":
-                return device
-            if pid[0] == "exec":
-                options = compile_options(1, 1, device_assignment=np.array([[device]]), backend=self.backend)
-                return self.backend.deserialize_executable(pid[1], executable_devices=self.execution_devices,
-                                                           compile_options=options)
-            return super().persistent_load(pid)
-
-    unloaded, args_info, no_kwargs = OnDevice(io.BytesIO(blob), device.client, [device]).load()
-    return jax.stages.Compiled(unloaded.load(), [], in_tree.unflatten(args_info), out_tree, no_kwargs=no_kwargs)
+    def persistent_load(self, pid):
+        if pid[0] != "local" or self.local is None:
+            raise pickle.UnpicklingError(f"no module to find {pid!r} in")
+        obj = self.local
+        for part in pid[1].split("."):
+            obj = getattr(obj, part)
+        return obj
 
 
-def load_executable(key: str, device):
+def load_executable(key: str, device, local=None):
     """The program stored under ``key`` (:func:`store_executable`), loaded on ``device``, or
     None when there is none, the cache is off, the file cannot be loaded, or the program calls
-    a library kernel this process has not set up (then the caller compiles it again)."""
+    a library kernel this process has not set up (then the caller compiles it again).
+    ``local``: the module the program's Params and outputs classes were stored from
+    (:func:`store_executable`)."""
     path = _executable_path(key)
     if path is None or not path.is_file():
         return None
     try:
-        blob, in_tree, out_tree, targets = pickle.loads(path.read_bytes())
-        program = deserialise((blob, in_tree, out_tree), device)
-        if not set(targets) <= _ready_targets():
+        blob, in_tree, out_tree, targets = _Unpickler(io.BytesIO(path.read_bytes()), local).load()
+        program = jaxcompat.deserialise((blob, in_tree, out_tree), device)
+        if not set(targets) <= prepare_loading():
             return None
         with _LOCK:
             STATS["loaded"] += 1
@@ -254,10 +209,12 @@ def load_executable(key: str, device):
         return None
 
 
-def store_executable(key: str, data: tuple | None, targets: frozenset) -> None:
-    """Store a compiled one-device program, as :func:`serialise` gave it, for
+def store_executable(key: str, data: tuple | None, targets: frozenset, local=None) -> None:
+    """Store a compiled one-device program, as :func:`mcjax.jaxcompat.serialise` gave it, for
     :func:`load_executable` (on any device), with the custom-call ``targets`` its lowering
-    calls (atomically; failures are ignored: the cache is an optimisation)."""
+    calls (atomically; failures are ignored: the cache is an optimisation). The classes of
+    module ``local`` in its input and output trees (a scenario file's Params, State …) are
+    stored by their name in that module, which the loading process passes again."""
     path = _executable_path(key)
     if path is None:
         return
@@ -265,7 +222,9 @@ def store_executable(key: str, data: tuple | None, targets: frozenset) -> None:
     if data is None:
         return
     try:
-        blob = pickle.dumps((*data, tuple(sorted(targets))))
+        buffer = io.BytesIO()
+        _Pickler(buffer, local).dump((*data, tuple(sorted(targets))))
+        blob = buffer.getvalue()
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".{os.getpid()}.tmp")
         tmp.write_bytes(blob)
@@ -296,6 +255,3 @@ def _known_options(items: tuple) -> dict | None:
             continue
         known[name] = value
     return known or None
-
-
-_apply()

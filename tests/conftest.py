@@ -34,6 +34,6 @@ def pytest_unconfigure(config):
     if _OWN_FOLDER and not hasattr(config, "workerinput"):
         shutil.rmtree(os.environ["MCJAX_TEST_PROGRAMS"], ignore_errors=True)
 
-import jax  # noqa: E402
+import mcjax  # noqa: E402
 
-jax.config.update("jax_enable_x64", True)
+mcjax.configure()  # 64-bit mode and the CPU devices (above: one), as the CLI and the engine do

@@ -138,7 +138,7 @@ def test_results_do_not_depend_on_the_device_count(tmp_path):
     script = tmp_path / "three.py"
     script.write_text(
         "import sys, numpy as np\n"
-        "from mcjax import engine, runtime\n"
+        "from mcjax import engine, jaxcompat, runtime\n"
         "from mcjax.scenarios import wind_formation as wf\n"
         "assert runtime.settings()['cpu_devices'] == 3, runtime.settings()\n"
         "cfg = wf.Config(n_steps=20)\n"
@@ -149,8 +149,8 @@ def test_results_do_not_depend_on_the_device_count(tmp_path):
         "run('three.npz')\n"
         "def refuse(*args):\n"
         "    raise RuntimeError('no')\n"
-        "runtime.deserialise = refuse\n"
-        "engine._PROGRAMS.clear()\n"
+        "jaxcompat.deserialise = refuse\n"
+        "engine.forget('programs')\n"
         "run('fallback.npz')\n")
     env = {**os.environ, "MCJAX_CPU_DEVICES": "3", "MCJAX_CACHE_DIR": "off"}  # compiled here, not loaded
     subprocess.run([sys.executable, str(script), str(tmp_path) + "/"], check=True, env=env, timeout=300)
@@ -162,21 +162,151 @@ def test_results_do_not_depend_on_the_device_count(tmp_path):
 
 
 def test_deserialise_runs_a_program_as_compiled_with_and_without_jax_internals(monkeypatch):
-    """runtime.deserialise (the engine's way of loading one compiled program on every device)
-    gives the compiled program's bits; on a JAX without the internals it uses, it falls back
-    on JAX's public deserialize_and_load (same device only) and still does."""
+    """jaxcompat.deserialise (the engine's way of loading one compiled program on every device)
+    gives the compiled program's bits; with any of the JAX internals it uses taken away (as in
+    a JAX that renamed them), it falls back on JAX's public deserialize_and_load (same device
+    only) and still does."""
     import jax.numpy as jnp
     from jax._src import compiler
+    from jax.experimental import serialize_executable
 
-    from mcjax import runtime
+    from mcjax import jaxcompat
 
+    assert jaxcompat.missing() == []  # the tested JAX has them all
     x = jnp.linspace(-3.0, 3.0, 7)
     compiled = jax.jit(lambda v: jnp.sin(v) * jnp.exp(v) - v**3).lower(x).compile()
     want = np.asarray(compiled(x))
-    data = runtime.serialise(compiled)
-    np.testing.assert_array_equal(np.asarray(runtime.deserialise(data, jax.devices()[0])(x)), want)
-    monkeypatch.delattr(compiler, "get_compile_options")
-    np.testing.assert_array_equal(np.asarray(runtime.deserialise(data, jax.devices()[0])(x)), want)
+    data = jaxcompat.serialise(compiled)
+
+    def check():
+        np.testing.assert_array_equal(np.asarray(jaxcompat.deserialise(data, jax.devices()[0])(x)), want)
+
+    check()
+    public, unpickler, constructor = (serialize_executable.deserialize_and_load,
+                                      serialize_executable._JaxPjrtUnpickler, jax.stages.Compiled)
+    used = []
+
+    def public_stand_in(*args, **kwargs):  # the public function of a JAX whose internals differ
+        used.append(1)
+        with monkeypatch.context() as inner:
+            inner.setattr(serialize_executable, "_JaxPjrtUnpickler", unpickler, raising=False)
+            inner.setattr(jax.stages, "Compiled", constructor)
+            return public(*args, **kwargs)
+
+    monkeypatch.setattr(serialize_executable, "deserialize_and_load", public_stand_in)
+    check()
+    assert used == []  # the internals served
+    for owner, name in ((compiler, "get_compile_options"), (serialize_executable, "_JaxPjrtUnpickler")):
+        with monkeypatch.context() as m:
+            m.delattr(owner, name)
+            assert len(jaxcompat.missing()) == 1
+            check()
+    with monkeypatch.context() as m:  # a Compiled constructor of another signature
+
+        class Other(constructor):
+            def __init__(self, *args, **kwargs):
+                raise TypeError("other signature")
+
+        m.setattr(jax.stages, "Compiled", Other)
+        check()
+    assert len(used) == 3
+
+
+def test_lapack_setup_falls_back_on_lowering_without_jaxlibs_internals(monkeypatch):
+    """jaxcompat.lapack_targets (what a program loaded from the store needs set up): through
+    jaxlib's internals, and without them by lowering a small program; either way it covers the
+    LAPACK kernels a scenario's programs call, and a stored program calling them runs."""
+    import jax.numpy as jnp
+    from jaxlib import lapack
+
+    from mcjax import jaxcompat
+
+    def program(a):
+        return jnp.linalg.cholesky(a), jnp.linalg.eigvalsh(a), jnp.linalg.solve(a, a[:, :1])
+
+    a = jnp.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 2.0]])
+    lowered = jax.jit(program).lower(a)
+    needed = jaxcompat.custom_call_targets(lowered)
+    assert needed  # LAPACK kernels
+    compiled = lowered.compile()
+    want = [np.asarray(o) for o in compiled(a)]
+    assert needed <= jaxcompat.lapack_targets()
+    jaxcompat.lapack_targets.cache_clear()
+    jaxcompat.lowered_targets.cache_clear()
+    try:
+        monkeypatch.delattr(lapack, "registrations")  # (JAX's own lowering needs _lapack.initialize)
+        assert jaxcompat.missing() == ["jaxlib.lapack.registrations"]
+        fallback = jaxcompat.lapack_targets()
+        assert needed <= fallback and fallback == jaxcompat.lowered_targets()
+        loaded = jaxcompat.deserialise(jaxcompat.serialise(compiled), jax.devices()[0])
+        for got, w in zip(loaded(a), want):
+            np.testing.assert_array_equal(np.asarray(got), w)
+    finally:
+        jaxcompat.lapack_targets.cache_clear()  # the next caller sets up through the internals again
+
+
+def test_only_jaxcompat_uses_jax_internals():
+    """Every use of a JAX internal is in mcjax/jaxcompat.py: no other module imports jax._src or
+    a jaxlib submodule, reads a private attribute of something imported from jax or jaxlib, or
+    calls the jax.stages.Compiled constructor."""
+    import ast
+    from pathlib import Path
+
+    root = Path(engine.__file__).resolve().parent
+    bad = []
+    for path in sorted(root.rglob("*.py")):
+        if path.name == "jaxcompat.py" and path.parent == root:
+            continue
+        rel = path.relative_to(root.parent)
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        from_jax = set()  # names bound to jax / jaxlib modules or their members
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                for a in node.names:
+                    if a.name.startswith(("jax._src", "jaxlib.")):
+                        bad.append(f"{rel}:{node.lineno} imports {a.name}")
+                    if a.name.split(".")[0] in ("jax", "jaxlib"):
+                        from_jax.add(a.asname or a.name.split(".")[0])
+            elif isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] in ("jax", "jaxlib"):
+                for a in node.names:
+                    if node.module.startswith(("jax._src", "jaxlib.")) or a.name.startswith("_") or (
+                            node.module == "jaxlib" and a.name != "__version__"):
+                        bad.append(f"{rel}:{node.lineno} imports {a.name} from {node.module}")
+                    from_jax.add(a.asname or a.name)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute):
+                base = node.value
+                while isinstance(base, ast.Attribute):
+                    base = base.value
+                private = node.attr.startswith("_") and not node.attr.endswith("__")
+                if isinstance(base, ast.Name) and base.id in from_jax and private:
+                    bad.append(f"{rel}:{node.lineno} reads {node.attr}")
+            if isinstance(node, ast.Call) and "stages.Compiled" in ast.unparse(node.func):
+                bad.append(f"{rel}:{node.lineno} calls {ast.unparse(node.func)}")
+    assert not bad, bad
+
+
+def test_the_engines_one_cache_keeps_jitted_functions_and_programs_by_key(monkeypatch):
+    """engine.cached: one bounded dict for the process (least recently used out first);
+    compiled() and program_futures() keep their entries there, forget() drops them."""
+    from collections import OrderedDict
+
+    monkeypatch.setattr(engine, "_CACHE", OrderedDict())  # this test's own
+    monkeypatch.setattr(engine, "CACHE_MAX", 3)
+    fn = engine.compiled(lf.SCENARIO, CFG)
+    assert engine.compiled(lf.SCENARIO, CFG, records=False, timeseries=0) is fn
+    assert engine.cached(("jit", lf.SCENARIO, CFG, False, False), lambda: None) is fn
+    made = []
+    assert engine.cached(("test", 1), lambda: made.append(1) or "one") == "one"
+    assert engine.cached(("test", 1), lambda: made.append(1) or "again") == "one" and made == [1]
+    engine.cached(("test", 2), lambda: 2)
+    engine.cached(("jit", lf.SCENARIO, CFG, False, False), lambda: None)  # used: now the most recent
+    engine.cached(("test", 3), lambda: 3)
+    assert list(engine._CACHE) == [("test", 2), ("jit", lf.SCENARIO, CFG, False, False), ("test", 3)]
+    engine.forget("test")
+    assert list(engine._CACHE) == [("jit", lf.SCENARIO, CFG, False, False)]
+    engine.forget()
+    assert not engine._CACHE
 
 
 def test_a_devices_program_future_falls_back_only_when_loading_gave_nothing():
@@ -302,3 +432,52 @@ def test_the_program_store_keeps_under_its_limit_dropping_the_least_recently_use
         monkeypatch.setenv("MCJAX_CACHE_MAX_GB", bad)
         with pytest.raises(ValueError, match="MCJAX_CACHE_MAX_GB must be a positive number of gigabytes"):
             envvars.cache_max_bytes()
+
+
+def test_a_file_scenarios_second_process_loads_its_program_keyed_on_its_source(tmp_path):
+    """A scenario in a user's file (docs/library.md's example) uses the program store too, keyed
+    on its source: a second process loads the program (same bits), from a copy of the file in
+    another folder as well; an edited file compiles and stores its own."""
+    import json
+    import os
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent / "golden"))
+    try:
+        from golden_cases import docs_example
+    finally:
+        sys.path.pop(0)
+    (tmp_path / "a").mkdir()
+    docs_example(tmp_path / "a")
+    script = tmp_path / "run.py"
+    script.write_text(
+        "import sys, json, numpy as np\n"
+        "from mcjax import engine, runtime, scenarios\n"
+        "sc = scenarios.get(sys.argv[1] + ':SCENARIO')\n"
+        "cfg = sc.Config(n_steps=15)\n"
+        "out = [o for *_, o in engine.run_chunks(sc, cfg, engine.stack_points([sc.default_params(cfg)]), 20)]\n"
+        "np.save(sys.argv[2], out[0]['rmse'])\n"
+        "print(json.dumps(runtime.STATS))\n")
+    env = {**os.environ, "MCJAX_CACHE_DIR": str(tmp_path / "cache"), "MCJAX_CPU_DEVICES": "1"}
+
+    def run(folder, name):
+        r = subprocess.run([sys.executable, str(script), str(tmp_path / folder / "static_sensors.py"),
+                            str(tmp_path / name)], env=env, timeout=300, capture_output=True, text=True, check=True)
+        return json.loads(r.stdout.strip().splitlines()[-1]), np.load(tmp_path / name)
+
+    first, a = run("a", "a.npy")
+    second, b = run("a", "b.npy")
+    assert first == {"loaded": 0, "stored": 1} and second == {"loaded": 1, "stored": 0}
+    np.testing.assert_array_equal(a, b)
+    shutil.copytree(tmp_path / "a", tmp_path / "b")
+    third, c = run("b", "c.npy")
+    assert third == {"loaded": 1, "stored": 0}
+    np.testing.assert_array_equal(a, c)
+    edited = tmp_path / "b" / "static_sensors.py"
+    edited.write_text(edited.read_text().replace("100.0 * jnp.eye(2)", "101.0 * jnp.eye(2)"))
+    fourth, d = run("b", "d.npy")
+    assert fourth == {"loaded": 0, "stored": 1}
+    assert not np.array_equal(a, d)

@@ -294,3 +294,50 @@ def test_softmin_closed_form_and_axis():
     np.testing.assert_allclose(smax[0], 2.0 + 0.5 * math.log(7), rtol=1e-14)
     ref = -0.3 * np.log(np.sum(np.exp(-y / 0.3), axis=0))
     np.testing.assert_allclose(jax.jit(lambda y: softmin(y, 0.3, axis=0))(jnp.asarray(y)), ref, rtol=1e-13)
+
+
+def _fresh(code: str, **env) -> list[str]:
+    import os
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                       env={**os.environ, **env})
+    assert r.returncode == 0, r.stderr
+    return r.stdout.strip().splitlines()
+
+
+def test_importing_mcjax_sets_nothing_and_a_library_call_without_64_bit_mode_says_so_once():
+    """No process-wide JAX setting is an import side effect: ``import mcjax`` imports no JAX,
+    importing the computing modules leaves 64-bit mode off, and a library function called
+    without it warns once (float32 then). mcjax.configure() switches it on; once JAX's backend
+    runs, the CPU device count stays as it is."""
+    out = _fresh(
+        "import sys, warnings\n"
+        "import mcjax\n"
+        "print('jax' in sys.modules)\n"
+        "import jax, numpy as np\n"
+        "import mcjax.engine, mcjax.graph, mcjax.numerics\n"
+        "print(jax.config.jax_enable_x64)\n"
+        "a = np.ones((4, 4)) - np.eye(4)\n"
+        "with warnings.catch_warnings(record=True) as caught:\n"
+        "    warnings.simplefilter('always')\n"
+        "    print(mcjax.graph.algebraic_connectivity(a).dtype, mcjax.graph.laplacian(a).dtype)\n"
+        "print(len(caught), caught[0].category.__name__, caught[0].message)\n"
+        "mcjax.configure()\n"
+        "mcjax.configure()\n"
+        "print(jax.config.jax_enable_x64, len(jax.devices()), mcjax.graph.algebraic_connectivity(a).dtype)\n",
+        MCJAX_CPU_DEVICES="3")
+    assert out[:3] == ["False", "False", "float32 float32"]
+    assert out[3].startswith("1 UserWarning mcjax.graph: JAX's 64-bit mode is off") and "mcjax.configure()" in out[3]
+    assert out[4] == "True 1 float64"  # the backend already ran (float32): its one device kept
+
+
+def test_configure_and_the_engines_entry_points_set_64_bit_mode_and_the_cpu_devices():
+    """mcjax.configure() before JAX starts: 64-bit mode and MCJAX_CPU_DEVICES devices; the
+    engine's entry points call it themselves."""
+    for call in ("import mcjax; mcjax.configure()", "from mcjax import engine; engine.devices()"):
+        out = _fresh(f"{call}\nimport jax\nfrom mcjax import runtime\n"
+                     "print(jax.config.jax_enable_x64, len(jax.devices()), runtime.settings()['x64'])",
+                     MCJAX_CPU_DEVICES="3")
+        assert out == ["True 3 True"], call
