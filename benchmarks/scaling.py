@@ -48,7 +48,7 @@ def _memory_per_run(sc, cfg, runs: int) -> float:
     """XLA's account of the compiled batch program's arguments + outputs + temporaries, per
     run (bytes): read from the program the engine compiled (no second compilation)."""
     fn = engine.compiled(sc, cfg)
-    progs = [p for (f, *_), p in engine._PROGRAMS.items() if f is fn]
+    progs = engine.cached_programs(fn)
     m = progs[-1][0].memory_analysis() if progs else None
     if m is None:
         return float("nan")

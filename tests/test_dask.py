@@ -158,7 +158,7 @@ def test_same_bytes_as_local_and_one_compilation_per_worker(lab, tmp_path):
 
         specs = [s for t, s in cluster._WORKER_SPECS.items() if t == token]
         fns = {engine.compiled(s.scenario, s.config) for s in cluster._WORKER_SPECS.values()}
-        return len(specs), len(fns), sum(key[0] in fns for key in engine._PROGRAMS)
+        return len(specs), len(fns), sum(len(engine.cached_programs(f)) for f in fns)
 
     # a worker unpickled the spec at most once and compiled one program for all three sweeps
     counts = lab.client.run(programs, ship(lab.spec).spec_token)
