@@ -403,7 +403,7 @@ def substep_cost(config: Path, n: int, runs: int, base_seed: int, substeps: int 
     ``runs`` initial states of ``n`` nodes (``flocking.init``) with a fixed ``substeps`` count
     (the best of ``repeats`` calls after compiling): the integrator's cost per unit of work,
     free of how stiff the flock is."""
-    from mcjax.models import flocking as fl
+    from mcjax.scenarios.flocking import dynamics as fl
     from mcjax.scenarios.flocking import sensing_mask
 
     scenario, cfg, p, _ = _scaling_setup(config, n, 30)

@@ -25,7 +25,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcjax.planning import CostParams, Dynamics, PlannerOptions, Problem, horizon_cost, horizon_plan_cost, solve
+from mcjax.planning import PlannerOptions, solve
+from mcjax.scenarios.leader_follower.horizon import Dynamics, Problem, horizon_cost, horizon_plan_cost
+from mcjax.scenarios.leader_follower.objectives import CostParams
 from mcjax.sweep import load_config_file
 
 ROOT = Path(__file__).resolve().parent.parent

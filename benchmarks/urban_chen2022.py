@@ -89,8 +89,8 @@ import pandas as pd
 
 from mcjax import engine
 from mcjax.filters.imm import combine
-from mcjax.models import environment as env
-from mcjax.planning import urban
+from mcjax.scenarios.urban_bearing import environment as env
+from mcjax.scenarios.urban_bearing import score as urban
 from mcjax.results import environment_metadata, write_part
 from mcjax.scenarios import urban_bearing as ub
 from mcjax.statistics import mean_ci, t_critical, wilson_interval

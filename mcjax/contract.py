@@ -1,42 +1,25 @@
 """The scenario contract: what a scenario provides, and the declarations everything else reads.
 
-A scenario is a :class:`Scenario` record of functions and declarations (a frozen dataclass of
-functions — not a base class to inherit from). The engine, the sweep, the CLI, the results and
-the report use a scenario only through this record; nothing above the scenarios names a
-scenario, a filter or a unit.
+A scenario is a :class:`Scenario`, a frozen record of functions and declarations (not a base
+class); the layers above use a scenario only through it and name no scenario, filter or unit:
 
-What a scenario provides:
+* ``Config`` (:func:`config_type`, one :class:`Setting` per field): what fixes shapes or the
+  compiled program; every Config has ``n_agents``, ``n_steps`` and ``filters`` (display order:
+  a per-filter output has one value per filter, in this order);
+* ``Params`` (:func:`params_type`, one :class:`Param` per field): a NamedTuple of arrays of
+  what a sweep may vary without recompiling;
+* ``init``, ``step`` (:class:`Init`, :class:`Step`; pure, jittable) and ``reduce``
+  (:class:`Reduce`) to the :class:`Output` fields ``outputs(cfg)`` declares, ``(F,)`` per
+  filter, ``()`` per run — or both from one ``summary`` declaring each output once, next to
+  its value (:func:`declare`); optionally ``timeseries`` / ``timeseries_outputs`` (or one
+  ``series``), ``check_params``, ``surrogate`` and ``compiler_options`` (:data:`FAST_COMPILE`).
 
-* ``Config`` — a frozen, hashable dataclass of everything that fixes array shapes or the
-  compiled program, built by :func:`config_type` from one :class:`Setting` per field (default,
-  unit, allowed values, description). Validation and ``mcjax list`` derive from the settings.
-  Every Config has ``n_agents``, ``n_steps`` and ``filters`` (the filter names in display
-  order; every per-filter output has one value per filter, in this order).
-* ``Params`` — a NamedTuple of arrays (a pytree) of everything a sweep may vary without
-  recompiling, built by :func:`params_type` from one :class:`Param` per field (default,
-  unit, allowed range, per-agent or not, shape, description). Sweep validation, ``mcjax
-  list``, report axis labels and the Parquet metadata derive from it.
-* ``init(cfg, params, key) -> State`` and ``step(cfg, params, state, key) -> (State, Record)``,
-  pure and jittable; ``reduce(cfg, records, params) -> {name: array}`` reduces one run's
-  records (stacked over time) to the declared :class:`Output` fields of ``outputs(cfg)``:
-  ``(F,)`` for a per-filter output, ``()`` for a per-run one.
-* optionally ``timeseries(cfg, records, params) -> {name: array}``, per-step series declared
-  by ``timeseries_outputs(cfg)``: ``(T, F)`` per filter, ``(T,)`` per run;
-* optionally ``check_params(cfg, values) -> [(field, allowed), …]``: checks across fields
-  (e.g. the horizon against ``Config.max_horizon``); single-field checks come from the table.
-* optionally ``compiler_options``: XLA options for the scenario's batch programs
-  (``jax.jit(..., compiler_options=…)``), e.g. :data:`FAST_COMPILE`; an option this JAX does
-  not know is dropped (the program is then compiled with XLA's defaults).
-
-Validation reads values as a spec writes them (TOML): kinds are exact — a boolean is no
-number, a float no integer (:meth:`Param.problem` with ``exact=True``), a string or a table no
-list — and integer Config fields without a declared upper bound get the contract's
-:func:`ceiling` (:data:`COUNT_CEILINGS`), so a spec cannot ask for more than a machine holds.
-
-Output roles tell the layers above what a column means: ``"error"`` (exactly one: the error
-metric the report leads with), ``"divergence"`` (the divergence flag), ``"nonfinite"`` and
-the graph statistics ``"connectivity_mean"``, ``"connectivity_min"`` and
-``"disconnected_steps"`` (all optional: a single agent has no graph).
+Validation reads values as a spec (TOML) writes them: kinds are exact (:meth:`Param.problem`
+with ``exact=True``) and integer Config fields without an upper bound get :func:`ceiling`.
+Output roles (:data:`ROLES`) tell the layers above what a column means: ``"error"`` (exactly
+one: the metric the report leads with), ``"divergence"``, ``"nonfinite"`` and the graph
+statistics (optional; each role at most once). ``Scenario(...)`` checks the declarations of
+``Config()`` when it is built (ValueError, one line).
 
 This module is a leaf: it imports nothing from mcjax and no JAX, so every layer may use it.
 """
@@ -47,7 +30,7 @@ import dataclasses
 import math
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Any, Callable, Mapping, NamedTuple
+from typing import Any, Callable, Mapping, NamedTuple, Protocol
 
 import numpy as np
 
@@ -83,15 +66,6 @@ def _range_text(low, high, low_open, integer) -> str:
     return "an integer" if integer else "any number"
 
 
-def _in_range(arr, low, high, low_open) -> bool:
-    ok = np.ones(arr.shape, bool)
-    if low is not None:
-        ok &= (arr > low) if low_open else (arr >= low)
-    if high is not None:
-        ok &= arr <= high
-    return bool(np.all(ok))
-
-
 def _show(value) -> str:
     """``repr(value)`` on one line, cut to a readable length."""
     text = repr(value.tolist() if isinstance(value, np.ndarray) else value).replace("\n", " ")
@@ -102,10 +76,13 @@ def _bad(allowed: str, value) -> str:
     return f"must be {allowed}; got {_show(value)}"
 
 
-# ------------------------------------------------------------------ exact kinds of values
-# A spec is TOML, whose values have exact kinds: a boolean is not a number, a float is not
-# an integer, a string is not a list, a table is not a list. These helpers hold that line
-# (numpy scalars count as their Python kinds, so code may pass them too).
+def _shape_text(shape, n_agents=None) -> str:
+    """A declared shape as ``n_agentsx2`` (or, given ``n_agents``, its numbers: ``5x2``)."""
+    return "x".join(("n_agents" if n_agents is None else str(n_agents)) if d == "n" else str(d) for d in shape)
+
+
+# Exact kinds of values, as TOML has them: a boolean is no number, a float no integer, a string or
+# a table no list (numpy scalars count as their Python kinds).
 
 def _is_bool(v) -> bool:
     return isinstance(v, (bool, np.bool_))
@@ -121,14 +98,9 @@ def _is_real(v) -> bool:
 
 def _same(value, choice) -> bool:
     """``value`` is ``choice`` in kind and in value: true is not 1, 1.0 is not 1, "1" is not 1."""
-    if isinstance(choice, str):
-        return isinstance(value, str) and value == choice
-    if _is_bool(choice):
-        return _is_bool(value) and value == choice
-    if _is_int(choice):
-        return _is_int(value) and value == choice
-    if _is_real(choice):
-        return _is_real(value) and value == choice
+    for kind in (lambda v: isinstance(v, str), _is_bool, _is_int, _is_real):
+        if kind(choice):
+            return kind(value) and value == choice
     return type(value) is type(choice) and value == choice
 
 
@@ -138,13 +110,8 @@ def _leaves(value):
     if isinstance(value, np.ndarray):
         return [value] if value.dtype.kind in "iuf" else None
     if isinstance(value, (list, tuple)):
-        out = []
-        for v in value:
-            sub = _leaves(v)
-            if sub is None:
-                return None
-            out += sub
-        return out
+        subs = [_leaves(v) for v in value]
+        return None if any(sub is None for sub in subs) else [leaf for sub in subs for leaf in sub]
     return [value] if _is_real(value) else None
 
 
@@ -153,19 +120,15 @@ def _integral_leaves(leaves) -> bool:
     return all(_is_int(v) or (isinstance(v, np.ndarray) and v.dtype.kind in "iu") for v in leaves)
 
 
-def _within(value, low, high, low_open) -> bool:
-    """A scalar range check that also holds for integers beyond float range."""
-    if low is not None and not (value > low if low_open else value >= low):
-        return False
-    return high is None or value <= high
+def _within(value, low, high, low_open):
+    """A range check (element-wise for an array) that also holds for integers beyond float range."""
+    ok = True if low is None else (value > low if low_open else value >= low)
+    return ok & (True if high is None else value <= high)
 
 
-#: Upper bounds of the integer Config fields that declare none, so that no spec can ask
-#: for more than one machine holds before the sweep even sizes its batches: the agents
-#: and steps every Config has, and any other count (iterations, samples, grid cells,
-#: sub-steps, attempts). The sweep's memory check (mcjax.sweep) refines these per program.
+#: Upper bounds of the integer Config fields that declare none (agents, steps; every other count:
+#: COUNT_CEILING), so no spec asks for more than a machine holds (mcjax.sweep refines them).
 COUNT_CEILINGS = {"n_agents": 1_000, "n_steps": 1_000_000}
-#: The bound of every other integer Config field without a declared upper bound.
 COUNT_CEILING = 100_000
 
 
@@ -182,33 +145,22 @@ def setting_problem(name: str, setting: "Setting", value) -> str | None:
     msg = setting.problem(value)
     top = ceiling(name, setting)
     if msg is None and top is not None and value > top:
-        low = setting.low if setting.low is not None else -math.inf
-        return _bad(_range_text(low, top, setting.low_open, True) + (f" {setting.unit}" if setting.unit else ""),
-                    value)
+        low, unit = setting.low if setting.low is not None else -math.inf, f" {setting.unit}" if setting.unit else ""
+        return _bad(_range_text(low, top, setting.low_open, True) + unit, value)
     return msg
 
 
 #: Units a value may be shown in: (declared unit, shown unit) -> factor (shown = factor x declared).
-DISPLAY_UNITS = {
-    ("m", "km"): 1e-3,
-    ("rad", "deg"): 180.0 / math.pi,
-    ("rad/s", "deg/s"): 180.0 / math.pi,
-    ("s", "min"): 1.0 / 60.0,
-    ("s", "h"): 1.0 / 3600.0,
-    ("m/s", "km/h"): 3.6,
-}
+DISPLAY_UNITS = {("m", "km"): 1e-3, ("rad", "deg"): 180.0 / math.pi, ("rad/s", "deg/s"): 180.0 / math.pi,
+                 ("s", "min"): 1.0 / 60.0, ("s", "h"): 1.0 / 3600.0, ("m/s", "km/h"): 3.6}
 #: The shown unit of a declared unit when a Param names none: angles in degrees.
 DEFAULT_DISPLAY = {"rad": "deg", "rad/s": "deg/s"}
 
 
 def display_unit(unit: str, display: str | None = None) -> tuple[str, float]:
     """``(shown unit, factor)`` for a value declared in ``unit``: ``display`` when given (it
-    must be ``unit`` itself or a pair of :data:`DISPLAY_UNITS`), else :data:`DEFAULT_DISPLAY`,
-    else ``unit`` unchanged (factor 1).
-
-    Raises:
-        ValueError: ``display`` is neither ``unit`` nor a known conversion from it.
-    """
+    must be ``unit`` or a pair of :data:`DISPLAY_UNITS`, else ValueError), else
+    :data:`DEFAULT_DISPLAY`, else ``unit`` unchanged (factor 1)."""
     unit = unit or ""
     if display is None:
         display = DEFAULT_DISPLAY.get(unit, unit)
@@ -251,28 +203,20 @@ class Setting(NamedTuple):
             unknown = [v for v in value if not any(_same(v, c) for c in self.choices)]
             if unknown:
                 return _bad(self.allowed(), value) + f" (unknown: {', '.join(map(_show, unknown))})"
-            if len(value) == 0 or len(set(value)) != len(value):
-                return _bad(self.allowed(), value)
-            return None
+            return _bad(self.allowed(), value) if len(value) == 0 or len(set(value)) != len(value) else None
         if self.choices is not None:
             return None if any(_same(value, c) for c in self.choices) else _bad(self.allowed(), value)
         unit = f" {self.unit}" if self.unit else ""
         if not _is_real(value) or (self.integer and not _is_int(value)):
             return _bad(self.allowed() + ("" if self.integer else unit), value)
-        if not _is_int(value) and not math.isfinite(value):
-            return _bad(self.allowed() + unit, value)
-        if not _within(value, self.low, self.high, self.low_open):
-            return _bad(self.allowed() + unit, value)
-        return None
+        finite = _is_int(value) or math.isfinite(value)
+        return None if finite and _within(value, self.low, self.high, self.low_open) else _bad(self.allowed() + unit, value)
 
 
 class Param(NamedTuple):
-    """Declaration of one Params field (a sweep may vary it without recompiling).
-
-    ``default`` is a value or a function of the Config (e.g. one position per agent).
-    ``shape`` is the required shape, with ``"n"`` for the number of agents (None: any);
-    a ``per_agent`` field takes a scalar (the same for every agent) or one value per agent.
-    """
+    """Declaration of one Params field (a sweep may vary it without recompiling). ``default``: a
+    value or a function of the Config; ``shape``: the required shape, ``"n"`` for the number of
+    agents (None: any); a ``per_agent`` field takes a scalar (every agent) or one value per agent."""
 
     default: Any
     unit: str
@@ -307,18 +251,14 @@ class Param(NamedTuple):
         """What the field takes, in words: its form (a number, one per agent, a shape) and
         its allowed values, e.g. ``"a number or a list of n_agents = 5 numbers, >= 0 m"``."""
         kind = "integer" if self._integral() else "number"
+        one = f"a{'n' if kind == 'integer' else ''} {kind}"
         if self.shape is not None:
-            shown = "x".join("n_agents" if d == "n" else str(d) for d in self.shape)
-            want = "" if n_agents is None else " (" + "x".join(str(n_agents if d == "n" else d)
-                                                           for d in self.shape) + ")"
-            form = f"an array of {kind}s of shape {shown}{want}"
+            want = "" if n_agents is None else f" ({_shape_text(self.shape, n_agents)})"
+            form = f"an array of {kind}s of shape {_shape_text(self.shape)}{want}"
         elif self.per_agent:
-            agents = "n_agents" if n_agents is None else f"n_agents = {n_agents}"
-            form = f"a{'n' if kind == 'integer' else ''} {kind} or a list of {agents} {kind}s"
-        elif cfg is not None and self.scalar(cfg):
-            form = f"a{'n' if kind == 'integer' else ''} {kind}"
+            form = f"{one} or a list of {'n_agents' if n_agents is None else f'n_agents = {n_agents}'} {kind}s"
         else:
-            form = f"a{'n' if kind == 'integer' else ''} {kind} or a rectangular list of {kind}s"
+            form = one if cfg is not None and self.scalar(cfg) else f"{one} or a rectangular list of {kind}s"
         if self.choices is not None:
             return f"{form}, {self.allowed()}"
         rng = _range_text(self.low, self.high, self.low_open, False)
@@ -326,12 +266,10 @@ class Param(NamedTuple):
 
     def problem(self, value, n_agents: int | None = None, *, exact: bool = False, cfg=None) -> str | None:
         """None if ``value`` is allowed (for ``n_agents`` agents, when given: shapes are then
-        checked too), else ``"must be …; got …"``. A boolean, a string or a table is never a
-        number, nor is a ragged list an array.
-
-        ``exact=True`` reads ``value`` as a spec gives it: an integer field (or one whose
-        choices are integers) takes integers only (``5.0`` is a float), and with ``cfg`` (the
-        Config; it also sets ``n_agents``) a :meth:`scalar` field takes one number only."""
+        checked too), else ``"must be …; got …"``; a boolean, string, table or ragged list is no
+        number. ``exact=True`` reads ``value`` as a spec gives it: an integer field (or one with
+        integer choices) takes integers only (``5.0`` is a float), and with ``cfg`` (which also
+        sets ``n_agents``) a :meth:`scalar` field takes one number only."""
         if cfg is not None:
             n_agents = cfg.n_agents
         leaves = _leaves(value)
@@ -352,21 +290,18 @@ class Param(NamedTuple):
                 return _bad(self.allowed(), value)
         elif self.integer and np.any(arr != np.round(arr)):
             return _bad(self.allowed(), value)
-        elif not _in_range(arr, self.low, self.high, self.low_open):
+        elif not np.all(_within(arr, self.low, self.high, self.low_open)):
             return _bad(self.allowed() + (f" {self.unit}" if self.unit else ""), value)
         if n_agents is not None:
             if self.per_agent and arr.shape not in ((), (n_agents,)):
                 return _bad(f"a number or a list of n_agents = {n_agents} numbers", value)
             if self.shape is not None:
-                want = tuple(n_agents if d == "n" else d for d in self.shape)
-                if arr.shape != want:
-                    shown = "x".join("n_agents" if d == "n" else str(d) for d in self.shape)
-                    return _bad(f"of shape {shown} ({'x'.join(map(str, want))})", value)
+                if arr.shape != tuple(n_agents if d == "n" else d for d in self.shape):
+                    return _bad(f"of shape {_shape_text(self.shape)} ({_shape_text(self.shape, n_agents)})", value)
         return None
 
     def display_unit(self) -> tuple[str, float]:
-        """``(unit, factor)``: the unit plots show this field in and the factor from its
-        declared unit to it (:func:`display_unit`)."""
+        """``(unit, factor)``: the unit plots show this field in, and the factor to it (:func:`display_unit`)."""
         return display_unit(self.unit, self.display)
 
     def as_json(self) -> dict:
@@ -377,11 +312,10 @@ class Param(NamedTuple):
 
 def config_type(name: str, settings: Mapping[str, Setting], module: str,
                 check: Callable[[Any], None] | None = None) -> type:
-    """A frozen dataclass with one field per :class:`Setting` (in order), whose construction
-    validates every field (ValueError naming it and its allowed values; a list given for a
-    ``many`` field becomes a tuple) and then runs ``check(cfg)`` for checks across fields.
-    The settings are kept as ``Config.SETTINGS``. ``module`` is the defining module's
-    ``__name__`` (so configs pickle)."""
+    """A frozen dataclass with one field per :class:`Setting` (in order; kept as ``SETTINGS``) whose
+    construction validates every field (ValueError naming it and its allowed values; a list for a
+    ``many`` field becomes a tuple), then runs ``check(cfg)`` across fields. ``module``: the
+    defining module's ``__name__`` (so configs pickle)."""
 
     def __post_init__(self):
         for field, s in settings.items():
@@ -417,54 +351,124 @@ def params_type(name: str, table: Mapping[str, Param], module: str) -> type:
 
 
 class Surrogate(NamedTuple):
-    """A scenario's smooth stand-in for training by gradient through the closed loop (``mcjax
-    tune``, :mod:`mcjax.tune`): the exact simulation with its hard switches (a sensing gate,
-    the comm graph's links) replaced by smooth forms, so the gradient is informative.
-
-    * ``step(cfg, params, state, key, smoothing) -> (State, errors)``: one step, with the same
-      random draws as ``Scenario.step``; ``errors`` (F, n) the error of every filter and agent;
-    * ``weights(cfg, params) -> (n,)``: each agent's weight in the training loss (alive: 1);
-    * ``Smoothing``: a NamedTuple of the temperatures, with defaults (its fields are the keys
-      of a tune spec's ``[tune.smoothing]`` table)."""
+    """A scenario's smooth stand-in for training by gradient (``mcjax tune``): its hard switches
+    (a sensing gate, the comm graph's links) made smooth. ``step(cfg, params, state, key,
+    smoothing) -> (State, errors (F, n))`` with ``Scenario.step``'s random draws; ``weights(cfg,
+    params) -> (n,)`` each agent's weight in the loss; ``Smoothing`` a NamedTuple of the
+    temperatures with defaults (the keys of a tune spec's ``[tune.smoothing]``)."""
 
     step: Callable
     weights: Callable
     Smoothing: type
 
 
-#: XLA's older fusion code generator on the CPU (``xla_cpu_use_fusion_emitters = False``):
-#: measured on the 2-core VM (2026-12-02, docs/benchmarks.md) it compiles the closed loop of
-#: Sun et al. 2011 with ~35–45 % less CPU time than the default (newer) emitters, the program
-#: running as fast; for Ren & Lv 2017's IMM-UKF it ran ~10 % slower, so that scenario keeps
-#: the default.
+#: XLA's older CPU fusion code generator: the closed loop of Sun et al. 2011 compiled with ~35–45 %
+#: less CPU time, running as fast; Ren & Lv 2017's IMM-UKF ran ~10 % slower (docs/benchmarks.md).
 FAST_COMPILE: Mapping[str, Any] = MappingProxyType({"xla_cpu_use_fusion_emitters": False})
+
+
+class Init(Protocol):
+    """``init(cfg, params, key) -> State``: the state before step 0 (pure, jittable)."""
+    def __call__(self, cfg: Any, params: Any, key: Any) -> Any: ...
+
+
+class Step(Protocol):
+    """``step(cfg, params, state, key) -> (State, Record)``: one time step (pure, jittable)."""
+    def __call__(self, cfg: Any, params: Any, state: Any, key: Any) -> tuple[Any, Any]: ...
+
+
+class Reduce(Protocol):
+    """``reduce(cfg, records, params) -> {name: array}``: one run's records (stacked over time)
+    to its declared outputs; ``timeseries`` has the same form."""
+    def __call__(self, cfg: Any, records: Any, params: Any) -> Mapping[str, Any]: ...
+
+
+#: ``summary(cfg, records, params) -> declare(...)``: each output's :class:`Output` next to the
+#: thunk computing it; called with ``records = params = None`` for the declarations alone.
+Summary = Callable[[Any, Any, Any], Mapping[str, "tuple[Output, Callable[[], Any]]"]]
+
+
+def declare(**items: tuple[Output, Callable[[], Any]]) -> Mapping[str, tuple[Output, Callable[[], Any]]]:
+    """``{name: (Output, thunk)}`` from ``name=(Output(...), lambda: value)``, in order, each checked
+    (ValueError naming it). A value shared by outputs goes in a ``functools.cache``-d thunk."""
+    for name, item in items.items():
+        if not (isinstance(item, tuple) and len(item) == 2 and isinstance(item[0], Output) and callable(item[1])):
+            raise ValueError(f"output {name!r} must be (Output(...), a function of no arguments); got {_show(item)}")
+    return MappingProxyType(items)
+
+
+class FromSummary(NamedTuple):
+    """A :class:`Summary` as ``outputs(cfg)`` (``values`` False: the declarations) or as
+    ``reduce(cfg, records, params)`` (True: every thunk's value), in declaration order."""
+
+    summary: Summary
+    values: bool
+
+    def __call__(self, cfg, records=None, params=None):
+        items = self.summary(cfg, records, params).items()
+        return {k: v() for k, (_, v) in items} if self.values else {k: o for k, (o, _) in items}
+
+
+def check_outputs(declared, what: str, *, error_role: bool) -> None:
+    """Each an :class:`Output` (str unit and description, bool per_filter, role in :data:`ROLES`
+    or None), no role twice, one ``"error"`` with ``error_role``; else a one-line ValueError."""
+    seen: dict = {}
+    for name, o in declared.items():
+        where = f"{what}: output {name!r}"
+        if not isinstance(o, Output):
+            raise ValueError(f"{where} must be an Output(unit, description, per_filter, role); got {_show(o)}")
+        for field, kind in (("unit", str), ("description", str), ("per_filter", bool)):
+            if not isinstance(getattr(o, field), kind):
+                raise ValueError(f"{where}: {field} must be a {kind.__name__}; got {_show(getattr(o, field))}")
+        if o.role is not None and o.role not in ROLES:
+            raise ValueError(f"{where} has the unknown role {_show(o.role)}; allowed roles: {', '.join(ROLES)}, None")
+        if o.role is not None and seen.setdefault(o.role, name) != name:
+            raise ValueError(f"{where}: the role {o.role!r} is declared twice (also by {seen[o.role]!r})")
+    if error_role and "error" not in seen:
+        raise ValueError(f"{what}: no output has the role 'error' (exactly one must)")
 
 
 @dataclass(frozen=True, eq=False)
 class Scenario:
-    """One simulated system (see the module docstring). Hashed by identity, so the engine
-    compiles it once per Config."""
+    """One simulated system (module docstring), hashed by identity (compiled once per Config).
+    ``summary`` gives ``reduce`` and ``outputs``; ``series`` ``timeseries`` and its outputs."""
 
     name: str
     title: str                      # one line: the system, and the paper it comes from
     Config: type
     Params: type
-    init: Callable
-    step: Callable
-    reduce: Callable
-    outputs: Callable[[Any], Mapping[str, Output]]
-    timeseries: Callable | None = None
+    init: Init
+    step: Step
+    reduce: Reduce | None = None
+    outputs: Callable[[Any], Mapping[str, Output]] | None = None
+    timeseries: Reduce | None = None
     timeseries_outputs: Callable[[Any], Mapping[str, Output]] | None = None
     check_params: Callable[[Any, dict], list] | None = None
     surrogate: Surrogate | None = None   # smooth stand-in for ``mcjax tune`` (optional)
     compiler_options: Mapping[str, Any] | None = None  # XLA options of its programs (optional)
+    summary: Summary | None = None       # reduce and outputs in one
+    series: Summary | None = None        # timeseries and timeseries_outputs in one
 
     def __post_init__(self):
-        for field in ("n_agents", "n_steps", "filters"):
-            if field not in self.Config.SETTINGS:
-                raise TypeError(f"scenario {self.name!r}: Config must declare {field!r}")
+        me = f"scenario {self.name!r}"
+        for summary, pair in ((self.summary, ("reduce", "outputs")), (self.series, ("timeseries", "timeseries_outputs"))):
+            if summary is not None:
+                if any(not isinstance(getattr(self, f), (FromSummary, type(None))) for f in pair):  # (derived: replaced)
+                    raise ValueError(f"{me}: give {' and '.join(pair)} or a summary of both, not both")
+                object.__setattr__(self, pair[0], FromSummary(summary, True))
+                object.__setattr__(self, pair[1], FromSummary(summary, False))
+        for field in ("reduce", "outputs"):
+            if not callable(getattr(self, field)):
+                raise ValueError(f"{me}: {field} is missing (give {field}, or summary)")
+        for field in ("n_agents", "n_steps", "filters"):  # a Config built by config_type has SETTINGS
+            if field not in getattr(self.Config, "SETTINGS", {}):
+                raise ValueError(f"{me}: Config must declare {field!r}")
         if (self.timeseries is None) != (self.timeseries_outputs is None):
-            raise TypeError(f"scenario {self.name!r}: timeseries and timeseries_outputs go together")
+            raise ValueError(f"{me}: timeseries and timeseries_outputs go together")
+        cfg = self.Config()
+        check_outputs(self.outputs(cfg), f"{me}: outputs(Config())", error_role=True)
+        if self.timeseries_outputs is not None:
+            check_outputs(self.timeseries_outputs(cfg), f"{me}: timeseries_outputs(Config())", error_role=False)
 
     @property
     def settings(self) -> dict[str, Setting]:

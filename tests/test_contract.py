@@ -16,7 +16,7 @@ from click.testing import CliRunner
 
 from mcjax import scenarios
 from mcjax.cli import main
-from mcjax.contract import Output, Param, Scenario, Setting, config_type, params_type
+from mcjax.contract import Output, Param, Scenario, Setting, config_type, declare, params_type
 from mcjax.results import read_metadata, read_table
 from mcjax.scenarios import leader_follower, uuv_imm
 
@@ -447,3 +447,112 @@ def test_configs_and_params_pickle():
         assert again == cfg and hash(again) == hash(cfg) and type(again) is sc.Config
         p = pickle.loads(pickle.dumps(sc.default_params(cfg)))
         assert type(p) is sc.Params and all(np.array_equal(a, b) for a, b in zip(p, sc.default_params(cfg)))
+
+
+# ----------------------------------------------------------------------------- the contract at construction
+
+
+def _toy(**changes):
+    """A minimal valid scenario's fields (``changes`` replace some)."""
+    from mcjax.scenarios.kit import check_common, common_settings, error_outputs, error_summary
+
+    fields = dict(name="toy", title="toy", Config=config_type("Config", common_settings(
+        filter_kinds=("kf",), n_agents=1, n_steps=4, warmup_steps=0, divergence_threshold=1.0), __name__,
+        check_common), Params=params_type("Params", dict(q=Param(1.0, "m", "q")), __name__),
+        init=lambda cfg, p, key: 0.0, step=lambda cfg, p, s, key: (s, s),
+        reduce=lambda cfg, e, p: error_summary(e, np.ones(1), 0, 1.0), outputs=lambda cfg: error_outputs("m"))
+    fields.update(changes)
+    return fields
+
+
+def test_an_unknown_role_fails_at_construction_in_one_line():
+    bad = {"rmse": Output("m", "error", True, "error"), "spread": Output("m", "spread", True, "erorr")}
+    with pytest.raises(ValueError) as err:
+        Scenario(**_toy(outputs=lambda cfg: bad))
+    message = str(err.value)
+    assert "\n" not in message and "'spread'" in message and "'erorr'" in message
+    assert "scenario 'toy'" in message and "allowed roles: error, divergence, nonfinite" in message
+
+
+@pytest.mark.parametrize("roles", [(None, None), ("error", "error")])
+def test_zero_or_two_error_roles_fail_at_construction(roles):
+    outs = {f"o{i}": Output("m", "an output", True, r) for i, r in enumerate(roles)}
+    with pytest.raises(ValueError, match="role 'error'") as err:
+        Scenario(**_toy(outputs=lambda cfg: outs))
+    assert "\n" not in str(err.value)
+
+
+def test_bad_output_fields_and_timeseries_roles_fail_at_construction():
+    for bad, field in ((Output(1, "x"), "unit"), (Output("m", "x", "yes"), "per_filter"), (("m", "x"), "Output(")):
+        with pytest.raises(ValueError, match=re.escape(field)):
+            Scenario(**_toy(outputs=lambda cfg: {"rmse": Output("m", "e", True, "error"), "other": bad}))
+    with pytest.raises(ValueError, match=r"timeseries_outputs\(Config\(\)\): output 'e' has the unknown role 'x'"):
+        Scenario(**_toy(timeseries=lambda cfg, r, p: {}, timeseries_outputs=lambda cfg: {"e": Output("m", "e", role="x")}))
+
+
+@pytest.mark.parametrize("missing", ["n_agents", "n_steps", "filters"])
+def test_a_config_without_a_required_field_is_a_value_error(missing):
+    settings = dict(n_agents=Setting(1, "agents", low=1, integer=True), n_steps=Setting(4, "steps", low=1, integer=True),
+                    filters=Setting(("kf",), "filters", choices=("kf",), many=True))
+    del settings[missing]
+    with pytest.raises(ValueError, match=f"Config must declare '{missing}'"):
+        Scenario(**_toy(Config=config_type("Config", settings, __name__)))
+
+
+def test_reduce_and_outputs_or_a_summary_are_required():
+    with pytest.raises(ValueError, match="reduce is missing"):
+        Scenario(**_toy(reduce=None))
+    with pytest.raises(ValueError, match="not both"):
+        Scenario(**_toy(summary=lambda cfg, r, p: {}))
+    with pytest.raises(ValueError, match="output 'x' must be"):
+        declare(x=Output("m", "x"))
+
+
+def _summary(cfg, records, params):
+    """A scenario's outputs declared once: the kit's error summary and one more output."""
+    from functools import cache
+
+    from mcjax.scenarios import kit
+
+    errors = cache(lambda: np.asarray(records)[..., None])
+    return declare(**kit.error_items(errors, lambda: np.ones(1), cfg, "m"),
+                   last=(Output("m", "the last error", False), lambda: errors()[-1, 0, 0]))
+
+
+def test_a_summary_declares_each_output_once_for_outputs_and_reduce():
+    import jax.numpy as jnp
+
+    sc = Scenario(**_toy(reduce=None, outputs=None, summary=_summary))
+    cfg = sc.Config()
+    values = sc.reduce(cfg, jnp.array([[0.5], [2.0], [1.0]]), sc.default_params(cfg))
+    declared = sc.outputs(cfg)
+    assert list(values) == list(declared) == [*kit_error_names(), "last"]
+    assert declared["rmse"].role == "error" and declared["last"] == Output("m", "the last error", False)
+    assert float(values["last"]) == 1.0 and np.allclose(values["rmse"], np.sqrt((0.25 + 4 + 1) / 3))
+    for sc in scenarios.BUILTIN.values():  # the built-in scenarios are declared so too
+        assert sc.summary is not None and sc.series is not None
+
+
+def kit_error_names():
+    from mcjax.scenarios.kit import error_outputs
+
+    return list(error_outputs())
+
+
+@pytest.mark.parametrize("name", ["leader_follower", "uuv_imm", "urban_bearing", "flocking", "wind_formation"])
+def test_builtin_reduce_and_timeseries_give_exactly_the_declared_outputs(name):
+    import jax
+
+    sc = scenarios.BUILTIN[name]
+    cfg = sc.Config(n_steps=3, warmup_steps=0)
+    p = sc.default_params(cfg)
+    state = sc.init(cfg, p, jax.random.PRNGKey(0))
+    _, records = jax.lax.scan(lambda s, k: sc.step(cfg, p, s, k), state, jax.random.split(jax.random.PRNGKey(1), 3))
+    out = jax.eval_shape(lambda r: sc.reduce(cfg, r, p), records)
+    series = jax.eval_shape(lambda r: sc.timeseries(cfg, r, p), records)
+    F = len(cfg.filters)
+    assert sorted(out) == sorted(sc.outputs(cfg)) and sorted(series) == sorted(sc.timeseries_outputs(cfg))
+    for key, o in sc.outputs(cfg).items():
+        assert out[key].shape == ((F,) if o.per_filter else ()), key
+    for key, o in sc.timeseries_outputs(cfg).items():
+        assert series[key].shape == ((3, F) if o.per_filter else (3,)), key

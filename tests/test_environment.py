@@ -15,7 +15,7 @@ import shapely
 from scipy.optimize import minimize
 from scipy.spatial import ConvexHull
 
-from mcjax.models.environment import (
+from mcjax.scenarios.urban_bearing.environment import (
     Buildings,
     check_buildings,
     in_shadow,

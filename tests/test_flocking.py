@@ -27,7 +27,7 @@ from mcjax import engine, graph
 from mcjax.cli import main
 from mcjax.filters.consensus import FilterOptions, Measurements, kcf_step, local_step
 from mcjax.filters.gaussian import Gaussian
-from mcjax.models import flocking as fl
+from mcjax.scenarios.flocking import dynamics as fl
 from mcjax.models.motion import cv_matrices, cv_process_noise
 from mcjax.scenarios import flocking as S
 

@@ -10,12 +10,12 @@ import pytest
 
 from mcjax import graph
 from mcjax.models.sensors import range_bearing
-from mcjax.planning import (
-    CostParams, Dynamics, PlanCost, PlannerOptions, Problem, horizon_cost, horizon_plan_cost, horizon_terms, rollout,
-    shift_plan, solve,
+from mcjax.planning import PlanCost, PlannerOptions, solve
+from mcjax.scenarios.leader_follower.horizon import (
+    Dynamics, Problem, horizon_cost, horizon_plan_cost, horizon_terms, rollout, shift_plan,
 )
-from mcjax.planning.objectives import (
-    a_optimality, information_after_prediction, position_information, robustness_penalty,
+from mcjax.scenarios.leader_follower.objectives import (
+    CostParams, a_optimality, information_after_prediction, position_information, robustness_penalty,
 )
 
 N = 5

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from mcjax import tune
-from mcjax.planning import urban
+from mcjax.scenarios.urban_bearing import score as urban
 from mcjax.scenarios import urban_bearing as ub
 from test_tune import _assert_central_differences
 
@@ -110,7 +110,7 @@ def test_gradients_finite_for_degenerate_runs(spec, evaluator, case):
         values = {"uav0": [0.0, 0.0, 100.0, 0.0]}
     s = _with_base(spec, **values)
     if case == "hidden_whole_run":  # the exact simulation sees nothing on this run
-        from mcjax.models import environment as env
+        from mcjax.scenarios.urban_bearing import environment as env
         b = ub._buildings_np(s.sweep.base_params.buildings)
         # 8 steps of 50 m stay within 400 m of the start and 35 m of its altitude (|θ| ≤ 5°):
         # no point of that cylinder sees the emitter

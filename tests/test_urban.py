@@ -15,9 +15,9 @@ from filterpy.kalman import ExtendedKalmanFilter, IMMEstimator
 from mcjax import engine
 from mcjax.cli import main
 from mcjax.filters.imm import IMMState, imm_step
-from mcjax.models import environment as env
+from mcjax.scenarios.urban_bearing import environment as env
 from mcjax.models.platforms import braking_climb, fixed_wing_step
-from mcjax.planning import urban
+from mcjax.scenarios.urban_bearing import score as urban
 from mcjax.scenarios import kit
 from mcjax.scenarios import urban_bearing as S
 

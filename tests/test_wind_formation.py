@@ -12,7 +12,7 @@ from scipy.optimize import brentq
 
 from mcjax import engine
 from mcjax.cli import main
-from mcjax.planning import guidance
+from mcjax.scenarios.wind_formation import guidance
 from mcjax.scenarios import wind_formation as S
 
 CONFIG = str((Path(__file__).parents[1] / "configs" / "chen2013.toml").resolve())

@@ -5,7 +5,7 @@ an array of any fixed shape (the warm start's); ``cost`` is a :class:`PlanCost`:
 cost ``u -> scalar`` that every planner reports and the sampled planners minimise, and an
 optional differentiable surrogate that only the gradient planner uses. The horizon cost of
 Sun et al. 2011, eq. 16 is one client:
-:func:`mcjax.planning.horizon.horizon_plan_cost`.
+:func:`mcjax.scenarios.leader_follower.horizon.horizon_plan_cost`.
 
 * ``"random"`` — random shooting (the baseline of Sun et al. 2011's ref. [17]): ``samples`` plans
   (the warm start and ``samples − 1`` draws uniform in [−1, 1] per entry) scored by the
@@ -165,7 +165,7 @@ def solve(cost: PlanCost, warm: jax.Array, key, options: PlannerOptions,
     """Minimise ``cost`` from the warm start ``warm`` with the planner ``options.kind``.
 
     ``warm``: the plan to beat (any fixed shape; for Sun et al. 2011 the previous plan shifted by
-    τ_r, :func:`mcjax.planning.horizon.shift_plan`). ``key``: a PRNG key (used by random and
+    τ_r, :func:`mcjax.scenarios.leader_follower.horizon.shift_plan`). ``key``: a PRNG key (used by random and
     CEM). ``candidates`` (K, *warm.shape): the finite set the ``"grid"`` kind searches
     (required by it, rejected by the other kinds; cast to ``warm``'s dtype, not clipped).
     Returns the plan and its exact cost.

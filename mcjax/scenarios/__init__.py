@@ -1,5 +1,6 @@
-"""Scenarios: one module per simulated system, each exporting ``SCENARIO`` (a
-:class:`mcjax.contract.Scenario`), and the registry that finds them by name.
+"""Scenarios: one package per paper, each exporting ``SCENARIO`` (a
+:class:`mcjax.contract.Scenario`) and holding everything only that paper uses (its scenario,
+models, planner); :mod:`.kit` holds what they share; and the registry that finds them by name.
 
 Three ways to name a scenario (in a config file's ``scenario = "..."``, or :func:`get`):
 

@@ -2,9 +2,13 @@
 
 * :func:`common_settings` — the Config fields every tracking scenario has (agents, steps,
   filters, warm-up, divergence threshold, dtype) as :class:`~mcjax.contract.Setting` s;
-* :func:`error_outputs` / :func:`error_summary` — the per-filter error summary of a run;
-* :func:`error_series_outputs` — declarations of :func:`mcjax.metrics.error_series`;
-* :data:`GRAPH_OUTPUTS` — the comm-graph statistics of :func:`mcjax.metrics.graph_summary`;
+* :func:`error_items` — the per-filter error summary of a run, each output declared next to its
+  value (:func:`mcjax.contract.declare`; a scenario's ``summary`` unpacks them);
+  :func:`error_outputs` / :func:`error_summary` — its declarations / its values alone;
+* :func:`error_series_items` — the per-step series of :func:`mcjax.metrics.error_series`
+  (:func:`error_series_outputs`: their declarations);
+* :func:`graph_items` — the comm-graph statistics of :func:`mcjax.metrics.graph_summary`
+  (:data:`GRAPH_OUTPUTS`: their declarations);
 * :func:`team_measurements` — every agent's range–bearing measurement of the target;
 * :func:`cast`, :func:`agents` — Params as arrays of the Config's dtype.
 
@@ -15,12 +19,14 @@ agent gets NaN). Per-agent columns (a named agent's own error) report that agent
 
 from __future__ import annotations
 
+from functools import cache
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from mcjax import metrics
-from mcjax.contract import Output, Setting
+from mcjax.contract import Output, Setting, declare
 from mcjax.models.sensors import measure_range_bearing
 
 DTYPES = ("float64", "float32")
@@ -93,16 +99,33 @@ def team_measurements(key, target, sensors, sigma_range, sigma_bearing, sensing_
         keys, target, sensors, sigma_range, sigma_bearing, sensing_radius, alive)
 
 
-def error_outputs(unit: str = "m", what: str = "position error") -> dict[str, Output]:
-    """Declarations of :func:`error_summary`'s fields (``what`` in ``unit``, over the alive agents)."""
-    return dict(
-        rmse=Output(unit, f"RMS {what} over alive agents and steps after warm-up", True, "error"),
-        mean_error=Output(unit, f"mean {what} over alive agents and steps after warm-up"),
-        final_error=Output(unit, f"mean {what} over alive agents at the last step"),
-        max_error=Output(unit, f"largest {what} of any alive agent after warm-up"),
-        diverged=Output("", f"{what} above divergence_threshold after warm-up, or non-finite", True, "divergence"),
-        nonfinite=Output("", "some estimate went NaN or infinite", True, "nonfinite"),
+def declarations(items) -> dict[str, Output]:
+    """The :class:`~mcjax.contract.Output` s of ``declare``-d items, in order."""
+    return {k: o for k, (o, _) in items.items()}
+
+
+def error_items(errors, alive, cfg, unit: str = "m", what: str = "position error"):
+    """The per-filter error summary of one run (:func:`error_summary` after ``cfg``'s warm-up,
+    with its divergence threshold), each field declared next to its value: ``errors`` and
+    ``alive`` are functions of no arguments giving (T, F, n) errors (``what`` in ``unit``) and
+    the (n,) alive weights; nothing is computed before a value is asked for."""
+    stats = cache(lambda: error_summary(errors(), alive(), cfg.warmup_steps, cfg.divergence_threshold))
+    return declare(
+        rmse=(Output(unit, f"RMS {what} over alive agents and steps after warm-up", True, "error"),
+              lambda: stats()["rmse"]),
+        mean_error=(Output(unit, f"mean {what} over alive agents and steps after warm-up"),
+                    lambda: stats()["mean_error"]),
+        final_error=(Output(unit, f"mean {what} over alive agents at the last step"), lambda: stats()["final_error"]),
+        max_error=(Output(unit, f"largest {what} of any alive agent after warm-up"), lambda: stats()["max_error"]),
+        diverged=(Output("", f"{what} above divergence_threshold after warm-up, or non-finite", True, "divergence"),
+                  lambda: stats()["diverged"]),
+        nonfinite=(Output("", "some estimate went NaN or infinite", True, "nonfinite"), lambda: stats()["nonfinite"]),
     )
+
+
+def error_outputs(unit: str = "m", what: str = "position error") -> dict[str, Output]:
+    """Declarations of :func:`error_summary`'s fields (those of :func:`error_items`)."""
+    return declarations(error_items(None, None, None, unit, what))
 
 
 def error_summary(errors, alive, warmup: int, threshold) -> dict:
@@ -126,18 +149,32 @@ def error_summary(errors, alive, warmup: int, threshold) -> dict:
     return stats
 
 
-#: Declarations of :func:`mcjax.metrics.graph_summary`'s fields.
-GRAPH_OUTPUTS = dict(
-    lambda2_min=Output("", "smallest algebraic connectivity of the comm graph over the run", False,
-                       "connectivity_min"),
-    lambda2_mean=Output("", "mean algebraic connectivity of the comm graph", False, "connectivity_mean"),
-    disconnected_steps=Output("steps", "steps with lambda2 <= 1e-9 (comm graph disconnected)", False,
-                              "disconnected_steps"),
-)
+def graph_items(lambda2):
+    """The comm-graph statistics of one run (:func:`mcjax.metrics.graph_summary` of the λ2
+    series that the function of no arguments ``lambda2`` gives), each declared next to its value."""
+    stats = cache(lambda: metrics.graph_summary(lambda2()))
+    return declare(
+        lambda2_min=(Output("", "smallest algebraic connectivity of the comm graph over the run", False,
+                            "connectivity_min"), lambda: stats()["lambda2_min"]),
+        lambda2_mean=(Output("", "mean algebraic connectivity of the comm graph", False, "connectivity_mean"),
+                      lambda: stats()["lambda2_mean"]),
+        disconnected_steps=(Output("steps", "steps with lambda2 <= 1e-9 (comm graph disconnected)", False,
+                                   "disconnected_steps"), lambda: stats()["disconnected_steps"]),
+    )
+
+
+#: Declarations of :func:`mcjax.metrics.graph_summary`'s fields (those of :func:`graph_items`).
+GRAPH_OUTPUTS = declarations(graph_items(None))
+
+
+def error_series_items(errors, alive, unit: str = "m", what: str = "position error"):
+    """The per-step series of :func:`mcjax.metrics.error_series` (``errors`` (T, F, n) and the
+    ``alive`` weights (n,) given by functions of no arguments), each declared next to its value."""
+    series = cache(lambda: metrics.error_series(errors(), alive()))
+    return declare(error_mean=(Output(unit, f"mean {what} over alive agents"), lambda: series()["error_mean"]),
+                   error_max=(Output(unit, f"largest {what} of any alive agent"), lambda: series()["error_max"]))
 
 
 def error_series_outputs(unit: str = "m", what: str = "position error") -> dict[str, Output]:
     """Declarations of the per-step series of :func:`mcjax.metrics.error_series`."""
-    return dict(error_mean=Output(unit, f"mean {what} over alive agents"),
-                error_max=Output(unit, f"largest {what} of any alive agent"))
-
+    return declarations(error_series_items(None, None, unit, what))

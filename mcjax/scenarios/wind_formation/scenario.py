@@ -15,7 +15,7 @@ sine path — Chen & Lu 2013.
 3. the centre Kalman filter (the paper's "main" filter: one Kalman filter on the mean of the
    measurements — the same as ``cif``) predicts where the wind carries the formation's
    centroid, P̃ = P + ŵ_c·dt; the centre's next point P̂(k+1) is the path point at distance
-   ``step_length`` l ahead of P̃ (eq. 13; :mod:`mcjax.planning.guidance`, with its approach
+   ``step_length`` l ahead of P̃ (eq. 13; :mod:`.guidance`, with its approach
    rule while the path is farther than l);
 4. each UAV flies the air displacement a_i = cap_l(P̂(k+1) + d_i − p_i − ŵ_i·dt) (eqs. 14–16:
    to its slot, less the drift it expects from its own wind estimate, at most l); the ground
@@ -37,6 +37,7 @@ Units: SI (m, s, rad). Our choices where the paper is silent are marked in
 
 from __future__ import annotations
 
+from functools import cache
 from itertools import combinations
 from typing import NamedTuple
 
@@ -45,7 +46,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax import graph, metrics
-from mcjax.contract import FAST_COMPILE, Output, Param, Scenario, Setting, config_type, params_type
+from mcjax.contract import FAST_COMPILE, Output, Param, Scenario, Setting, config_type, declare, params_type
 from mcjax.filters.consensus import (
     WEIGHT_KINDS,
     FilterOptions,
@@ -56,8 +57,8 @@ from mcjax.filters.consensus import (
 )
 from mcjax.filters.gaussian import Gaussian, first_step_model
 from mcjax.numerics import spd_inverse, symmetrize
-from mcjax.planning import guidance
 from mcjax.scenarios import kit
+from mcjax.scenarios.wind_formation import guidance
 
 NAME = "wind_formation"
 FILTER_KINDS = ("kcf", "local", "cif")
@@ -94,20 +95,21 @@ Config = config_type("Config", dict(
                       integer=True),
 ), __name__, _check)
 
-_PAPER_START = np.array([[10000.0, 7000.0], [10000.0, 12000.0], [12000.0, 9000.0]])
+#: The paper's starting positions of its three UAVs (m).
+PAPER_START = np.array([[10000.0, 7000.0], [10000.0, 12000.0], [12000.0, 9000.0]])
 #: The paper's reference vectors as the chain d_12, d_23 and the closing d_13 (configs/chen2013.toml).
-_PAPER_OFFSETS = np.array([[0.0, 3200.0], [1300.0, -1600.0], [1300.0, 1600.0]])
+PAPER_OFFSETS = np.array([[0.0, 3200.0], [1300.0, -1600.0], [1300.0, 1600.0]])
 
 
 def _default_start(cfg):
     if cfg.n_agents == 3:
-        return _PAPER_START.copy()
+        return PAPER_START.copy()
     return np.stack([np.full(cfg.n_agents, 10000.0), 7000.0 + 2500.0 * np.arange(cfg.n_agents)], axis=1)
 
 
 def _default_offsets(cfg):
     if cfg.n_agents == 3:
-        return _PAPER_OFFSETS.copy()
+        return PAPER_OFFSETS.copy()
     n = cfg.n_agents
     chain = np.tile([[0.0, 1000.0]], (n, 1))
     chain[-1] = [0.0, 1000.0 * (n - 1)]
@@ -286,108 +288,116 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
     return State(state.t + 1, positions, filters, centre), rec
 
 
-def _axis_outputs(prefix: str, what: str, per_filter: bool) -> dict[str, Output]:
-    return {f"{prefix}_{stat}_{ax}": Output("m/s", f"{'mean' if stat == 'mean' else 'largest'} |{what} - wind| "
-                                           f"along {ax}, report_agent, after warm-up (Table 1)", per_filter)
-            for ax in ("x", "y") for stat in ("mean", "max")}
-
-
-def outputs(cfg) -> dict[str, Output]:
-    return dict(
-        **kit.error_outputs("m/s", "wind estimate error"),
-        **_axis_outputs("wind", "estimate", True),
-        **_axis_outputs("raw", "measurement", False),
-        **kit.GRAPH_OUTPUTS,
-        settle_step=Output("steps", "steps flown until every pairwise distance stays within formation_tolerance "
-                           "of the reference to the end (NaN: never)", False),
-        formation_error_max=Output("m", "largest |distance - reference| over pairs after settling", False),
-        formation_error_final=Output("m", "largest |distance - reference| over pairs at the end", False),
-        join_step=Output("steps", "steps flown until eq. 13 first had a forward root (the path within l)", False),
-        path_error_mean=Output("m", "mean |Y - psi(X)| of the centroid after join_step", False),
-        path_error_max=Output("m", "largest |Y - psi(X)| of the centroid after join_step", False),
-        approach_steps=Output("steps", "steps on the approach rule (eq. 13 had no forward root)", False),
-        capped_steps=Output("steps", "steps where some UAV's air step was capped at l (eq. 15)", False),
-        max_air_step=Output("m", "longest air step of any UAV (eq. 15: at most step_length)", False),
-    )
-
-
 def _first(mask, dtype):
     """Index of the first True of ``mask`` (T,), as a float; NaN if none."""
     return jnp.where(jnp.any(mask), jnp.argmax(mask).astype(dtype), jnp.nan)
 
 
-def reduce(cfg, records: Record, params) -> dict:
+def _axis_errors(cfg, records: Record) -> dict:
+    """Table 1's per-axis errors of the report agent after warm-up: the mean and largest
+    |estimate − wind| per filter (F,) and |measurement − wind| (a scalar), along x and y."""
     dtype = records.error.dtype
-    T = records.error.shape[0]
-    steps = jnp.arange(T)
-    alive = jnp.ones(cfg.n_agents, dtype)
-    out = kit.error_summary(records.error, alive, cfg.warmup_steps, cfg.divergence_threshold)
-    after = (steps >= cfg.warmup_steps).astype(dtype)
+    after = (jnp.arange(records.error.shape[0]) >= cfg.warmup_steps).astype(dtype)
     count = jnp.sum(after)
+    out = {}
     for k, ax in enumerate(("x", "y")):
         out[f"wind_mean_{ax}"] = jnp.sum(records.axis_error[:, :, k] * after[:, None], axis=0) / count
         out[f"wind_max_{ax}"] = metrics.nan_max(jnp.where(after[:, None] > 0, records.axis_error[:, :, k], -jnp.inf),
                                                 axis=0)
         out[f"raw_mean_{ax}"] = jnp.sum(records.raw_error[:, k] * after) / count
         out[f"raw_max_{ax}"] = metrics.nan_max(jnp.where(after > 0, records.raw_error[:, k], -jnp.inf))
+    return out
+
+
+def _formation(cfg, records: Record, params) -> dict:
+    """The formation and path statistics of one run (the values of :func:`summary`'s
+    ``settle_step`` … ``path_error_max`` and their intermediates)."""
+    dtype = records.error.dtype
+    T = records.error.shape[0]
+    steps = jnp.arange(T)
     ref = reference_distances(cfg, jnp.asarray(params.offsets, dtype))
     dev = jnp.max(jnp.abs(records.distances - ref[None, :]), axis=1)                 # (T,)
     inside = dev <= jnp.asarray(params.formation_tolerance, dtype)
     holds = jnp.flip(jnp.cumprod(jnp.flip(inside).astype(jnp.int32))) > 0           # inside from here to the end
-    settle = _first(holds, dtype)
     joined = _first(records.on_path, dtype)
     after_join = (steps >= jnp.nan_to_num(joined, nan=T)) & jnp.isfinite(joined)
-    pe = records.path_error
-    out.update(
-        **metrics.graph_summary(records.lambda2),
-        settle_step=settle + 1.0,
-        formation_error_max=jnp.where(jnp.any(holds), metrics.nan_max(jnp.where(holds, dev, -jnp.inf)), jnp.nan),
-        formation_error_final=dev[-1],
-        join_step=joined + 1.0,
-        path_error_mean=jnp.sum(jnp.where(after_join, pe, 0.0)) / jnp.sum(after_join),
-        path_error_max=metrics.nan_max(jnp.where(after_join, pe, -jnp.inf)),
-        approach_steps=jnp.sum(~records.on_path),
-        capped_steps=jnp.sum(records.capped),
-        max_air_step=metrics.nan_max(records.air_max),
+    return dict(dev=dev, holds=holds, settle=_first(holds, dtype), joined=joined, after_join=after_join)
+
+
+def summary(cfg, records: Record | None, params) -> dict:
+    """One run's records (stacked over time) reduced to its outputs, each declared next to its
+    value (:func:`mcjax.contract.declare`; ``records`` None: the declarations alone)."""
+    r = records
+    axes = cache(lambda: _axis_errors(cfg, r))
+    fm = cache(lambda: _formation(cfg, r, params))
+
+    def axis_items(prefix: str, what: str, per_filter: bool) -> dict:
+        def pick(name):
+            return lambda: axes()[name]
+        return {f"{prefix}_{stat}_{ax}": (Output("m/s", f"{'mean' if stat == 'mean' else 'largest'} |{what} - wind| "
+                                                 f"along {ax}, report_agent, after warm-up (Table 1)", per_filter),
+                                          pick(f"{prefix}_{stat}_{ax}"))
+                for ax in ("x", "y") for stat in ("mean", "max")}
+
+    pe = cache(lambda: r.path_error)
+    return declare(
+        **kit.error_items(lambda: r.error, lambda: jnp.ones(cfg.n_agents, r.error.dtype), cfg, "m/s",
+                          "wind estimate error"),
+        **axis_items("wind", "estimate", True),
+        **axis_items("raw", "measurement", False),
+        **kit.graph_items(lambda: r.lambda2),
+        settle_step=(Output("steps", "steps flown until every pairwise distance stays within formation_tolerance "
+                            "of the reference to the end (NaN: never)", False), lambda: fm()["settle"] + 1.0),
+        formation_error_max=(Output("m", "largest |distance - reference| over pairs after settling", False),
+                             lambda: jnp.where(jnp.any(fm()["holds"]),
+                                               metrics.nan_max(jnp.where(fm()["holds"], fm()["dev"], -jnp.inf)),
+                                               jnp.nan)),
+        formation_error_final=(Output("m", "largest |distance - reference| over pairs at the end", False),
+                               lambda: fm()["dev"][-1]),
+        join_step=(Output("steps", "steps flown until eq. 13 first had a forward root (the path within l)", False),
+                   lambda: fm()["joined"] + 1.0),
+        path_error_mean=(Output("m", "mean |Y - psi(X)| of the centroid after join_step", False),
+                         lambda: jnp.sum(jnp.where(fm()["after_join"], pe(), 0.0)) / jnp.sum(fm()["after_join"])),
+        path_error_max=(Output("m", "largest |Y - psi(X)| of the centroid after join_step", False),
+                        lambda: metrics.nan_max(jnp.where(fm()["after_join"], pe(), -jnp.inf))),
+        approach_steps=(Output("steps", "steps on the approach rule (eq. 13 had no forward root)", False),
+                        lambda: jnp.sum(~r.on_path)),
+        capped_steps=(Output("steps", "steps where some UAV's air step was capped at l (eq. 15)", False),
+                      lambda: jnp.sum(r.capped)),
+        max_air_step=(Output("m", "longest air step of any UAV (eq. 15: at most step_length)", False),
+                      lambda: metrics.nan_max(r.air_max)),
     )
-    return out
 
 
-def timeseries_outputs(cfg) -> dict[str, Output]:
-    out = dict(
-        **kit.error_series_outputs("m/s", "wind estimate error"),
-        wind_error_x=Output("m/s", "|estimate - wind| along x, report_agent"),
-        wind_error_y=Output("m/s", "|estimate - wind| along y, report_agent"),
-        raw_error_x=Output("m/s", "|measurement - wind| along x, report_agent", False),
-        raw_error_y=Output("m/s", "|measurement - wind| along y, report_agent", False),
-        path_error=Output("m", "|Y - psi(X)| of the centroid", False),
-        lambda2=Output("", "algebraic connectivity of the comm graph", False),
+def series(cfg, records: Record | None, params) -> dict:
+    """Per-step series of one run, each declared next to its value: errors, per-axis errors,
+    the centroid's path error, λ2, every pairwise distance and every UAV's position."""
+    r = records
+    items = dict(
+        **kit.error_series_items(lambda: r.error, lambda: jnp.ones(cfg.n_agents, r.error.dtype), "m/s",
+                                 "wind estimate error"),
+        wind_error_x=(Output("m/s", "|estimate - wind| along x, report_agent"), lambda: r.axis_error[:, :, 0]),
+        wind_error_y=(Output("m/s", "|estimate - wind| along y, report_agent"), lambda: r.axis_error[:, :, 1]),
+        raw_error_x=(Output("m/s", "|measurement - wind| along x, report_agent", False), lambda: r.raw_error[:, 0]),
+        raw_error_y=(Output("m/s", "|measurement - wind| along y, report_agent", False), lambda: r.raw_error[:, 1]),
+        path_error=(Output("m", "|Y - psi(X)| of the centroid", False), lambda: r.path_error),
+        lambda2=(Output("", "algebraic connectivity of the comm graph", False), lambda: r.lambda2),
     )
-    for i, j in pairs(cfg.n_agents):
-        out[f"distance_{i + 1}_{j + 1}"] = Output("m", f"distance between UAV{i + 1} and UAV{j + 1}", False)
-    for i in range(cfg.n_agents):
-        out[f"x_{i + 1}"] = Output("m", f"UAV{i + 1}'s x after the step", False)
-        out[f"y_{i + 1}"] = Output("m", f"UAV{i + 1}'s y after the step", False)
-    return out
-
-
-def timeseries(cfg, records: Record, params) -> dict:
-    dtype = records.error.dtype
-    out = dict(**metrics.error_series(records.error, jnp.ones(cfg.n_agents, dtype)),
-               wind_error_x=records.axis_error[:, :, 0], wind_error_y=records.axis_error[:, :, 1],
-               raw_error_x=records.raw_error[:, 0], raw_error_y=records.raw_error[:, 1],
-               path_error=records.path_error, lambda2=records.lambda2)
     for k, (i, j) in enumerate(pairs(cfg.n_agents)):
-        out[f"distance_{i + 1}_{j + 1}"] = records.distances[:, k]
+        items[f"distance_{i + 1}_{j + 1}"] = (Output("m", f"distance between UAV{i + 1} and UAV{j + 1}", False),
+                                              lambda k=k: r.distances[:, k])
     for i in range(cfg.n_agents):
-        out[f"x_{i + 1}"] = records.positions[:, i, 0]
-        out[f"y_{i + 1}"] = records.positions[:, i, 1]
-    return out
+        items[f"x_{i + 1}"] = (Output("m", f"UAV{i + 1}'s x after the step", False), lambda i=i: r.positions[:, i, 0])
+        items[f"y_{i + 1}"] = (Output("m", f"UAV{i + 1}'s y after the step", False), lambda i=i: r.positions[:, i, 1])
+    return declare(**items)
 
 
 SCENARIO = Scenario(
     name=NAME, title="Chen & Lu 2013: three UAVs estimate the wind by consensus Kalman filtering and hold a "
-    "formation on a sine path", Config=Config, Params=Params, init=init, step=step, reduce=reduce,
-    outputs=outputs, timeseries=timeseries, timeseries_outputs=timeseries_outputs, check_params=check_params,
+    "formation on a sine path", Config=Config, Params=Params, init=init, step=step, summary=summary,
+    series=series, check_params=check_params,
     compiler_options=FAST_COMPILE)
 default_params = SCENARIO.default_params
+#: The record's derived functions (from :func:`summary` and :func:`series`), by their usual names.
+reduce, outputs = SCENARIO.reduce, SCENARIO.outputs
+timeseries, timeseries_outputs = SCENARIO.timeseries, SCENARIO.timeseries_outputs

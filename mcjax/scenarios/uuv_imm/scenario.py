@@ -21,6 +21,7 @@ listed in ``configs/ren2017.toml``.
 
 from __future__ import annotations
 
+from functools import cache
 from typing import NamedTuple
 
 import jax
@@ -28,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax import graph, metrics
-from mcjax.contract import Output, Param, Scenario, Setting, config_type, params_type
+from mcjax.contract import Output, Param, Scenario, Setting, config_type, declare, params_type
 from mcjax.filters.consensus_imm import LIKELIHOODS, consensus_imm_ukf_step
 from mcjax.filters.gaussian import Unscented, first_step_model
 from mcjax.filters.imm import IMMState
@@ -241,42 +242,15 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
     return State(state.t + 1, target, mode, tuple(new_filters)), rec
 
 
-def outputs(cfg) -> dict[str, Output]:
-    """The per-run summary fields (:func:`reduce`): the common error summary, the errors
-    while the target flies straight and while it turns, and per UUV i (numbered from 1, as
-    in the paper's Table 1) the max / min / mean over the steps after warm-up of its own
-    position error."""
-    per_uuv = {f"uuv{i + 1}_{s}_error": Output("m", f"{s} over the steps after warm-up of UUV {i + 1}'s "
-                                               "position error (Table 1)")
-               for i in range(cfg.n_agents) for s in ("max", "min", "mean")}
-    return dict(
-        **kit.error_outputs("m"),
-        error_cv=Output("m", "mean position error over alive UUVs and steps after warm-up while the target is in CV"),
-        error_ct=Output("m", "the same while the target turns (CT); NaN if it never does"),
-        anees=Output("", "mean full-state NEES over alive UUVs and steps after warm-up (4 dof)"),
-        **per_uuv,
-        **kit.GRAPH_OUTPUTS,
-        ct_steps=Output("steps", "steps the target spent turning (CT)", False),
-        mode_accuracy=Output("", "fraction of (UUV, step) after warm-up where the IMM's likelier mode is the "
-                             "true one", False),
-        mu_ct_during_ct=Output("", "the IMM's mean CT probability while the target turns", False),
-    )
-
-
 def _masked_mean(values, mask):
     mask = jnp.broadcast_to(mask, values.shape).astype(values.dtype)
     return jnp.sum(mask * values) / jnp.sum(mask)
 
 
-def reduce(cfg, records: Record, params) -> dict:
-    """Reduce one run's records (stacked over time) to the fields of :func:`outputs`."""
-    w = cfg.warmup_steps
-    T, n = records.error.shape[0], cfg.n_agents
-    dtype = records.error.dtype
-    alive = metrics.alive_weights(params.alive, n, dtype)
-    after = jnp.arange(T) >= w
-    in_ct = records.mode == CT
-    out = kit.error_summary(records.error, alive, w, cfg.divergence_threshold)
+def _per_filter(cfg, records: Record, alive, after, in_ct) -> dict:
+    """Per filter (F,): the errors while the target is in CV (``~in_ct``) and in CT, the ANEES,
+    and per UUV the max / min / mean of its own error over the steps ``after`` warm-up."""
+    w, n = cfg.warmup_steps, cfg.n_agents
     extra = {k: [] for k in ("error_cv", "error_ct", "anees")}
     per_uuv = {f"uuv{i + 1}_{s}_error": [] for i in range(n) for s in ("max", "min", "mean")}
     for f in range(len(cfg.filters)):
@@ -289,42 +263,64 @@ def reduce(cfg, records: Record, params) -> dict:
             per_uuv[f"uuv{i + 1}_max_error"].append(jnp.max(jnp.where(after, ei, -jnp.inf)))
             per_uuv[f"uuv{i + 1}_min_error"].append(jnp.min(jnp.where(after, ei, jnp.inf)))
             per_uuv[f"uuv{i + 1}_mean_error"].append(jnp.sum(jnp.where(after, ei, 0.0)) / jnp.sum(after))
-    out.update({k: jnp.stack(v) for k, v in {**extra, **per_uuv}.items()})
-    likelier_ct = records.mu_ct > 0.5
-    out.update(
-        **metrics.graph_summary(records.lambda2),
-        ct_steps=jnp.sum(in_ct),
-        mode_accuracy=jnp.where(jnp.any(jnp.isnan(records.mu_ct)), jnp.nan,
-                                _masked_mean((likelier_ct == in_ct[:, None]).astype(dtype), after[:, None] * alive)),
-        mu_ct_during_ct=_masked_mean(records.mu_ct, (after & in_ct)[:, None] * alive),
+    return {k: jnp.stack(v) for k, v in {**extra, **per_uuv}.items()}
+
+
+def summary(cfg, records: Record | None, params) -> dict:
+    """One run's records (stacked over time) reduced to its outputs, each declared next to its
+    value: the common error summary, the errors while the target flies straight and while it
+    turns, and per UUV i (numbered from 1, as in the paper's Table 1) the max / min / mean over
+    the steps after warm-up of its own position error."""
+    r = records
+    alive = cache(lambda: metrics.alive_weights(params.alive, cfg.n_agents, r.error.dtype))
+    after = cache(lambda: jnp.arange(r.error.shape[0]) >= cfg.warmup_steps)
+    in_ct = cache(lambda: r.mode == CT)
+    per_filter = cache(lambda: _per_filter(cfg, r, alive(), after(), in_ct()))
+
+    def pick(name):
+        return lambda: per_filter()[name]
+
+    per_uuv = {f"uuv{i + 1}_{s}_error": (Output("m", f"{s} over the steps after warm-up of UUV {i + 1}'s position "
+                                                "error (Table 1)"), pick(f"uuv{i + 1}_{s}_error"))
+               for i in range(cfg.n_agents) for s in ("max", "min", "mean")}
+    return declare(
+        **kit.error_items(lambda: r.error, alive, cfg, "m"),
+        error_cv=(Output("m", "mean position error over alive UUVs and steps after warm-up while the target is in "
+                         "CV"), pick("error_cv")),
+        error_ct=(Output("m", "the same while the target turns (CT); NaN if it never does"), pick("error_ct")),
+        anees=(Output("", "mean full-state NEES over alive UUVs and steps after warm-up (4 dof)"), pick("anees")),
+        **per_uuv,
+        **kit.graph_items(lambda: r.lambda2),
+        ct_steps=(Output("steps", "steps the target spent turning (CT)", False), lambda: jnp.sum(in_ct())),
+        mode_accuracy=(Output("", "fraction of (UUV, step) after warm-up where the IMM's likelier mode is the true "
+                              "one", False),
+                       lambda: jnp.where(jnp.any(jnp.isnan(r.mu_ct)), jnp.nan,
+                                         _masked_mean(((r.mu_ct > 0.5) == in_ct()[:, None]).astype(r.error.dtype),
+                                                      after()[:, None] * alive()))),
+        mu_ct_during_ct=(Output("", "the IMM's mean CT probability while the target turns", False),
+                         lambda: _masked_mean(r.mu_ct, (after() & in_ct())[:, None] * alive())),
     )
-    return out
 
 
-def timeseries_outputs(cfg) -> dict[str, Output]:
-    """The per-step series (:func:`timeseries`), written when a sweep asks for them."""
-    return dict(
-        **kit.error_series_outputs("m"),
-        mode=Output("", "the target's true mode (0 = CV, 1 = CT)", False),
-        mu_ct=Output("", "the IMM's CT probability, mean over alive UUVs (NaN without 'imm')", False),
-        lambda2=Output("", "algebraic connectivity of the comm graph", False),
-    )
-
-
-def timeseries(cfg, records: Record, params) -> dict:
-    """A few per-step series of one run: (T, F) per filter, (T,) otherwise."""
-    e = records.error
-    alive = metrics.alive_weights(params.alive, cfg.n_agents, e.dtype)
-    return dict(
-        **metrics.error_series(e, alive),
-        mode=records.mode,
-        mu_ct=jnp.sum(records.mu_ct * alive, -1) / jnp.maximum(jnp.sum(alive), 1.0),
-        lambda2=records.lambda2,
+def series(cfg, records: Record | None, params) -> dict:
+    """A few per-step series of one run, (T, F) per filter, (T,) otherwise, each declared next
+    to its value; written when a sweep asks for them."""
+    r = records
+    alive = cache(lambda: metrics.alive_weights(params.alive, cfg.n_agents, r.error.dtype))
+    return declare(
+        **kit.error_series_items(lambda: r.error, alive, "m"),
+        mode=(Output("", "the target's true mode (0 = CV, 1 = CT)", False), lambda: r.mode),
+        mu_ct=(Output("", "the IMM's CT probability, mean over alive UUVs (NaN without 'imm')", False),
+               lambda: jnp.sum(r.mu_ct * alive(), -1) / jnp.maximum(jnp.sum(alive()), 1.0)),
+        lambda2=(Output("", "algebraic connectivity of the comm graph", False), lambda: r.lambda2),
     )
 
 
 SCENARIO = Scenario(
     name=NAME, title="Ren & Lv 2017: six UUVs track a manoeuvring target by consensus IMM-UKF",
-    Config=Config, Params=Params, init=init, step=step, reduce=reduce, outputs=outputs,
-    timeseries=timeseries, timeseries_outputs=timeseries_outputs, check_params=check_params)
+    Config=Config, Params=Params, init=init, step=step, summary=summary, series=series,
+    check_params=check_params)
 default_params = SCENARIO.default_params
+#: The record's derived functions (from :func:`summary` and :func:`series`), by their usual names.
+reduce, outputs = SCENARIO.reduce, SCENARIO.outputs
+timeseries, timeseries_outputs = SCENARIO.timeseries, SCENARIO.timeseries_outputs

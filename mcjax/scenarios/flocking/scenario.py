@@ -12,7 +12,7 @@ every link and prevent collisions (Theorem 2). Each step of ``dt``:
 1. the type-I nodes measure the target and run the filters over the graph of the nodes
    that run one (``Config.filter_nodes``);
 2. the flock is integrated over ``dt`` at the current topology by RK4 sub-steps sized
-   from its stiffness and closing speeds (:func:`mcjax.models.flocking.rk4_adaptive`, at
+   from its stiffness and closing speeds (:func:`.dynamics.rk4_adaptive`, at
    most ``Config.max_substeps``), each type-I node steering to its estimate extrapolated at
    constant velocity within the step;
 3. the hysteresis graph is updated; links that broke (never expected) and sub-steps where
@@ -37,6 +37,7 @@ nodes' estimates. Units: the paper's (m, s). Our choices where it is silent are 
 from __future__ import annotations
 
 import math
+from functools import cache
 from typing import NamedTuple
 
 import jax
@@ -44,13 +45,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax import graph, metrics
-from mcjax.contract import FAST_COMPILE, Output, Param, Scenario, Setting, config_type, params_type
+from mcjax.contract import FAST_COMPILE, Output, Param, Scenario, Setting, config_type, declare, params_type
 from mcjax.filters.consensus import KCF_GAINS, FilterOptions, Measurements, filter_step
 from mcjax.filters.gaussian import Gaussian, first_step_model
-from mcjax.models import flocking as fl
 from mcjax.models.motion import cv_matrices, cv_process_noise
 from mcjax.numerics import spd_inverse, symmetrize
 from mcjax.scenarios import kit
+from mcjax.scenarios.flocking import dynamics as fl
 
 NAME = "flocking"
 FILTER_KINDS = ("kcf", "local")
@@ -310,72 +311,63 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
     return State(state.t + 1, flock, adj, filters, state.start_failed, state.attempts), rec
 
 
-def outputs(cfg) -> dict[str, Output]:
-    return dict(
-        **kit.error_outputs("m", "position error of the type-I nodes' estimates"),
-        **kit.GRAPH_OUTPUTS,
-        edges_added=Output("", "links formed over the run", False),
-        edges_removed=Output("", "links broken over the run (Theorem 2: none)", False),
-        last_change_time=Output("s", "time of the last topology change (0 if none)", False),
-        final_edges=Output("", "links at the end", False),
-        min_distance=Output("m", "smallest distance between two nodes over the run (sub-steps included)", False),
-        final_min_distance=Output("m", "smallest distance between two nodes at the end", False),
-        link_reached_R=Output("", "some link reached the radius R inside a step, or the flock went non-finite "
-                              "(a broken run)", False),
-        energy_start=Output("", "flocking energy (eq. 15) after the first step", False),
-        energy_end=Output("", "flocking energy at the end", False),
-        energy_max_rise=Output("", "largest rise of the energy between two steps (0 if monotone)", False),
-        final_speed_mismatch=Output("m^2/s^2", "sum over nodes of |p_i - p_target|^2 at the end", False),
-        substeps_mean=Output("", "mean RK4 sub-steps per step", False),
-        substeps_capped=Output("steps", "steps that needed more than max_substeps sub-steps", False),
-        start_failed=Output("", "no valid initial draw within start_attempts", False),
-        start_attempts_used=Output("", "initial draws until a valid one", False),
+def summary(cfg, records: Record | None, params) -> dict:
+    """One run's records (stacked over time) reduced to its outputs, each declared next to its
+    value (:func:`mcjax.contract.declare`; ``records`` None: the declarations alone)."""
+    r = records
+    dtype = cache(lambda: r.error.dtype)
+    h = cache(lambda: sensing_mask(cfg, kit.cast(params, dtype()), dtype()))
+    e = cache(lambda: r.energy)
+    return declare(
+        **kit.error_items(lambda: r.error, h, cfg, "m", "position error of the type-I nodes' estimates"),
+        **kit.graph_items(lambda: r.lambda2),
+        edges_added=(Output("", "links formed over the run", False), lambda: jnp.sum(r.added)),
+        edges_removed=(Output("", "links broken over the run (Theorem 2: none)", False), lambda: jnp.sum(r.removed)),
+        last_change_time=(Output("s", "time of the last topology change (0 if none)", False),
+                          lambda: jnp.max(jnp.where((r.added + r.removed) > 0,
+                                                    (jnp.arange(r.edges.shape[0]) + 1).astype(dtype())
+                                                    * jnp.asarray(params.dt, dtype()), 0.0))),
+        final_edges=(Output("", "links at the end", False), lambda: r.edges[-1]),
+        min_distance=(Output("m", "smallest distance between two nodes over the run (sub-steps included)", False),
+                      lambda: metrics.nan_min(r.min_distance)),
+        final_min_distance=(Output("m", "smallest distance between two nodes at the end", False),
+                            lambda: r.min_distance[-1]),
+        link_reached_R=(Output("", "some link reached the radius R inside a step, or the flock went non-finite "
+                               "(a broken run)", False), lambda: jnp.any(~(r.min_link_margin > 0))),
+        energy_start=(Output("", "flocking energy (eq. 15) after the first step", False), lambda: e()[0]),
+        energy_end=(Output("", "flocking energy at the end", False), lambda: e()[-1]),
+        energy_max_rise=(Output("", "largest rise of the energy between two steps (0 if monotone)", False),
+                         lambda: jnp.maximum(metrics.nan_max(e()[1:] - e()[:-1]), 0.0)),
+        final_speed_mismatch=(Output("m^2/s^2", "sum over nodes of |p_i - p_target|^2 at the end", False),
+                              lambda: r.speed_mismatch[-1]),
+        substeps_mean=(Output("", "mean RK4 sub-steps per step", False),
+                       lambda: jnp.mean(r.substeps.astype(dtype()))),
+        substeps_capped=(Output("steps", "steps that needed more than max_substeps sub-steps", False),
+                         lambda: jnp.sum(r.capped)),
+        start_failed=(Output("", "no valid initial draw within start_attempts", False), lambda: r.start_failed[0]),
+        start_attempts_used=(Output("", "initial draws until a valid one", False), lambda: r.attempts[0]),
     )
 
 
-def reduce(cfg, records: Record, params) -> dict:
-    dtype = records.error.dtype
-    h = sensing_mask(cfg, kit.cast(params, dtype), dtype)
-    out = kit.error_summary(records.error, h, cfg.warmup_steps, cfg.divergence_threshold)
-    T = records.edges.shape[0]
-    steps = jnp.arange(T)
-    changed = (records.added + records.removed) > 0
-    dt = jnp.asarray(params.dt, dtype)
-    e = records.energy
-    out.update(
-        **metrics.graph_summary(records.lambda2),
-        edges_added=jnp.sum(records.added), edges_removed=jnp.sum(records.removed),
-        last_change_time=jnp.max(jnp.where(changed, (steps + 1).astype(dtype) * dt, 0.0)),
-        final_edges=records.edges[-1], min_distance=metrics.nan_min(records.min_distance),
-        final_min_distance=records.min_distance[-1], link_reached_R=jnp.any(~(records.min_link_margin > 0)),
-        energy_start=e[0], energy_end=e[-1], energy_max_rise=jnp.maximum(metrics.nan_max(e[1:] - e[:-1]), 0.0),
-        final_speed_mismatch=records.speed_mismatch[-1], start_failed=records.start_failed[0],
-        start_attempts_used=records.attempts[0], substeps_mean=jnp.mean(records.substeps.astype(dtype)),
-        substeps_capped=jnp.sum(records.capped),
+def series(cfg, records: Record | None, params) -> dict:
+    """Per-step series of one run, each declared next to its value."""
+    r = records
+    h = cache(lambda: sensing_mask(cfg, kit.cast(params, r.error.dtype), r.error.dtype))
+    return declare(
+        **kit.error_series_items(lambda: r.error, h, "m", "position error of the type-I nodes' estimates"),
+        energy=(Output("", "flocking energy (eq. 15)", False), lambda: r.energy),
+        lambda2=(Output("", "algebraic connectivity of the graph", False), lambda: r.lambda2),
+        min_distance=(Output("m", "smallest distance between two nodes", False), lambda: r.min_distance),
+        edges=(Output("", "links", False), lambda: r.edges),
     )
-    return out
-
-
-def timeseries_outputs(cfg) -> dict[str, Output]:
-    return dict(
-        **kit.error_series_outputs("m", "position error of the type-I nodes' estimates"),
-        energy=Output("", "flocking energy (eq. 15)", False),
-        lambda2=Output("", "algebraic connectivity of the graph", False),
-        min_distance=Output("m", "smallest distance between two nodes", False),
-        edges=Output("", "links", False),
-    )
-
-
-def timeseries(cfg, records: Record, params) -> dict:
-    dtype = records.error.dtype
-    h = sensing_mask(cfg, kit.cast(params, dtype), dtype)
-    return dict(**metrics.error_series(records.error, h), energy=records.energy, lambda2=records.lambda2,
-                min_distance=records.min_distance, edges=records.edges)
 
 
 SCENARIO = Scenario(
     name=NAME, title="Lou, Cui & Li 2013: a flocking sensor network tracks a target with the Kalman-consensus "
-    "filter", Config=Config, Params=Params, init=init, step=step, reduce=reduce, outputs=outputs,
-    timeseries=timeseries, timeseries_outputs=timeseries_outputs, check_params=check_params,
+    "filter", Config=Config, Params=Params, init=init, step=step, summary=summary, series=series,
+    check_params=check_params,
     compiler_options=FAST_COMPILE)
 default_params = SCENARIO.default_params
+#: The record's derived functions (from :func:`summary` and :func:`series`), by their usual names.
+reduce, outputs = SCENARIO.reduce, SCENARIO.outputs
+timeseries, timeseries_outputs = SCENARIO.timeseries, SCENARIO.timeseries_outputs

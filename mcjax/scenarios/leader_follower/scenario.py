@@ -9,7 +9,8 @@ and how many agents see the target.
 Otherwise the loop is closed as in Sun et al. 2011 §4: every τ_r steps (``Params.replan_every``)
 the leader plans the headings of all UAVs over the horizon t_r (``Params.horizon``) from
 its own modified-ICF estimate and the UAV states it knows, minimising eq. 16 with eqs.
-18–19 as penalties (:mod:`mcjax.planning`), and the UAVs fly the first τ_r commands.
+18–19 as penalties (:mod:`.planner`, :mod:`.horizon`, :mod:`.objectives`), and the UAVs fly
+the first τ_r commands.
 
 Units are SI (m, s, rad). Defaults are the paper's numbers; the values the paper leaves
 open are our choices, marked in ``configs/sun2011.toml``.
@@ -17,6 +18,7 @@ open are our choices, marked in ``configs/sun2011.toml``.
 
 from __future__ import annotations
 
+from functools import cache
 from typing import NamedTuple
 
 import jax
@@ -24,7 +26,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax import graph, metrics
-from mcjax.contract import FAST_COMPILE, Output, Param, Scenario, Setting, Surrogate, config_type, params_type
+from mcjax.contract import (
+    FAST_COMPILE, Output, Param, Scenario, Setting, Surrogate, config_type, declare, params_type,
+)
 from mcjax.filters.consensus import (
     CONTRIBUTION_KINDS,
     FILTER_KINDS,
@@ -41,10 +45,12 @@ from mcjax.filters.gaussian import first_step_model
 from mcjax.models.motion import cv_matrices, cv_process_noise, cv_step
 from mcjax.models.platforms import UnicycleLimits, unicycle_step
 from mcjax.models.sensors import range_bearing
-from mcjax.numerics import symmetrize
-from mcjax.planning import CostParams, Dynamics, PlannerOptions, Problem, horizon_plan_cost, rollout, shift_plan, solve
-from mcjax.planning.objectives import ROBUSTNESS_PENALTIES
 from mcjax.scenarios import kit
+from mcjax.scenarios.leader_follower.objectives import ROBUSTNESS_PENALTIES
+from mcjax.scenarios.leader_follower.planner import plan_if_due, planner_options
+from mcjax.scenarios.leader_follower.surrogate import (
+    Smoothing, smooth_adjacency, smooth_component_sizes, smooth_measurements,
+)
 
 NAME = "leader_follower"
 
@@ -96,11 +102,6 @@ Config = config_type("Config", dict(
 def filter_options(cfg) -> FilterOptions:
     return FilterOptions(cfg.consensus_steps, cfg.consensus_weights, cfg.contribution, cfg.icf_variant,
                          cfg.kcf_gain)
-
-
-def planner_options(cfg) -> PlannerOptions:
-    return PlannerOptions(cfg.planner, cfg.plan_iterations, cfg.plan_samples, cfg.plan_learning_rate,
-                          cfg.plan_elite_fraction)
 
 
 def _paper_positions(cfg) -> np.ndarray:
@@ -218,111 +219,6 @@ def init(cfg, params, key) -> State:
                  plan, plan, jnp.asarray(0, jnp.int32), cost)
 
 
-def _plan(cfg, params, state: State, uavs, filters, age, key):
-    """Re-plan if due (every τ_r steps, and at step 0): Sun et al. 2011 §4.2 steps ① – ③.
-
-    The leader (agent 0) plans from its own modified-ICF estimate and the UAV states it
-    knows. With ``Config.plan_period = 0`` the plan is computed every step (one program for
-    every τ_r in a batch: under ``vmap`` a branch on a per-run condition computes both sides)
-    and kept only when due. With ``plan_period = τ_r > 0`` "due" depends only on the step
-    (t mod τ_r = 0, the same in every run of the batch), so ``lax.cond`` skips the planner on
-    the other steps; the plans are the same."""
-    if cfg.plan_period > 0:
-        return jax.lax.cond(state.t % cfg.plan_period == 0,
-                            lambda: _new_plan(cfg, params, state, uavs, filters, age, key),
-                            lambda: (state.plan_u, state.plan_cmd, age, state.plan_cost))
-    new = _new_plan(cfg, params, state, uavs, filters, age, key)
-    due = (state.t == 0) | (age >= params.replan_every)
-    return tuple(jnp.where(due, a, b) for a, b in zip(new, (state.plan_u, state.plan_cmd, age, state.plan_cost)))
-
-
-def _new_plan(cfg, params, state: State, uavs, filters, age, key):
-    """A new plan (Sun et al. 2011 §4.2 steps ① – ③): ``(u, commands, 0, cost)``."""
-    n, dtype = cfg.n_agents, uavs.dtype
-    leader = per_agent("modified_icf", filters[cfg.filters.index("modified_icf")], n)
-    problem = Problem(uavs, leader.x[0], symmetrize(leader.Y[0]))
-    horizon = jnp.asarray(params.horizon, dtype)
-    dyn = Dynamics(params.dt, params.alpha_phi, params.turn_rate_max, horizon, params.sigma_accel)
-    cost = CostParams(
-        params.alpha_I, params.alpha_C, params.alpha_L, params.alpha_S, params.d_safe, params.d_lt,
-        params.robustness_scale, params.plan_temperature, kit.agents(params.sensing_radius, n, dtype),
-        kit.agents(params.comm_radius, n, dtype), params.sigma_range, params.sigma_bearing,
-        kit.agents(params.alive, n, dtype))
-    warm = shift_plan(state.plan_u, age, horizon)
-    plan = _solve(cfg, problem, dyn, cost, warm, key)
-    _, _, commands, _ = rollout(problem, plan.u, dyn)
-    ok = jnp.all(jnp.isfinite(commands))
-    commands = jnp.where(ok, commands, uavs[:, 3])  # a non-finite plan holds the headings
-    return plan.u, commands, jnp.zeros_like(age), plan.cost
-
-
-def _solve(cfg, problem: Problem, dyn: Dynamics, cost: CostParams, warm, key):
-    """Solve the leader's horizon problem (Sun et al. 2011, eq. 16) in ``Config.plan_dtype``.
-
-    In a narrower float type than the simulation's the problem is first moved to coordinates
-    relative to the leader's target estimate (positions ~1e5 m from the origin would lose
-    metres in float32; the cost depends on relative positions only — ranges, bearings,
-    links — so the plan is the same up to rounding). The plan comes back in the simulation's
-    dtype; the commands flown are rolled out from it in that dtype by the caller."""
-    dtype, pdt = problem.uavs.dtype, jnp.dtype(cfg.plan_dtype)
-    if pdt == dtype:
-        return solve(horizon_plan_cost(problem, dyn, cost, penalty=cfg.robustness_penalty), warm, key,
-                     planner_options(cfg))
-    x = problem.target_mean
-    shift = jnp.stack([x[0], x[2]])
-    local = Problem(problem.uavs.at[:, :2].add(-shift), x.at[0].set(0.0).at[2].set(0.0), problem.Y)
-
-    def narrow(tree):
-        return jax.tree.map(lambda a: jnp.asarray(a).astype(pdt), tree)
-
-    plan = solve(horizon_plan_cost(narrow(local), narrow(dyn), narrow(cost), penalty=cfg.robustness_penalty),
-                 narrow(warm), key, planner_options(cfg))
-    return jax.tree.map(lambda a: a.astype(dtype), plan)
-
-
-class Smoothing(NamedTuple):
-    """Temperatures (m) of the smooth surrogates a training loop runs (:func:`smooth_step`)."""
-
-    sensing: float = 1e3   # of the sensing gate sigmoid((R_s − r)/T)
-    comm: float = 1e3      # of the comm links sigmoid((min(R_i, R_j) − l_ij)/T)
-
-
-def smooth_measurements(key, target, sensors, params, sensing_radius, alive, temperature):
-    """Every alive agent's range–bearing measurement (Sun et al. 2011 §1.3, the same noise draws
-    as :func:`mcjax.scenarios.kit.team_measurements`) with the range gate of §5 replaced by a
-    soft gate ``g_i = sigmoid((R_s − r_i)/T)``: returns ``(z (n, 2), g (n,))``; the caller
-    weighs agent i's measurement information (eq. 10) by ``g_i``. Dead agents: NaN, ``g = 0``."""
-    dtype = sensors.dtype
-    z = kit.team_measurements(key, target, sensors, params.sigma_range, params.sigma_bearing,
-                              jnp.full(sensors.shape[0], jnp.inf, dtype), alive)
-    r = jax.vmap(range_bearing, in_axes=(None, 0))(target, sensors)[:, 0]
-    gates = jax.nn.sigmoid((sensing_radius - r) / temperature)
-    return z, jnp.where(alive, gates, 0.0)
-
-
-def smooth_adjacency(sensors, comm_radius, alive, temperature):
-    """The comm graph of Sun et al. 2011, eq. 13 with each link a weight
-    ``a_ij = sigmoid((min(R_i, R_j) − l_ij)/T)`` in (0, 1) instead of the 0/1 test; zero
-    diagonal, dead agents unlinked. Gradients are finite for coincident agents (safe norm)."""
-    n = sensors.shape[0]
-    a = jax.nn.sigmoid(graph.link_margins(sensors, comm_radius) / temperature)
-    keep = ~jnp.eye(n, dtype=bool) & alive[:, None] & alive[None, :]
-    return jnp.where(keep, a, 0.0)
-
-
-def smooth_component_sizes(sensors, comm_radius, alive, temperature):
-    """Smooth size of each agent's connected component (the weight ``n_i`` of the ICF
-    contributions, docs/equations.md): ``1 + Σ_{j≠i} sigmoid(ρ_ij/T)`` with ρ the smooth
-    multi-hop pair robustness (Sun et al. 2011 eq. 14, :func:`mcjax.graph.smooth_pair_robustness`):
-    j is in i's component iff ρ_ij ≥ 0, and sigmoid(ρ/T) is the widest path of the soft links of
-    :func:`smooth_adjacency` (sigmoid is monotone). Paths through dead agents are not excluded."""
-    n = sensors.shape[0]
-    rho = graph.smooth_pair_robustness(sensors, comm_radius, temperature)
-    keep = ~jnp.eye(n, dtype=bool) & alive[:, None] & alive[None, :]
-    reach = jnp.where(keep, jax.nn.sigmoid(jnp.where(keep, rho, 0.0) / temperature), 0.0)
-    return 1.0 + jnp.sum(reach, axis=-1)
-
-
 def _advance(cfg, params, state: State, key, smoothing):
     """The physics and filters of one step (shared by :func:`step` and :func:`smooth_step`):
     ``(new State, target, sensors, z, adjacency, filters)``. ``smoothing`` None is the exact
@@ -370,7 +266,7 @@ def _advance(cfg, params, state: State, key, smoothing):
 
     plan = (state.plan_u, state.plan_cmd, age, state.plan_cost)
     if cfg.planner != "none":
-        plan = _plan(cfg, params, state, uavs, filters, age, jax.random.fold_in(key, 0x9A11))
+        plan = plan_if_due(cfg, params, state, uavs, filters, age, jax.random.fold_in(key, 0x9A11))
     return State(state.t + 1, target, uavs, filters, *plan), target, sensors, z, adj, filters
 
 
@@ -424,68 +320,52 @@ def training_weights(cfg, params):
     return metrics.alive_weights(params.alive, cfg.n_agents, jnp.dtype(cfg.dtype))
 
 
-def outputs(cfg) -> dict[str, Output]:
-    """The per-run summary fields (:func:`reduce`)."""
-    errors = kit.error_outputs("m")
-    return dict(
-        **errors,
-        leader_rmse=Output("m", "the leader's (agent 0) position RMSE after warm-up"),
-        anees=Output("", "mean full-state NEES over alive kit.agents and steps after warm-up (4 dof)"),
-        **kit.GRAPH_OUTPUTS,
-        robustness_min=Output("m", "smallest connectivity robustness R_I of any agent over the run", False),
-        seeing_mean=Output("", "mean number of kit.agents that see the target", False),
-        seeing_min=Output("", "fewest kit.agents that see the target at any step", False),
-        plan_cost_mean=Output("", "mean exact eq. 16 cost of the plans in force (0 in open loop)", False),
+def summary(cfg, records: Record | None, params) -> dict:
+    """One run's records (stacked over time) reduced to its outputs, each declared next to its
+    value (:func:`mcjax.contract.declare`; ``records`` None: the declarations alone)."""
+    r, w, F = records, cfg.warmup_steps, len(cfg.filters)
+    alive = cache(lambda: metrics.alive_weights(params.alive, cfg.n_agents, r.error.dtype))
+    return declare(
+        **kit.error_items(lambda: r.error, alive, cfg, "m"),
+        leader_rmse=(Output("m", "the leader's (agent 0) position RMSE after warm-up"),
+                     lambda: jnp.stack([metrics.rmse(r.error[:, f, :1], w) for f in range(F)])),
+        anees=(Output("", "mean full-state NEES over alive agents and steps after warm-up (4 dof)"),
+               lambda: jnp.stack([metrics.mean_over(r.nees[:, f, :], w, alive()) for f in range(F)])),
+        **kit.graph_items(lambda: r.lambda2),
+        robustness_min=(Output("m", "smallest connectivity robustness R_I of any agent over the run", False),
+                        lambda: jnp.min(r.robustness)),
+        seeing_mean=(Output("", "mean number of agents that see the target", False),
+                     lambda: jnp.mean(r.n_seeing.astype(r.lambda2.dtype))),
+        seeing_min=(Output("", "fewest agents that see the target at any step", False), lambda: jnp.min(r.n_seeing)),
+        plan_cost_mean=(Output("", "mean exact eq. 16 cost of the plans in force (0 in open loop)", False),
+                        lambda: jnp.mean(r.plan_cost)),
     )
 
 
-def reduce(cfg, records: Record, params) -> dict:
-    """Reduce one run's records (stacked over time) to the fields of :func:`outputs`."""
-    w = cfg.warmup_steps
-    alive = metrics.alive_weights(params.alive, cfg.n_agents, records.error.dtype)
-    out = kit.error_summary(records.error, alive, w, cfg.divergence_threshold)
-    F = len(cfg.filters)
-    out["leader_rmse"] = jnp.stack([metrics.rmse(records.error[:, f, :1], w) for f in range(F)])
-    out["anees"] = jnp.stack([metrics.mean_over(records.nees[:, f, :], w, alive) for f in range(F)])
-    lam = records.lambda2
-    out.update(
-        **metrics.graph_summary(lam),
-        robustness_min=jnp.min(records.robustness),
-        seeing_mean=jnp.mean(records.n_seeing.astype(lam.dtype)),
-        seeing_min=jnp.min(records.n_seeing),
-        plan_cost_mean=jnp.mean(records.plan_cost),
-    )
-    return out
-
-
-def timeseries_outputs(cfg) -> dict[str, Output]:
-    """The per-step series (:func:`timeseries`), written when a sweep asks for them."""
-    per_run = {"lambda2": ("", "algebraic connectivity of the comm graph"),
-               "robustness_min": ("m", "smallest connectivity robustness R_I"),
-               "n_seeing": ("", "kit.agents that see the target"),
-               "plan_cost": ("", "exact eq. 16 cost of the plan in force (0 in open loop)")}
-    return {**kit.error_series_outputs("m"), "leader_error": Output("m", "the leader's (agent 0) position error"),
-            **{k: Output(unit, text, False) for k, (unit, text) in per_run.items()}}
-
-
-def timeseries(cfg, records: Record, params) -> dict:
-    """A few per-step series of one run: (T, F) per filter, (T,) otherwise."""
-    e = records.error  # (T, F, n)
-    alive = metrics.alive_weights(params.alive, cfg.n_agents, e.dtype)
-    return dict(
-        **metrics.error_series(e, alive),
-        leader_error=e[..., 0],
-        lambda2=records.lambda2,
-        robustness_min=jnp.min(records.robustness, -1),
-        n_seeing=records.n_seeing,
-        plan_cost=records.plan_cost,
+def series(cfg, records: Record | None, params) -> dict:
+    """A few per-step series of one run, (T, F) per filter, (T,) otherwise, each declared next
+    to its value; written when a sweep asks for them."""
+    r = records
+    alive = cache(lambda: metrics.alive_weights(params.alive, cfg.n_agents, r.error.dtype))
+    return declare(
+        **kit.error_series_items(lambda: r.error, alive, "m"),
+        leader_error=(Output("m", "the leader's (agent 0) position error"), lambda: r.error[..., 0]),
+        lambda2=(Output("", "algebraic connectivity of the comm graph", False), lambda: r.lambda2),
+        robustness_min=(Output("m", "smallest connectivity robustness R_I", False),
+                        lambda: jnp.min(r.robustness, -1)),
+        n_seeing=(Output("", "agents that see the target", False), lambda: r.n_seeing),
+        plan_cost=(Output("", "exact eq. 16 cost of the plan in force (0 in open loop)", False),
+                   lambda: r.plan_cost),
     )
 
 
 SCENARIO = Scenario(
     name=NAME, title="Sun, Zhou, Zou & Ding 2011: leader-follower UAVs, consensus information filters, "
-    "receding-horizon planning", Config=Config, Params=Params, init=init, step=step, reduce=reduce,
-    outputs=outputs, timeseries=timeseries, timeseries_outputs=timeseries_outputs, check_params=check_params,
+    "receding-horizon planning", Config=Config, Params=Params, init=init, step=step, summary=summary,
+    series=series, check_params=check_params,
     surrogate=Surrogate(smooth_step, training_weights, Smoothing),
     compiler_options=FAST_COMPILE)
 default_params = SCENARIO.default_params
+#: The record's derived functions (from :func:`summary` and :func:`series`), by their usual names.
+reduce, outputs = SCENARIO.reduce, SCENARIO.outputs
+timeseries, timeseries_outputs = SCENARIO.timeseries, SCENARIO.timeseries_outputs

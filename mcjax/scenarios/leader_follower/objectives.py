@@ -22,7 +22,8 @@ becomes ``sigmoid((R_s − r)/T)``, the max/min of R_I become soft max/min
 (:func:`mcjax.graph.smooth_connectivity_robustness`), the hinges become ``T·softplus(·/T)``
 and ``1/|R|`` becomes ``1/√(R² + T²)``. ``smooth=False`` gives the exact cost, which is
 what the planners report and what the sampled planners minimise
-(:func:`mcjax.planning.horizon.horizon_plan_cost` packs both for :func:`mcjax.planning.solvers.solve`).
+(:func:`mcjax.scenarios.leader_follower.horizon.horizon_plan_cost` packs both for
+:func:`mcjax.planning.solvers.solve`).
 
 Distances inside the cost are ``√(|Δ|² + ε²)`` with ε = 1 m, so gradients stay finite for
 coincident UAVs and for a UAV on top of the target.

@@ -6,7 +6,7 @@ reflect its signal (NLOS: the measured azimuth is the direction of the summed fi
 direct and the reflected paths, eqs. 5–6, so it is biased towards the mirror images). The
 UAV runs an IMM-EKF over three measurement modes — LOS (bias 0, σ 0.2°) and NLOS ± (bias
 ±20°, σ 1°), eqs. 11–12 — and every step picks its command (θ, ω) from a grid by the track
-score ``c1 J_FIM + c2 J_T + c3 J_NLOS`` (eqs. 13–20, :mod:`mcjax.planning.urban`). In the
+score ``c1 J_FIM + c2 J_T + c3 J_NLOS`` (eqs. 13–20, :mod:`.score`, :mod:`.planner`). In the
 shadow it holds its previous command (the paper's rule), as long as that stays admissible.
 
 Filters (``Config.filters``): ``"imm"`` — the paper's 3-mode IMM-EKF, which the planner
@@ -20,22 +20,24 @@ listed in ``configs/chen2022.toml``.
 
 from __future__ import annotations
 
+from functools import cache
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcjax.contract import FAST_COMPILE, Output, Param, Scenario, Setting, Surrogate, config_type, params_type
-from mcjax.filters.gaussian import ekf_update
-from mcjax.filters.imm import IMMState, combine, imm_step
-from mcjax.models import environment as env
-from mcjax.models.platforms import FixedWingLimits, fixed_wing_step
-from mcjax.models.sensors import azimuth
-from mcjax.numerics import symmetrize, wrap_angle
-from mcjax.planning import urban
-from mcjax.planning.solvers import PlanCost, PlannerOptions, solve
+from mcjax.contract import (
+    FAST_COMPILE, Output, Param, Scenario, Setting, Surrogate, config_type, declare, params_type,
+)
+from mcjax.filters.imm import IMMState, combine
+from mcjax.models.platforms import fixed_wing_step
+from mcjax.numerics import wrap_angle
 from mcjax.scenarios import kit
+from mcjax.scenarios.urban_bearing import environment as env
+from mcjax.scenarios.urban_bearing import score as urban
+from mcjax.scenarios.urban_bearing.mode_filters import GATE_FLOOR, filter_bank, gated_mode_filter, mode_filter, mode_models
+from mcjax.scenarios.urban_bearing.planner import limits_of, plan_command, smooth_plan_command
 
 NAME = "urban_bearing"
 
@@ -137,7 +139,7 @@ def check_params(cfg, values: dict) -> list[tuple[str, str]]:
     if np.any((uav0[..., 2] < h_min) | (uav0[..., 2] > h_max)):
         bad.append(("uav0", "a start altitude within [h_min, h_max]"))
     if layout_ok and not bad:
-        b = _buildings_np(boxes)
+        b = buildings_np(boxes)
         for name, point in (("emitter", get("emitter")), ("uav0", uav0[..., :3])):
             if np.any(np.asarray(env.inside(b, point))):
                 bad.append((name, "a point outside every building (boxes are closed: walls and roofs count)"))
@@ -150,31 +152,16 @@ def check_params(cfg, values: dict) -> list[tuple[str, str]]:
     return bad
 
 
-def _buildings_np(boxes) -> env.Buildings:
+def buildings_np(boxes) -> env.Buildings:
+    """A building layout ``[x_lo, y_lo, x_hi, y_hi, height]`` rows as numpy :class:`~.environment.Buildings`."""
     boxes = np.asarray(boxes, np.float64)
     return env.Buildings(boxes[:, 0:2], boxes[:, 2:4], boxes[:, 4])
 
 
 def buildings_of(params) -> env.Buildings:
+    """The Params' building layout as :class:`~.environment.Buildings` (arrays of its dtype)."""
     b = params.buildings
     return env.Buildings(b[:, 0:2], b[:, 2:4], b[:, 4])
-
-
-def limits_of(cfg, params) -> FixedWingLimits:
-    return FixedWingLimits(params.theta_max, jnp.asarray(cfg.theta_rate_max, params.theta_max.dtype),
-                           params.omega_max, jnp.asarray(cfg.omega_rate_max, params.theta_max.dtype),
-                           params.h_min, params.h_max)
-
-
-def mode_models(params, name: str):
-    """Per-mode (bias, σ) of a filter (eqs. 11–12): the IMM's LOS, NLOS+, NLOS− or the
-    single LOS EKF."""
-    if name == "imm":
-        bias = jnp.stack([params.bias_los, params.bias_nlos, -params.bias_nlos])
-        sigma = jnp.stack([params.sigma_los, params.sigma_nlos, params.sigma_nlos])
-    else:
-        bias, sigma = params.bias_los[None], params.sigma_los[None]
-    return bias, sigma
 
 
 class State(NamedTuple):
@@ -217,76 +204,6 @@ def init(cfg, params, key) -> State:
     return State(jnp.asarray(0, jnp.int32), p.uav0, command, measured, tuple(filters), fim0)
 
 
-def _mode_filter(x, P, model, z, uav, q):
-    """Mode-matched EKF (eqs. 2, 11–12): predict the static target (``P + q² I``), update with
-    the azimuth biased by the mode's mean."""
-    bias, sigma = model
-    P = symmetrize(P + q**2 * jnp.eye(2, dtype=P.dtype))
-
-    def h(xy):
-        return (azimuth(xy, uav) + bias)[None]
-
-    return ekf_update(x, P, z[None], h, (sigma**2)[None, None], angle_mask=jnp.array([True]))
-
-
-def planner_options(cfg) -> PlannerOptions:
-    return PlannerOptions(cfg.planner, cfg.plan_iterations, learning_rate=cfg.plan_learning_rate)
-
-
-def plan_command(cfg, params, b: env.Buildings, uav, previous, belief: urban.Belief, key):
-    """The planner's command: the grid of Alg. 1 (or the gradient planner on the smooth score)
-    over the commands the rate limits allow, maximising eq. 20 among the admissible ones
-    (:mod:`mcjax.planning.urban`). Plans live in the unit box: u ∈ [−1, 1]² maps to the
-    command box. The gradient planner falls back to the grid's best admissible command when it
-    ends on an inadmissible one. Returns ``(command (2,), exact score, admissible)``."""
-    lim = limits_of(cfg, params)
-    w = urban.Weights(params.c1, params.c2, params.c3)
-    lo, hi = urban.command_box(previous, lim, cfg.dt)
-    width = hi - lo
-    safe_w = jnp.where(width > 0, width, 1.0)
-
-    def to_command(u):
-        return jnp.clip(lo + (u + 1.0) / 2.0 * width, lo, hi)
-
-    def to_unit(c):
-        return jnp.where(width > 0, 2.0 * (c - lo) / safe_w - 1.0, 0.0)
-
-    def track_of(c):
-        return urban.predicted_track(uav, c, params.speed, cfg.dt, cfg.horizon)
-
-    def ok(c, track):
-        return urban.admissible(b, uav, c, track, lim, params.speed, cfg.dt, cfg.theta_rate_max * cfg.dt)
-
-    def exact(u):
-        c = to_command(u)
-        track = track_of(c)
-        score = urban.track_score(urban.score_terms(b, belief, track, cfg.fim_score), w)
-        return jnp.where(ok(c, track), -score, jnp.inf)
-
-    def smooth(u):
-        c = to_command(u)
-        track = track_of(c)
-        return -urban.track_score(urban.smooth_score_terms(b, belief, track, cfg.fim_score, params.plan_temperature), w)
-
-    counts = urban.grid_counts(cfg.theta_rate_max, cfg.omega_rate_max, cfg.dt, cfg.theta_step, cfg.omega_step)
-    commands = urban.candidate_commands(previous, lim, cfg.dt, (cfg.theta_step, cfg.omega_step), counts)
-    candidates = jax.vmap(to_unit)(commands)
-    warm = to_unit(previous)
-    grid = solve(PlanCost(exact), warm, key, PlannerOptions("grid"), candidates)
-    if cfg.planner == "grid":
-        plan = grid
-    else:
-        # Adam from the better of the previous command and the level-off one; if it ends on an
-        # inadmissible command (a track that was clear one step ago can meet a building at its
-        # new last step), the grid's best admissible command is flown instead (ours: the hard
-        # constraints hold whatever the planner)
-        level = candidates[counts[0] * counts[1] + counts[1] // 2]
-        warm = jnp.where(exact(level) < exact(warm), level, warm)
-        plan = solve(PlanCost(exact, smooth), warm, key, planner_options(cfg))
-        plan = jax.tree.map(lambda g, a: jnp.where(jnp.isfinite(plan.cost), a, g), grid, plan)
-    return to_command(plan.u), -plan.cost, jnp.isfinite(plan.cost)
-
-
 def _violation(cfg, params, previous, command, uav):
     lim = limits_of(cfg, params)
     tol = 1e-9
@@ -294,24 +211,6 @@ def _violation(cfg, params, previous, command, uav):
             | (jnp.abs(command[0] - previous[0]) > lim.theta_rate_max * cfg.dt + tol)
             | (jnp.abs(command[1] - previous[1]) > lim.omega_rate_max * cfg.dt + tol)
             | (uav[2] < lim.h_min - tol) | (uav[2] > lim.h_max + tol))
-
-
-def _filter_bank(cfg, p, state: State, mode_filter, z, uav, *gate):
-    """Every configured filter's IMM cycle (eqs. 11–12; one mode for the single-model EKF) on
-    the measurement ``z`` (``gate``: the surrogate's measurement weight); returns the new
-    filter states and each filter's position error."""
-    dtype = jnp.dtype(cfg.dtype)
-    first = state.t == 0
-    new_filters, errors = [], []
-    for name, fstate in zip(cfg.filters, state.filters):
-        bias, sg = mode_models(p, name)
-        m = bias.shape[0]
-        transition = p.imm_transition if m == 3 else jnp.ones((1, 1), dtype)
-        transition = jnp.where(first, jnp.eye(m, dtype=dtype), transition)
-        fnew, (x, _) = imm_step(fstate, transition, mode_filter, (bias, sg), z, uav, p.process_noise, *gate)
-        new_filters.append(fnew)
-        errors.append(jnp.sqrt(jnp.sum((x - p.emitter[:2]) ** 2))[None])
-    return new_filters, errors
 
 
 def step(cfg, params, state: State, key) -> tuple[State, Record]:
@@ -345,7 +244,7 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
     sigma = jnp.where(reflected, p.sigma_nlos, p.sigma_los)
     z = jnp.where(los, wrap_angle(clean + sigma * jax.random.normal(k_noise, (), dtype)), jnp.nan)
 
-    new_filters, errors = _filter_bank(cfg, p, state, _mode_filter, z, uav)
+    new_filters, errors = filter_bank(cfg, p, state, mode_filter, z, uav)
     imm_new = new_filters[cfg.filters.index("imm")]
     gained = jax.vmap(lambda x, s: urban.bearing_information(x, uav, s))(imm_new.x, sig)
     fim = state.fim + jnp.where(los, gained, 0.0)
@@ -366,67 +265,19 @@ class Smoothing(NamedTuple):
     command: float = 1e-3    # rad, rad/s: the soft max/min of the command box's limits
 
 
-#: Weight of a measurement in deep shadow (the soft gate never reaches 0, so R/g stays finite).
-_GATE_FLOOR = 1e-9
-
-
-def _gated_mode_filter(x, P, model, z, uav, q, gate):
-    """:func:`_mode_filter` (Chen & Hao 2022, eqs. 2, 11–12) for a measurement of weight
-    ``gate`` ∈ (0, 1] (the smooth line of sight): the update with the tempered likelihood
-    ``p(z|x)^g``, i.e. the EKF with noise ``σ²/g``, and its mode likelihood
-    ``log N(ν; 0, S_g) + ½ log(2πσ²/g) − (g/2) log(2πσ²)`` — the IMM's eq. 12 likelihood at
-    g = 1, and 0 (no information, as the exact filter's skipped update) as g → 0."""
-    bias, sigma = model
-    P = symmetrize(P + q**2 * jnp.eye(2, dtype=P.dtype))
-    var = sigma**2
-
-    def h(xy):
-        return (azimuth(xy, uav) + bias)[None]
-
-    x, P, ll = ekf_update(x, P, z[None], h, (var / gate)[None, None], angle_mask=jnp.array([True]))
-    two_pi_var = 2.0 * jnp.pi * var
-    return x, P, ll + 0.5 * jnp.log(two_pi_var / gate) - 0.5 * gate * jnp.log(two_pi_var)
-
-
-def smooth_plan_command(cfg, params, b: env.Buildings, uav, previous, belief: urban.Belief, smoothing):
-    """The training surrogate of :func:`plan_command`, for the grid planner of Chen & Hao 2022,
-    Alg. 1 (lines 3–9) and eq. 20: the same grid of candidate commands (spread over a soft
-    command box, :func:`mcjax.planning.urban.soft_candidate_commands`), each scored by the
-    smooth eq. 20 score (:func:`mcjax.planning.urban.surrogate_score_terms`), the choice a
-    soft argmax weighed by smooth admissibility (:func:`mcjax.planning.urban.soft_argmax_command`).
-    No fallback and no warm-start switch: the command is a smooth function of the weights,
-    the state and the belief. Used for either ``Config.planner`` (docs/tune.md)."""
-    lim = limits_of(cfg, params)
-    w = urban.Weights(params.c1, params.c2, params.c3)
-    T = smoothing.geometry
-    lo, hi = urban.soft_command_box(previous, lim, cfg.dt, smoothing.command)
-    counts = urban.grid_counts(cfg.theta_rate_max, cfg.omega_rate_max, cfg.dt, cfg.theta_step, cfg.omega_step)
-    commands = urban.soft_candidate_commands(lo, hi, counts, smoothing.command)
-
-    def score(c):
-        track = urban.predicted_track(uav, c, params.speed, cfg.dt, cfg.horizon)
-        j = urban.track_score(urban.surrogate_score_terms(b, belief, track, cfg.fim_score, T), w)
-        ok = urban.soft_admissible_log(b, uav, c, track, lim, params.speed, cfg.dt, cfg.theta_rate_max * cfg.dt, T)
-        return j, ok
-
-    scores, log_ok = jax.vmap(score)(commands)
-    command, _ = urban.soft_argmax_command(commands, scores, log_ok, smoothing.plan)
-    return command
-
-
 def smooth_step(cfg, params, state: State, key, smoothing: Smoothing) -> tuple[State, jax.Array]:
     """:func:`step` (Chen & Hao 2022, Alg. 1) with every hard switch smooth, for training by
     gradient (``mcjax tune``); the same random draws. Replaced switches (docs/tune.md):
 
     * the planner's grid argmax (and, for the gradient planner, its clip to the command box,
-      fallback and warm-start switch) -> :func:`smooth_plan_command`;
+      fallback and warm-start switch) -> :func:`.planner.smooth_plan_command`;
     * the shadow hold (``held = no LOS at the last step & the held command admissible``) ->
       the blend ``h·previous + (1 − h)·planned`` with ``h = (1 − los_prev)·p_adm(previous)``,
       ``los_prev`` the smooth line of sight at the UAV's position (where the last measurement
       was taken; 1 at step 0, as the exact ``measured`` starts True);
     * the measurement gate (no LOS -> no measurement) -> a measurement of weight
-      ``g = los`` (:func:`_gated_mode_filter`), its bearing from the smooth field
-      (:func:`mcjax.planning.urban.soft_measured_bearing`), its noise σ blended between LOS
+      ``g = los`` (:func:`.mode_filters.gated_mode_filter`), its bearing from the smooth field
+      (:func:`.score.soft_measured_bearing`), its noise σ blended between LOS
       and NLOS by the smooth "a reflection arrives";
     * the FIM accumulation (eq. 13: only with LOS) -> weighted by ``los``.
 
@@ -457,9 +308,9 @@ def smooth_step(cfg, params, state: State, key, smoothing: Smoothing) -> tuple[S
     reflected = jnp.where(p.R2 > 0, reflected, 0.0)
     sigma = p.sigma_los + reflected * (p.sigma_nlos - p.sigma_los)
     z = wrap_angle(clean + sigma * jax.random.normal(k_noise, (), dtype))
-    gate = _GATE_FLOOR + (1.0 - _GATE_FLOOR) * los
+    gate = GATE_FLOOR + (1.0 - GATE_FLOOR) * los
 
-    new_filters, errors = _filter_bank(cfg, p, state, _gated_mode_filter, z, uav, gate)
+    new_filters, errors = filter_bank(cfg, p, state, gated_mode_filter, z, uav, gate)
     imm_new = new_filters[cfg.filters.index("imm")]
     gained = jax.vmap(lambda x, s: urban.bearing_information(x, uav, s))(imm_new.x, sig)
     fim = state.fim + los * gained
@@ -472,57 +323,52 @@ def training_weights(cfg, params):
     return jnp.ones(1, jnp.dtype(cfg.dtype))
 
 
-def outputs(cfg) -> dict[str, Output]:
-    """Per-run summary fields (:func:`reduce`)."""
-    return dict(
-        **kit.error_outputs("m", "distance of the estimate from the emitter"),
-        shadow_steps=Output("steps", "steps with no line of sight (no measurement)", False),
-        nlos_steps=Output("steps", "steps whose measurement carried a reflection (biased)", False),
-        held_steps=Output("steps", "steps flying the previous command after a step in the shadow", False),
-        building_steps=Output("steps", "steps with the UAV inside a building (must be 0)", False),
-        limit_violations=Output("steps", "steps whose command or altitude broke a limit of eq. 4 (must be 0)",
-                                False),
-        min_altitude=Output("m", "lowest altitude flown", False),
-        mu_nlos_when_nlos=Output("", "the IMM's mean NLOS probability on steps with a reflected measurement "
-                                 "(NaN if there were none)", False),
+def summary(cfg, records: Record | None, params) -> dict:
+    """One run's records (stacked over time) reduced to its outputs, each declared next to its
+    value (:func:`mcjax.contract.declare`; ``records`` None: the declarations alone)."""
+    r = records
+    nlos_mu = cache(lambda: r.mu[:, NLOS_PLUS] + r.mu[:, NLOS_MINUS])
+    return declare(
+        **kit.error_items(lambda: r.error, lambda: jnp.ones(1, r.error.dtype), cfg, "m",
+                          "distance of the estimate from the emitter"),
+        shadow_steps=(Output("steps", "steps with no line of sight (no measurement)", False),
+                      lambda: jnp.sum(r.shadow)),
+        nlos_steps=(Output("steps", "steps whose measurement carried a reflection (biased)", False),
+                    lambda: jnp.sum(r.nlos)),
+        held_steps=(Output("steps", "steps flying the previous command after a step in the shadow", False),
+                    lambda: jnp.sum(r.held)),
+        building_steps=(Output("steps", "steps with the UAV inside a building (must be 0)", False),
+                        lambda: jnp.sum(r.in_building)),
+        limit_violations=(Output("steps", "steps whose command or altitude broke a limit of eq. 4 (must be 0)",
+                                 False), lambda: jnp.sum(r.violation)),
+        min_altitude=(Output("m", "lowest altitude flown", False), lambda: jnp.min(r.uav[:, 2])),
+        mu_nlos_when_nlos=(Output("", "the IMM's mean NLOS probability on steps with a reflected measurement "
+                                  "(NaN if there were none)", False),
+                           lambda: jnp.sum(jnp.where(r.nlos, nlos_mu(), 0.0)) / jnp.sum(r.nlos)),
     )
 
 
-def reduce(cfg, records: Record, params) -> dict:
-    """One run's records (stacked over time) -> the fields of :func:`outputs`."""
-    e = records.error
-    alive = jnp.ones(1, e.dtype)
-    out = kit.error_summary(e, alive, cfg.warmup_steps, cfg.divergence_threshold)
-    nlos = records.nlos
-    mu_nlos = records.mu[:, NLOS_PLUS] + records.mu[:, NLOS_MINUS]
-    out.update(
-        shadow_steps=jnp.sum(records.shadow), nlos_steps=jnp.sum(nlos), held_steps=jnp.sum(records.held),
-        building_steps=jnp.sum(records.in_building), limit_violations=jnp.sum(records.violation),
-        min_altitude=jnp.min(records.uav[:, 2]),
-        mu_nlos_when_nlos=jnp.sum(jnp.where(nlos, mu_nlos, 0.0)) / jnp.sum(nlos),
+def series(cfg, records: Record | None, params) -> dict:
+    """Per-step series of one run, each declared next to its value."""
+    r = records
+    what = "distance of the estimate from the emitter"
+    return declare(
+        error_mean=(Output("m", f"mean {what} over alive agents"), lambda: r.error[..., 0]),
+        error_max=(Output("m", f"largest {what} of any alive agent"), lambda: r.error[..., 0]),
+        x=(Output("m", "UAV x", False), lambda: r.uav[:, 0]),
+        y=(Output("m", "UAV y", False), lambda: r.uav[:, 1]),
+        z=(Output("m", "UAV altitude", False), lambda: r.uav[:, 2]),
+        shadow=(Output("", "1 = no line of sight (no measurement)", False), lambda: r.shadow.astype(r.error.dtype)),
+        nlos=(Output("", "1 = the measurement carried a reflection", False), lambda: r.nlos.astype(r.error.dtype)),
     )
-    return out
-
-
-def timeseries_outputs(cfg) -> dict[str, Output]:
-    return dict(
-        **kit.error_series_outputs("m", "distance of the estimate from the emitter"),
-        x=Output("m", "UAV x", False), y=Output("m", "UAV y", False), z=Output("m", "UAV altitude", False),
-        shadow=Output("", "1 = no line of sight (no measurement)", False),
-        nlos=Output("", "1 = the measurement carried a reflection", False),
-    )
-
-
-def timeseries(cfg, records: Record, params) -> dict:
-    e = records.error
-    return dict(**{k: v for k, v in zip(("error_mean", "error_max"), (e[..., 0], e[..., 0]))},
-                x=records.uav[:, 0], y=records.uav[:, 1], z=records.uav[:, 2],
-                shadow=records.shadow.astype(e.dtype), nlos=records.nlos.astype(e.dtype))
 
 
 SCENARIO = Scenario(
     name=NAME, title="Chen & Hao 2022: one UAV localises an emitter among buildings by azimuth (IMM-EKF, FIM "
-    "planning)", Config=Config, Params=Params, init=init, step=step, reduce=reduce, outputs=outputs,
-    timeseries=timeseries, timeseries_outputs=timeseries_outputs, check_params=check_params,
+    "planning)", Config=Config, Params=Params, init=init, step=step, summary=summary, series=series,
+    check_params=check_params,
     surrogate=Surrogate(smooth_step, training_weights, Smoothing), compiler_options=FAST_COMPILE)
 default_params = SCENARIO.default_params
+#: The record's derived functions (from :func:`summary` and :func:`series`), by their usual names.
+reduce, outputs = SCENARIO.reduce, SCENARIO.outputs
+timeseries, timeseries_outputs = SCENARIO.timeseries, SCENARIO.timeseries_outputs

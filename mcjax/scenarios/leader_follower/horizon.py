@@ -21,10 +21,10 @@ import jax.numpy as jnp
 from mcjax.models.motion import cv_matrices, cv_process_noise
 from mcjax.models.platforms import UnicycleLimits, unicycle_step
 from mcjax.numerics import matvec, spd_inverse
-from mcjax.planning.objectives import (
+from mcjax.planning.solvers import PlanCost
+from mcjax.scenarios.leader_follower.objectives import (
     ROBUSTNESS_PENALTIES, CostParams, CostTerms, information_after_prediction, step_terms, weighted,
 )
-from mcjax.planning.solvers import PlanCost
 
 
 class Problem(NamedTuple):
@@ -103,7 +103,7 @@ def horizon_plan_cost(problem: Problem, dyn: Dynamics, cost: CostParams, *, pena
     """The horizon cost of Sun et al. 2011, eq. 16 (eqs. 18–19 as penalties) as a
     :class:`~mcjax.planning.solvers.PlanCost` of the plan ``u`` (H, n) in [−1, 1]:
     ``exact`` is :func:`horizon_cost` with ``smooth=False``, ``smooth`` the same with
-    ``smooth=True`` (the surrogate of :mod:`~mcjax.planning.objectives`).
+    ``smooth=True`` (the surrogate of :mod:`~mcjax.scenarios.leader_follower.objectives`).
 
     ``penalty``: the robustness penalty, ``"barrier"`` or ``"inverse"`` (``Config.robustness_penalty``).
     Use: ``solve(horizon_plan_cost(problem, dyn, cost, penalty=...), warm, key, options)``."""

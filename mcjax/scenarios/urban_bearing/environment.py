@@ -41,15 +41,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import mcjax.numerics  # noqa: F401  (switches on float64 mode)
-
 #: Field-strength constant of Chen & Hao 2022, eq. 6 (|E| = 245 √(P D) / r).
 FIELD_CONSTANT = 245.0
 
-# wall k of a box: normal axis, outward sign, tangential horizontal axis
-_WALL_AXIS = (0, 0, 1, 1)
-_WALL_SIGN = (-1.0, 1.0, -1.0, 1.0)
-_WALL_TANGENT = (1, 1, 0, 0)
+#: Wall k of a box (module docstring): the axis of its normal (0 = x, 1 = y) ...
+WALL_AXIS = (0, 0, 1, 1)
+#: ... the sign of its outward normal along that axis ...
+WALL_SIGN = (-1.0, 1.0, -1.0, 1.0)
+#: ... and its tangential horizontal axis.
+WALL_TANGENT = (1, 1, 0, 0)
 
 
 class Buildings(NamedTuple):
@@ -126,8 +126,8 @@ def check_buildings(lo, hi, height, *, R2=None) -> Buildings:
 # --------------------------------------------------------------------------- helpers
 
 
-def _boxes3(b: Buildings):
-    """3-D corners ``lo3``, ``hi3`` (B, 3) of the closed boxes."""
+def boxes3(b: Buildings):
+    """3-D corners ``lo3``, ``hi3`` (B, 3) of the closed boxes (the buildings of eq. 3)."""
     lo = jnp.asarray(b.lo)
     hi = jnp.asarray(b.hi)
     h = jnp.asarray(b.height)
@@ -159,7 +159,7 @@ def _segment_hits(a: jax.Array, c: jax.Array, lo3: jax.Array, hi3: jax.Array) ->
     return t_enter <= t_exit
 
 
-def _inv_sq_field(vec: jax.Array, amplitude) -> jax.Array:
+def inv_sq_field(vec: jax.Array, amplitude) -> jax.Array:
     """``amplitude · vec / |vec|²``: a field of magnitude ``amplitude / |vec|`` pointing
     along ``vec`` (eq. 6's 1/r decay). Zero, with a zero gradient, at ``vec = 0``."""
     sq = jnp.sum(vec * vec, axis=-1, keepdims=True)
@@ -175,7 +175,7 @@ def inside(buildings: Buildings, p: jax.Array) -> jax.Array:
     """True where ``p`` (..., 3) lies in any (closed) building: ``p ∈ A_Build``
     (Chen & Hao 2022, eq. 3). Roof and wall points count as inside. Returns (...)."""
     p = jnp.asarray(p)
-    lo3, hi3 = _boxes3(buildings)
+    lo3, hi3 = boxes3(buildings)
     q = p[..., None, :]
     return jnp.any(jnp.all((q >= lo3) & (q <= hi3), axis=-1), axis=-1)
 
@@ -189,7 +189,7 @@ def line_of_sight(buildings: Buildings, a: jax.Array, b: jax.Array) -> jax.Array
     """
     a = jnp.asarray(a)
     b = jnp.asarray(b)
-    lo3, hi3 = _boxes3(buildings)
+    lo3, hi3 = boxes3(buildings)
     hits = _segment_hits(a[..., None, :], b[..., None, :], lo3, hi3)
     return ~jnp.any(hits, axis=-1)
 
@@ -217,9 +217,10 @@ def in_shadow(buildings: Buildings, emitter: jax.Array, uav: jax.Array) -> jax.A
 # --------------------------------------------------------------------------- reflections
 
 
-def _wall_frame(buildings: Buildings):
-    """Per-wall plane coordinate ``c`` (B, 4), tangential extent ``t_lo, t_hi`` (B, 4),
-    roof height (B, 4), and the static axis/sign tables."""
+def wall_frame(buildings: Buildings):
+    """The walls of every box (eqs. 9–10; numbered as in the module docstring): ``(c, t_lo, t_hi,
+    hh)``, each (B, 4): the coordinate of the wall's plane along its normal (:data:`WALL_AXIS`),
+    its tangential extent along :data:`WALL_TANGENT`, and its height (the roof's)."""
     lo = jnp.asarray(buildings.lo)
     hi = jnp.asarray(buildings.hi)
     h = jnp.asarray(buildings.height)
@@ -230,8 +231,10 @@ def _wall_frame(buildings: Buildings):
     return c, t_lo, t_hi, hh
 
 
-def _pick(p: jax.Array, axes) -> jax.Array:
-    """``p[..., axes]`` (..., 3) -> (..., 1, 4): coordinate ``axes[k]`` for wall k."""
+def per_wall(p: jax.Array, axes) -> jax.Array:
+    """``p[..., axes]`` (..., 3) -> (..., 1, 4): for each wall k of a box, the coordinate
+    ``axes[k]`` of ``p`` (``axes``: :data:`WALL_AXIS` or :data:`WALL_TANGENT`), broadcast over
+    the boxes."""
     return jnp.stack([p[..., k] for k in axes], axis=-1)[..., None, :]
 
 
@@ -240,7 +243,7 @@ def mirror_images(buildings: Buildings, emitter: jax.Array) -> jax.Array:
     eq. 10). ``emitter`` (..., 3) -> (..., B, 4, 3): for a wall ``x = c`` the image is
     ``(2c − x, y, z)``, for ``y = c`` it is ``(x, 2c − y, z)``."""
     emitter = jnp.asarray(emitter)
-    c, _, _, _ = _wall_frame(buildings)
+    c, _, _, _ = wall_frame(buildings)
     x = emitter[..., 0][..., None, None]
     y = emitter[..., 1][..., None, None]
     z = emitter[..., 2][..., None, None]
@@ -255,17 +258,17 @@ def _reflections_raw(buildings: Buildings, emitter, uav, check_legs: bool):
     """Reflection geometry with safe (finite) values on invalid walls."""
     emitter = jnp.asarray(emitter)
     uav = jnp.asarray(uav)
-    c, t_lo, t_hi, hh = _wall_frame(buildings)
-    sign = jnp.asarray(_WALL_SIGN, dtype=c.dtype)
+    c, t_lo, t_hi, hh = wall_frame(buildings)
+    sign = jnp.asarray(WALL_SIGN, dtype=c.dtype)
     # signed distances to each wall plane, positive on the wall's outward side
-    d_e = sign * (_pick(emitter, _WALL_AXIS) - c)
-    d_u = sign * (_pick(uav, _WALL_AXIS) - c)
+    d_e = sign * (per_wall(emitter, WALL_AXIS) - c)
+    d_u = sign * (per_wall(uav, WALL_AXIS) - c)
     faces_both = (d_e > 0) & (d_u > 0)
     denom = jnp.where(faces_both, d_e + d_u, 1.0)
     # the segment image→uav crosses the plane at fraction d_e/(d_e + d_u) from the image,
     # where the tangential and vertical coordinates interpolate those of emitter and uav
     frac = jnp.where(faces_both, d_e / denom, 0.5)
-    e_t, u_t = _pick(emitter, _WALL_TANGENT), _pick(uav, _WALL_TANGENT)
+    e_t, u_t = per_wall(emitter, WALL_TANGENT), per_wall(uav, WALL_TANGENT)
     e_z, u_z = emitter[..., 2][..., None, None], uav[..., 2][..., None, None]
     q_t = e_t + frac * (u_t - e_t)
     q_z = e_z + frac * (u_z - e_z)
@@ -276,7 +279,7 @@ def _reflections_raw(buildings: Buildings, emitter, uav, check_legs: bool):
     point = jnp.stack([jnp.where(normal_x, c_b, q_t), jnp.where(normal_x, q_t, c_b), q_z], -1)
     image = mirror_images(buildings, emitter)
     if check_legs:
-        lo3, hi3 = _boxes3(buildings)
+        lo3, hi3 = boxes3(buildings)
         n_b = lo3.shape[0]
         e_b = jnp.broadcast_to(emitter[..., None, None, :], point.shape)
         u_b = jnp.broadcast_to(uav[..., None, None, :], point.shape)
@@ -341,10 +344,10 @@ def received_field(buildings: Buildings, emitter: jax.Array, uav: jax.Array, R2,
     k = FIELD_CONSTANT * jnp.sqrt(jnp.asarray(P, dtype) * jnp.asarray(D, dtype))
     r2 = jnp.asarray(R2, dtype)
     los = line_of_sight(buildings, emitter, uav)
-    e_los = _inv_sq_field(emitter - uav, jnp.where(los, k, 0.0))
+    e_los = inv_sq_field(emitter - uav, jnp.where(los, k, 0.0))
     valid, image, _ = _reflections_raw(buildings, emitter, uav, check_legs)
     amp = jnp.where(valid, k * r2, 0.0)
-    e_nlos = _inv_sq_field(image - uav[..., None, None, :], amp)
+    e_nlos = inv_sq_field(image - uav[..., None, None, :], amp)
     field = e_los + jnp.sum(e_nlos, axis=(-3, -2))
     arrived = los | (jnp.any(valid, axis=(-2, -1)) & (r2 > 0))
     return field, arrived

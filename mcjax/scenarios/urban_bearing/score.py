@@ -39,9 +39,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from mcjax.models import environment as env
 from mcjax.models.platforms import FixedWingLimits, braking_climb, command_box, fixed_wing_step
 from mcjax.numerics import softmax_value, softmin
+from mcjax.scenarios.urban_bearing import environment as env
 
 FIM_SCORES = ("logdet", "det")
 
@@ -199,7 +199,7 @@ def smooth_score_terms(buildings, belief: Belief, track, fim_kind: str, T) -> Te
                      axis=1)
     fim = belief.fim + gained
     j_fim = jnp.sum(belief.mu * fim_score(fim, fim_kind))
-    lo3, hi3 = env._boxes3(buildings)
+    lo3, hi3 = env.boxes3(buildings)
     emitter = jnp.concatenate([belief.xy, jnp.asarray(belief.z, belief.xy.dtype)[None]])
     occupied = 1.0 - jnp.prod(1.0 - _soft_inside_box(pos, lo3, hi3, T), axis=-1)
     shadow = jax.vmap(lambda p: _soft_blocked_segment(emitter, p, lo3, hi3, T))(pos)
@@ -211,16 +211,16 @@ def smooth_score_terms(buildings, belief: Belief, track, fim_kind: str, T) -> Te
 
 def _soft_reflection(buildings, emitter, uav, T):
     """Smooth "some wall reflects to ``uav``" (the region of eqs. 9–10): for each wall the
-    product of sigmoids of the signed conditions of :func:`mcjax.models.environment.reflections`
+    product of sigmoids of the signed conditions of :func:`mcjax.scenarios.urban_bearing.environment.reflections`
     (both points on the outward side, the crossing point within the wall), combined over walls
     as ``1 − Π(1 − p)``."""
-    c, t_lo, t_hi, hh = env._wall_frame(buildings)
-    sign = jnp.asarray(env._WALL_SIGN, dtype=c.dtype)
-    d_e = sign * (env._pick(emitter, env._WALL_AXIS)[0] - c)
-    d_u = sign * (env._pick(uav, env._WALL_AXIS)[0] - c)
+    c, t_lo, t_hi, hh = env.wall_frame(buildings)
+    sign = jnp.asarray(env.WALL_SIGN, dtype=c.dtype)
+    d_e = sign * (env.per_wall(emitter, env.WALL_AXIS)[0] - c)
+    d_u = sign * (env.per_wall(uav, env.WALL_AXIS)[0] - c)
     denom = jnp.where(d_e + d_u > 0, d_e + d_u, 1.0)
     frac = jnp.clip(d_e / denom, 0.0, 1.0)
-    e_t, u_t = env._pick(emitter, env._WALL_TANGENT)[0], env._pick(uav, env._WALL_TANGENT)[0]
+    e_t, u_t = env.per_wall(emitter, env.WALL_TANGENT)[0], env.per_wall(uav, env.WALL_TANGENT)[0]
     q_t = e_t + frac * (u_t - e_t)
     q_z = emitter[2] + frac * (uav[2] - emitter[2])
     s = jax.nn.sigmoid
@@ -231,7 +231,7 @@ def _soft_reflection(buildings, emitter, uav, T):
 # --------------------------------------------------------------------------- surrogate for training
 #
 # Smooth stand-ins used only by the training surrogate of mcjax tune
-# (:func:`mcjax.scenarios.urban_bearing.smooth_step`): every hard geometric test of the
+# (:func:`mcjax.scenarios.urban_bearing.scenario.smooth_step`): every hard geometric test of the
 # measurement model and of the grid planner becomes a smooth function of the positions, so
 # the closed loop's outcome is a smooth function of the weights c1, c2, c3. The exact
 # simulation never calls them.
@@ -239,7 +239,7 @@ def _soft_reflection(buildings, emitter, uav, T):
 
 def soft_segment_blocked(a, c, lo3, hi3, T):
     """Smooth "the segment ``a–c`` meets box b" (the slab test of the shadow, Chen & Hao 2022,
-    eqs. 7–8, :func:`mcjax.models.environment.line_of_sight`): along the segment, measured
+    eqs. 7–8, :func:`mcjax.scenarios.urban_bearing.environment.line_of_sight`): along the segment, measured
     in metres, the entry point is the largest of the three slabs' entries and 0, the exit the
     smallest of their exits and the length L; both are taken as soft maxima/minima
     (``T·logsumexp``) and the segment is blocked with weight ``sigmoid((exit − entry)/T)``
@@ -262,14 +262,14 @@ def soft_segment_blocked(a, c, lo3, hi3, T):
 def soft_line_of_sight(buildings, a, c, T):
     """Smooth line of sight between ``a`` and ``c`` (..., 3): ``Π_b (1 − blocked_b)`` with
     :func:`soft_segment_blocked` — the complement of the shadow of Chen & Hao 2022, eqs. 7–8."""
-    lo3, hi3 = env._boxes3(buildings)
+    lo3, hi3 = env.boxes3(buildings)
     return jnp.prod(1.0 - soft_segment_blocked(a, c, lo3, hi3, T), axis=-1)
 
 
 def soft_occupied(buildings, p, T):
     """Smooth "``p`` (..., 3) lies in a building" (``p ∈ A_Build``, Chen & Hao 2022, eq. 3):
     ``1 − Π_b (1 − Π_faces sigmoid(margin/T))``. (...)."""
-    lo3, hi3 = env._boxes3(buildings)
+    lo3, hi3 = env.boxes3(buildings)
     return 1.0 - jnp.prod(1.0 - _soft_inside_box(p, lo3, hi3, T), axis=-1)
 
 
@@ -280,19 +280,19 @@ def _soft_positive(x, T):
 
 def soft_reflection_region(buildings, emitter, uav, T):
     """Smooth membership of ``uav`` (3,) in each wall's reflection region ``A_NLOS,s`` (Chen &
-    Hao 2022, eqs. 9–10; :func:`mcjax.models.environment.reflections` with
+    Hao 2022, eqs. 9–10; :func:`mcjax.scenarios.urban_bearing.environment.reflections` with
     ``check_legs=False``): the product of sigmoids of its signed conditions (emitter and UAV
     on the wall's outward side, the crossing point of the image–UAV segment within the wall's
     extent and height). The crossing fraction ``d_e/(d_e + d_u)`` uses soft-plus positive
     distances so that it is smooth everywhere. Returns ``(p (B, 4), crossing point (B, 4, 3),
     mirror image (B, 4, 3))``."""
-    c, t_lo, t_hi, hh = env._wall_frame(buildings)
-    sign = jnp.asarray(env._WALL_SIGN, dtype=c.dtype)
-    d_e = sign * (env._pick(emitter, env._WALL_AXIS)[0] - c)
-    d_u = sign * (env._pick(uav, env._WALL_AXIS)[0] - c)
+    c, t_lo, t_hi, hh = env.wall_frame(buildings)
+    sign = jnp.asarray(env.WALL_SIGN, dtype=c.dtype)
+    d_e = sign * (env.per_wall(emitter, env.WALL_AXIS)[0] - c)
+    d_u = sign * (env.per_wall(uav, env.WALL_AXIS)[0] - c)
     pe, pu = _soft_positive(d_e, T), _soft_positive(d_u, T)
     frac = pe / (pe + pu)
-    e_t, u_t = env._pick(emitter, env._WALL_TANGENT)[0], env._pick(uav, env._WALL_TANGENT)[0]
+    e_t, u_t = env.per_wall(emitter, env.WALL_TANGENT)[0], env.per_wall(uav, env.WALL_TANGENT)[0]
     q_t = e_t + frac * (u_t - e_t)
     q_z = emitter[2] + frac * (uav[2] - emitter[2])
     s = jax.nn.sigmoid
@@ -305,11 +305,11 @@ def soft_reflection_region(buildings, emitter, uav, T):
 def soft_reflections(buildings, emitter, uav, T):
     """Smooth validity (B, 4) of every one-bounce path emitter → wall → ``uav`` (Chen & Hao
     2022, eqs. 9–10 with both legs clear of the other buildings, as
-    :func:`mcjax.models.environment.reflections` with ``check_legs=True``): the region weight
+    :func:`mcjax.scenarios.urban_bearing.environment.reflections` with ``check_legs=True``): the region weight
     of :func:`soft_reflection_region` times, for each leg, ``Π (1 − blocked)`` over the
     other boxes (:func:`soft_segment_blocked`). Returns ``(weight (B, 4), images (B, 4, 3))``."""
     p, point, image = soft_reflection_region(buildings, emitter, uav, T)
-    lo3, hi3 = env._boxes3(buildings)
+    lo3, hi3 = env.boxes3(buildings)
     n_b = lo3.shape[0]
     e_b = jnp.broadcast_to(emitter, point.shape)
     u_b = jnp.broadcast_to(uav, point.shape)
@@ -321,7 +321,7 @@ def soft_reflections(buildings, emitter, uav, T):
 
 
 def soft_measured_bearing(buildings, emitter, uav, R2, P, D, T):
-    """Smooth version of :func:`mcjax.models.environment.measured_bearing` (Chen & Hao 2022,
+    """Smooth version of :func:`mcjax.scenarios.urban_bearing.environment.measured_bearing` (Chen & Hao 2022,
     eqs. 5–6): the azimuth of the summed field where the direct path counts with the weight
     :func:`soft_line_of_sight` and wall s's reflected path with its weight from
     :func:`soft_reflections` (instead of 0/1). Returns ``(bearing, los weight, reflected
@@ -331,8 +331,8 @@ def soft_measured_bearing(buildings, emitter, uav, R2, P, D, T):
     k = env.FIELD_CONSTANT * jnp.sqrt(jnp.asarray(P, dtype) * jnp.asarray(D, dtype))
     los = soft_line_of_sight(buildings, emitter, uav, T)
     w, image = soft_reflections(buildings, emitter, uav, T)
-    field = (env._inv_sq_field(emitter - uav, k * los)
-             + jnp.sum(env._inv_sq_field(image - uav, k * jnp.asarray(R2, dtype) * w), axis=(0, 1)))
+    field = (env.inv_sq_field(emitter - uav, k * los)
+             + jnp.sum(env.inv_sq_field(image - uav, k * jnp.asarray(R2, dtype) * w), axis=(0, 1)))
     ex, ey = field[0], field[1]
     zero = (ex == 0.0) & (ey == 0.0)
     bearing = jnp.where(zero, 0.0, jnp.arctan2(ey, jnp.where(zero, 1.0, ex)))
