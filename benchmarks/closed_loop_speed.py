@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from mcjax import engine, runtime
-from mcjax.sweep import load_config_file
+from mcjax.study import load_config_file
 
 ROOT = Path(__file__).resolve().parents[1]
 VARIANTS = (("every step", dict(plan_period=0, max_horizon=8)),

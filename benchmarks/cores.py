@@ -51,7 +51,7 @@ CHILD = r"""
 import dataclasses, json, sys, time
 import numpy as np
 from mcjax import engine, runtime
-from mcjax.sweep import load_config_file
+from mcjax.study import load_config_file
 
 path, overrides, runs, out = sys.argv[1], json.loads(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 sc, cfg, values = load_config_file(path)

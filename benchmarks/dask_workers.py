@@ -5,7 +5,7 @@ worker is one core and "2 workers" means twice the cores of "1 worker"):
 
 1. **Speed.** The spec (default ``sweeps/default.toml``, seeds and chunk size as given) in
    this process (the local executor), then on a ``LocalCluster`` of 1 worker and one of 2
-   workers (:func:`mcjax.cluster.local_cluster`), both kept running. On each cluster the
+   workers (:func:`mcjax.study.dask.local_cluster`), both kept running. On each cluster the
    sweep runs once *cold* (the workers import mcjax and compile the batch program: what one
    ``mcjax sweep --executor dask --workers N`` costs, less starting the cluster, printed on
    its own), then ``--rounds`` times *warm* (programs compiled: what each further sweep of
@@ -56,8 +56,8 @@ def main() -> None:
     import distributed
     import pandas as pd
 
-    from mcjax.cluster import DaskExecutor, local_cluster
-    from mcjax.sweep import chunk_rows, load_spec, run_sweep
+    from mcjax.study.dask import DaskExecutor, local_cluster
+    from mcjax.study import chunk_rows, load_spec, run_sweep
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--spec", default=str(ROOT / "sweeps" / "default.toml"))

@@ -38,7 +38,7 @@ import pandas as pd
 
 from mcjax import engine
 from mcjax.results import environment_metadata, write_part
-from mcjax.sweep import load_config_file, run_rows
+from mcjax.study import load_config_file, run_rows
 
 ROOT = Path(__file__).resolve().parent.parent
 FILTERS = ("icf", "modified_icf", "cif")

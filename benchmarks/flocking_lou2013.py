@@ -99,7 +99,7 @@ from mcjax.results import environment_metadata, write_part
 from mcjax.scenarios.flocking import Params as FlockingParams
 from mcjax.scenarios.flocking import target_state
 from mcjax.statistics import mean_ci, t_critical, wilson_interval
-from mcjax.sweep import build_spec, run_rows
+from mcjax.study import build_spec, run_rows
 
 ROOT = Path(__file__).resolve().parent.parent
 FILTERS = ("kcf", "local")
@@ -161,13 +161,13 @@ def _stepper(scenario, cfg):
 
 def trajectory(scenario, cfg, p, seed_index: int, base_seed: int = 0) -> dict:
     """Run ``seed_index`` step by step in a jitted Python loop with the engine's keys (run key
-    ``fold_in(PRNGKey(base_seed), seed)``; init ``fold_in(key, 0x7FFFFFFF)``; step t
+    ``fold_in(PRNGKey(base_seed), seed)``; init ``engine.init_key(key)``; step t
     ``fold_in(key, t)``, as in ``mcjax.engine``). Returns the positions ``q`` (T+1, N, 2) and
     graphs ``adj`` (T+1, N, N) of the states (index k = time k·dt) and the step records'
     ``lambda2``, ``min_distance`` and ``edges`` (T,)."""
     init, step = _stepper(scenario, cfg)
     key = engine.run_key(base_seed, seed_index)
-    state = init(p, jax.random.fold_in(key, 0x7FFFFFFF))
+    state = init(p, engine.init_key(key))
     keep = {"q": [], "v": [], "b": [], "adj": []}
 
     def collect(st):
@@ -262,7 +262,7 @@ def crosscheck_init(scenario, cfg, p, n: int, base_seed: int):
     """(b) of the module docstring: ``flocking.init`` for the main runs' first ``n`` keys; the
     graph distance < R rebuilt from the positions, λ2 by networkx vs
     ``mcjax.graph.algebraic_connectivity`` on the state's graph; the start rules checked."""
-    keys = jax.vmap(lambda s: jax.random.fold_in(engine.run_key(base_seed, s), 0x7FFFFFFF))(
+    keys = jax.vmap(lambda s: engine.init_key(engine.run_key(base_seed, s)))(
         np.arange(n, dtype=np.uint32))
     states = jax.jit(jax.vmap(lambda k: scenario.init(cfg, p, k)))(keys)
     q, adj = np.asarray(states.flock.q), np.asarray(states.adj)
@@ -399,7 +399,7 @@ def batch_cost(config: Path, n: int, runs: int, steps: int, base_seed: int) -> d
 
 
 def substep_cost(config: Path, n: int, runs: int, base_seed: int, substeps: int = 10, repeats: int = 3) -> float:
-    """Seconds per run and RK4 sub-step of ``mcjax.models.flocking.rk4_step`` alone, vmapped over
+    """Seconds per run and RK4 sub-step of ``mcjax.scenarios.flocking.dynamics.rk4_step`` alone, vmapped over
     ``runs`` initial states of ``n`` nodes (``flocking.init``) with a fixed ``substeps`` count
     (the best of ``repeats`` calls after compiling): the integrator's cost per unit of work,
     free of how stiff the flock is."""
@@ -407,7 +407,7 @@ def substep_cost(config: Path, n: int, runs: int, base_seed: int, substeps: int 
     from mcjax.scenarios.flocking import sensing_mask
 
     scenario, cfg, p, _ = _scaling_setup(config, n, 30)
-    keys = jax.vmap(lambda s: jax.random.fold_in(engine.run_key(base_seed, s), 0x7FFFFFFF))(
+    keys = jax.vmap(lambda s: engine.init_key(engine.run_key(base_seed, s)))(
         np.arange(runs, dtype=np.uint32))
     states = jax.jit(jax.vmap(lambda k: scenario.init(cfg, p, k)))(keys)
     h = sensing_mask(cfg, p, np.float64)

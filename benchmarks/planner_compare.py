@@ -28,7 +28,7 @@ import numpy as np
 from mcjax.planning import PlannerOptions, solve
 from mcjax.scenarios.leader_follower.horizon import Dynamics, Problem, horizon_cost, horizon_plan_cost
 from mcjax.scenarios.leader_follower.objectives import CostParams
-from mcjax.sweep import load_config_file
+from mcjax.study import load_config_file
 
 ROOT = Path(__file__).resolve().parent.parent
 BUDGETS = [("gradient", dict(iterations=k)) for k in (5, 10, 20, 40)] + \

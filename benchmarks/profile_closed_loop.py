@@ -37,7 +37,7 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 from mcjax import engine  # noqa: E402
-from mcjax.sweep import load_config_file  # noqa: E402
+from mcjax.study import load_config_file  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -38,7 +38,7 @@ import numpy as np
 import pandas as pd
 
 from mcjax import engine, runtime
-from mcjax.sweep import load_config_file
+from mcjax.study import load_config_file
 
 ROOT = Path(__file__).resolve().parents[1]
 CURVES = ("runs", "agents", "horizon", "consensus")

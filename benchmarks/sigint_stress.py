@@ -114,7 +114,7 @@ def sorted_runs(out: Path) -> pd.DataFrame:
 
 def part_damage(spec_path: Path, out: Path) -> list[str]:
     """Problems other than missing parts (damaged or foreign part files) in ``out``."""
-    from mcjax.sweep import check_parts, load_spec
+    from mcjax.study import check_parts, load_spec
 
     spec = load_spec(spec_path)
     _, problems = check_parts(spec, out)

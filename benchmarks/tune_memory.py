@@ -34,9 +34,10 @@ def main() -> None:
     def rss() -> float:  # peak resident memory of this process so far, GiB (Linux: KiB)
         return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
 
+    from mcjax.study.checks import read_toml
     from mcjax import tune
 
-    raw = tune._read_toml(ROOT / "sweeps" / "tune_sun2011.toml", "spec")
+    raw = read_toml(ROOT / "sweeps" / "tune_sun2011.toml", "spec")
     for mode in args.modes:
         for block in args.block if mode == "reverse" else [args.block[0]]:
             raw["tune"].update(gradient=mode, checkpoint_every=min(block, args.steps), train_seeds=args.runs)
@@ -47,18 +48,18 @@ def main() -> None:
             keys = tune.train_keys(spec)
             t = time.perf_counter()
             before = rss()
-            compiled = fn.lower(z, keys, spec.sweep.base_params).compile()
+            compiled = fn.lower(z, keys, spec.study.base_params).compile()
             compiled_rss = rss()
             ma = compiled.memory_analysis()
             temp = getattr(ma, "temp_size_in_bytes", 0)
             arg = getattr(ma, "argument_size_in_bytes", 0)
             out = getattr(ma, "output_size_in_bytes", 0)
-            print(f"{mode:8s} block {block:3d}: {spec.sweep.config.n_steps} steps x {args.runs} runs: temporaries "
+            print(f"{mode:8s} block {block:3d}: {spec.study.config.n_steps} steps x {args.runs} runs: temporaries "
                   f"{temp / 2**20:.1f} MiB, arguments {arg / 2**20:.2f} MiB, outputs {out / 2**20:.3f} MiB "
                   f"(compile {time.perf_counter() - t:.0f} s)", flush=True)
             if args.run:
                 t = time.perf_counter()
-                out = jax.block_until_ready(compiled(z, keys, spec.sweep.base_params))
+                out = jax.block_until_ready(compiled(z, keys, spec.study.base_params))
                 print(f"{mode:8s} block {block:3d}: one pass {time.perf_counter() - t:.0f} s; "
                       f"peak RSS {before:.2f} GiB "
                       f"before compiling, {compiled_rss:.2f} GiB after, {rss():.2f} GiB after the pass; mean loss "

@@ -107,7 +107,7 @@ def replot(out: Path) -> None:
 def _cached_sweep(spec, path: Path):
     """The sweep's rows, read from ``path`` if an earlier (killed) run of this benchmark wrote
     them, else run and written there; and the wall seconds it took."""
-    from mcjax.sweep import run_sweep
+    from mcjax.study import run_sweep
 
     t0 = time.perf_counter()
     if path.is_file():
@@ -134,12 +134,13 @@ def main() -> None:
 
     import jax
 
+    from mcjax.study.checks import read_toml
     from mcjax import engine, tune
-    from mcjax.sweep import build_spec, read_identity  # noqa: F401
+    from mcjax.study import build_spec, read_identity  # noqa: F401
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    raw = tune._read_toml(Path(args.spec), "tune spec")
+    raw = read_toml(Path(args.spec), "tune spec")
     raw["tune"]["train_seeds"] = args.train_seeds
     raw["tune"]["heldout_seeds"] = args.heldout_seeds
     if args.steps is not None:
@@ -174,7 +175,7 @@ def main() -> None:
     final = tune.final_values(spec, trace)
 
     # ---- cost of one exact run vs one gradient pass (compilation excluded)
-    s = spec.sweep
+    s = spec.study
     keys = tune.train_keys(spec)
     params = jax.tree.map(lambda a: np.broadcast_to(np.asarray(a), (spec.train_seeds,) + np.shape(a)),
                           s.base_params)

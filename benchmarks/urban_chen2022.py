@@ -58,7 +58,7 @@ Planner comparison on the same states. The records carry the UAV, the command an
 mode probabilities but not the IMM's mode estimates, nor the accumulated FIM, which the
 planner needs. So the states are rebuilt: for the first ``--runs-compare`` seeds of each
 weight vector the scenario's own ``init`` / ``step`` are scanned with the engine's keys
-(``run_key``; init key ``fold_in(key, 0x7FFFFFFF)``, step key ``fold_in(key, t)``, exactly as
+(``run_key``; init key ``engine.init_key(key)``, step key ``fold_in(key, t)``, exactly as
 ``mcjax.engine``), keeping the full ``State`` before every step — these are the grid
 planner's closed-loop states, and the script checks that this scan reproduces the engine's
 records. From each state the planner's inputs are built as ``urban_bearing.step`` does (the
@@ -94,7 +94,7 @@ from mcjax.scenarios.urban_bearing import score as urban
 from mcjax.results import environment_metadata, write_part
 from mcjax.scenarios import urban_bearing as ub
 from mcjax.statistics import mean_ci, t_critical, wilson_interval
-from mcjax.sweep import load_spec, point_params, points, run_rows
+from mcjax.study import load_spec, run_rows
 
 ROOT = Path(__file__).resolve().parent.parent
 #: Chen & Hao 2022 Table 1: final error (m), mean over 50 runs of eq. 23 at the last step.
@@ -125,7 +125,7 @@ def fmt_wilson(k: int, n: int) -> str:
 def tracks(spec) -> list[dict]:
     """One entry per sweep point: its weights, the paper's name and number (if any)."""
     out = []
-    for _, row in points(spec).iterrows():
+    for _, row in spec.points.iterrows():
         w = (float(row["c1"]), float(row["c2"]), float(row["c3"]))
         key = next((k for k in PAPER if np.allclose(k, w)), None)
         name, what, paper = PAPER[key] if key else (f"point {int(row['point_id'])}", "", float("nan"))
@@ -138,7 +138,7 @@ def run_sweep(spec, runs: int, base_seed: int):
     seed, the per-run summaries (``reduce``), the wall time including compilation, and the
     compilation time alone."""
     sc, cfg = spec.scenario, spec.config
-    pp = point_params(spec)
+    pp = spec.params
     n = spec.n_points * runs
     t0 = time.perf_counter()
     # compile the engine's batch program ahead of time, to time compilation apart; the key is
@@ -158,7 +158,7 @@ def time_sweep(spec, runs: int, base_seed: int) -> float:
     """Wall time of a ``runs``-per-point sweep with records (the cached program if the batch
     size is the same)."""
     t0 = time.perf_counter()
-    for _ in engine.run_chunks(spec.scenario, spec.config, point_params(spec), runs, base_seed=base_seed,
+    for _ in engine.run_chunks(spec.scenario, spec.config, spec.params, runs, base_seed=base_seed,
                                chunk_size=spec.n_points * runs, records=True):
         pass
     return time.perf_counter() - t0
@@ -316,7 +316,7 @@ def state_scan(sc, cfg):
     """``(params, run key) -> (State before every step, Record of every step)``: the engine's
     ``_run`` with the same keys, keeping the states."""
     def one(params, key):
-        state = sc.init(cfg, params, jax.random.fold_in(key, 0x7FFFFFFF))
+        state = sc.init(cfg, params, engine.init_key(key))
 
         def body(s, t):
             s2, rec = sc.step(cfg, params, s, jax.random.fold_in(key, t))
@@ -353,7 +353,7 @@ def best_time(fn, *args, repeats: int = 3) -> float:
 def compare_planners(spec, trk, records, summ, runs: int, n_cmp: int, base_seed: int, imm: int):
     """Returns (printed text, building/limit problems of the gradient closed loop)."""
     sc, cfg = spec.scenario, spec.config
-    pp = point_params(spec)
+    pp = spec.params
     kinds = ("grid", "gradient")
     cfgs = {k: dataclasses.replace(cfg, planner=k) for k in kinds}
     scan = state_scan(sc, cfg)

@@ -127,7 +127,7 @@ def _within(value, low, high, low_open):
 
 
 #: Upper bounds of the integer Config fields that declare none (agents, steps; every other count:
-#: COUNT_CEILING), so no spec asks for more than a machine holds (mcjax.sweep refines them).
+#: COUNT_CEILING), so no spec asks for more than a machine holds (the study plan's memory check refines them).
 COUNT_CEILINGS = {"n_agents": 1_000, "n_steps": 1_000_000}
 COUNT_CEILING = 100_000
 

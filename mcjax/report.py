@@ -29,7 +29,7 @@ from mcjax.tables import FORMATS
 
 __all__ = ["FORMATS", "summary_text", "report", "completeness"]
 
-#: The sweep's identity file in its output folder (written by :mod:`mcjax.sweep`).
+#: The sweep's identity file in its output folder (written by :mod:`mcjax.study.store`).
 IDENTITY_FILE = "sweep.json"
 
 

@@ -112,3 +112,60 @@ def test_architecture_lists_every_module_and_only_modules_that_exist():
     gone = sorted(name for name in listed if not (ROOT / name).exists())
     assert not gone, f"docs/architecture.md's Layout lists modules that do not exist: {gone}"
     assert re.search(r"mcjax/study/", (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8"))
+
+
+#: Layers from the bottom: a module may import its own layer or lower ones only.
+LAYERS = [
+    {"contract", "envvars", "files", "interrupt", "jaxcompat", "runtime", "numerics", "results"},
+    {"models"},
+    {"graph"},
+    {"metrics"},
+    {"filters"},
+    {"planning"},
+    {"scenarios"},
+    {"engine", "statistics"},
+    {"study", "tables", "plots", "listing"},
+    {"tune"},
+    {"report", "html_report"},
+    {"cli", "clidoc"},
+]
+
+
+def _layer(module: str) -> int:
+    top = module.split(".")[1] if module.startswith("mcjax.") else module
+    if not (PACKAGE / top).is_dir() and not (PACKAGE / f"{top}.py").is_file():
+        return -1  # a name of the package itself: mcjax.__version__, mcjax.configure
+    return next(i for i, names in enumerate(LAYERS) if top in names)
+
+
+def test_no_module_imports_from_a_layer_above():
+    bad = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        rel = path.relative_to(ROOT).with_suffix("")
+        parts = rel.parts if rel.name != "__init__" else rel.parts[:-1]
+        if len(parts) == 1:
+            continue  # mcjax/__init__.py
+        me = _layer(".".join(parts))
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = []
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("mcjax"):
+                names = [node.module] if node.module != "mcjax" else [f"mcjax.{a.name}" for a in node.names]
+            elif isinstance(node, ast.Import):
+                names = [a.name for a in node.names if a.name.startswith("mcjax.")]
+            for name in names:
+                if name.count(".") >= 1 and _layer(name) > me:
+                    bad.append(f"{rel} imports {name}")
+    assert not bad, bad
+
+
+def test_no_scenario_filter_or_unit_names_above_the_scenarios():
+    words = re.compile(r"\b(leader_follower|uuv_imm|modified_icf|cif|icf|kcf|imm|lambda2_min|mean_error)\b")
+    above = ["engine.py", "results.py", "report.py", "html_report.py", "tables.py", "statistics.py", "cli.py",
+             "listing.py", "files.py", "interrupt.py", "study", "plots"]
+    paths = [p for name in above for p in ((PACKAGE / name).rglob("*.py") if (PACKAGE / name).is_dir()
+                                            else [PACKAGE / name])]
+    assert len(paths) > 15
+    for path in paths:
+        code = path.read_text(encoding="utf-8")
+        assert not words.search(code), (path.name, words.search(code).group(0))
+        assert not re.search(r"(?<![A-Za-z_])\[m\]", code), path.name

@@ -1,4 +1,4 @@
-"""Sweeps on a Dask cluster (mcjax.cluster): a LocalCluster of 2 worker processes, shared by the tests.
+"""Sweeps on a Dask cluster (mcjax.study.dask): a LocalCluster of 2 worker processes, shared by the tests.
 
 The scenario is a one-agent Kalman filter written to a file (so it travels to the workers by
 value), with a host callback the tests steer through flag files in the scenario's folder:
@@ -24,7 +24,7 @@ from click.testing import CliRunner
 
 from mcjax.cli import ACK_DASK, main
 from mcjax.results import read_table
-from mcjax.sweep import check_parts, load_spec, prepare_output, run_sweep
+from mcjax.study import check_parts, load_spec, prepare_output, run_sweep
 
 PROBE = '''
 """One agent tracking a 1-D random walk; a host callback reads the test's flag files."""
@@ -105,13 +105,13 @@ def _write(root: Path) -> tuple[Path, Path]:
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory):
     distributed = pytest.importorskip("distributed")
-    from mcjax.cluster import local_cluster
+    from mcjax.study.dask import local_cluster
 
     root = tmp_path_factory.mktemp("dask")
     good, bad = _write(root)
     with local_cluster(2) as cluster, distributed.Client(cluster, set_as_default=False) as client:
         # the workers import mcjax while this process computes the reference
-        warm = threading.Thread(target=client.run, args=(lambda: importlib.import_module("mcjax.cluster").__name__,))
+        warm = threading.Thread(target=client.run, args=(lambda: importlib.import_module("mcjax.study.dask").__name__,))
         warm.start()
         spec = load_spec(good)
         run_sweep(spec, root / "local")
@@ -141,7 +141,7 @@ def _parts(out: Path) -> list[Path]:
 
 
 def test_same_bytes_as_local_and_one_compilation_per_worker(lab, tmp_path):
-    from mcjax.cluster import DaskExecutor, ship
+    from mcjax.study.dask import DaskExecutor, ship
 
     for name in ("a", "b"):  # two sweeps of one spec
         run_sweep(lab.spec, tmp_path / name, executor=DaskExecutor(lab.client))
@@ -154,10 +154,11 @@ def test_same_bytes_as_local_and_one_compilation_per_worker(lab, tmp_path):
     assert len(_parts(out)) == 6
 
     def programs(token):
-        from mcjax import cluster, engine
+        from mcjax import engine
+        from mcjax.study import dask as cluster
 
-        specs = [s for t, s in cluster._WORKER_SPECS.items() if t == token]
-        fns = {engine.compiled(s.scenario, s.config) for s in cluster._WORKER_SPECS.values()}
+        specs = [s for t, s in cluster.worker_specs().items() if t == token]
+        fns = {engine.compiled(s.scenario, s.config) for s in cluster.worker_specs().values()}
         return len(specs), len(fns), sum(len(engine.cached_programs(f)) for f in fns)
 
     # a worker unpickled the spec at most once and compiled one program for all three sweeps
@@ -189,7 +190,7 @@ def test_started_locally_ctrl_c_on_dask_then_finished_on_dask(lab, tmp_path, mon
     cancelled, exit 130, only whole parts, and the printed resume command finishes the sweep."""
     from mcjax import cli
 
-    monkeypatch.setattr(cli, "_exit_now", sys.exit)  # exit 130 without leaving pytest
+    monkeypatch.setattr(cli, "exit_now", sys.exit)  # exit 130 without leaving pytest
     out = tmp_path / "out"
     prepare_output(lab.spec, out, spec_file=lab.good)
     run_sweep(lab.spec, out, chunks=[0])  # a local sweep that stopped after one chunk
@@ -239,8 +240,8 @@ def test_a_worker_that_raises_names_the_point_and_the_chunk(lab, tmp_path):
 
 
 def test_a_worker_with_other_software_refuses_the_chunk(lab, tmp_path, monkeypatch):
-    from mcjax import cluster
-    from mcjax.sweep import ChunkError
+    from mcjax.study import dask as cluster
+    from mcjax.study import ChunkError
 
     monkeypatch.setattr(cluster, "software_fingerprint", lambda: "another mcjax")  # as a client of another version
     with pytest.raises(ChunkError, match=r"^chunk \d .* failed on a Dask worker: RuntimeError: this worker runs "
@@ -251,7 +252,7 @@ def test_a_worker_with_other_software_refuses_the_chunk(lab, tmp_path, monkeypat
 
 def test_a_worker_killed_mid_chunk_changes_nothing(lab, tmp_path):
     # last of the tests on the cluster: the worker started in place of the killed one is then never used
-    from mcjax.cluster import DaskExecutor
+    from mcjax.study.dask import DaskExecutor
 
     killed = []
 
@@ -301,7 +302,7 @@ def test_a_scheduler_that_cannot_be_reached_is_one_line_and_writes_nothing(tmp_p
     import socket
 
     pytest.importorskip("distributed")
-    from mcjax import cluster
+    from mcjax.study import dask as cluster
 
     monkeypatch.setattr(cluster, "CONNECT_TIMEOUT", 1)
     with socket.socket() as s:  # a port nobody listens on

@@ -1,4 +1,4 @@
-"""mcjax.models.environment (Chen & Hao 2022 urban geometry) against independent references:
+"""mcjax.scenarios.urban_bearing.environment (Chen & Hao 2022 urban geometry) against independent references:
 shapely footprint intersection plus a numpy (or exact fractions.Fraction) height check for
 line of sight, scipy.spatial.ConvexHull for the eqs. 7–8 shadow polyhedra,
 scipy.optimize.minimize of the reflected path length for the NLOS paths, and math.atan2 for

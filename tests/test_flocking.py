@@ -1,4 +1,4 @@
-"""The flocking sensor network of Lou, Cui & Li 2013 (``mcjax.models.flocking``, the KCF of
+"""The flocking sensor network of Lou, Cui & Li 2013 (``mcjax.scenarios.flocking.dynamics``, the KCF of
 ``mcjax.filters.consensus`` and ``mcjax.scenarios.flocking``) against independent references:
 closed forms and finite differences of the potential (eq. 12), autodiff of sums written here,
 the exact time derivative of the energy (eq. 15) by ``jax.jvp``, ``scipy.integrate.solve_ivp``
@@ -772,7 +772,7 @@ def test_lattice_start_meets_the_start_rule(n):
 def test_default_start_is_the_papers_uniform_draw():
     """The default start_layout is "uniform", also in configs/lou2013.toml (the draw itself,
     bit for bit: test_init_draws_for_20_nodes_are_valid_or_flagged)."""
-    from mcjax.sweep import load_config_file
+    from mcjax.study import load_config_file
 
     assert S.Config().start_layout == "uniform"
     assert load_config_file(CONFIG)[1].start_layout == "uniform"
@@ -950,7 +950,7 @@ def _cli_spec(tmp_path, config="", params="n_sensing = 2\n"):
 
 def test_cli_spec_without_bad_input_validates(tmp_path):
     """The control for the cases below: the same small spec passes validation."""
-    from mcjax.sweep import load_spec
+    from mcjax.study import load_spec
 
     spec = load_spec(_cli_spec(tmp_path))
     assert spec.scenario is S.SCENARIO and spec.config.n_agents == 4 and spec.n_runs == 2

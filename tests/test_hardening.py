@@ -19,7 +19,7 @@ import pytest
 from click.testing import CliRunner
 
 from mcjax.cli import ACK, main
-from mcjax.sweep import check_parts, default_out_dir, load_spec
+from mcjax.study import check_parts, default_out_dir, load_spec
 
 ROOT = Path(__file__).parents[1]
 WIND = ROOT / "configs" / "chen2013.toml"
@@ -225,13 +225,12 @@ def test_other_bad_environment_variables_are_one_line_naming_them(name, value, m
 def test_axes_of_vectors_stack_into_one_array_per_field(tmp_path):
     """A per-agent axis may mix one number for all agents with one per agent; every axis's
     points stack into one array with a leading point axis (what the engine is given)."""
-    from mcjax.sweep import point_params
 
     spec = tmp_path / "v.toml"
     spec.write_text(f'base = "{ROOT / "configs" / "ren2017.toml"}"\nseeds = 2\n[config]\nn_steps = 3\n'
                     'warmup_steps = 1\n[grid]\ncomm_radius = [450.0, [400.0, 450.0, 500.0, 450.0, 450.0, 450.0]]\n'
                     'mu0 = [[0.5, 0.5], [0.3, 0.7]]\n')
-    p = point_params(load_spec(spec))
+    p = load_spec(spec).params
     assert p.comm_radius.shape == (4, 6) and p.mu0.shape == (4, 2) and p.comm_radius[0, 0] == 450.0
 
 

@@ -21,7 +21,7 @@ from click.testing import CliRunner
 from mcjax import scenarios
 from mcjax.cli import main
 from mcjax.contract import COUNT_CEILING, COUNT_CEILINGS
-from mcjax.sweep import MAX_POINTS, SPEC_KEYS
+from mcjax.study import MAX_POINTS, SPEC_KEYS
 
 ROOT = Path(__file__).parents[1]
 CONFIGS = ROOT / "configs"

@@ -28,7 +28,7 @@ from click.testing import CliRunner
 
 from mcjax import tune
 from mcjax.cli import main
-from mcjax.sweep import SpecError
+from mcjax.study import SpecError
 
 ROOT = Path(__file__).resolve().parents[1]
 BASE = (ROOT / "configs" / "sun2011.toml").as_posix()
@@ -100,7 +100,7 @@ def exact_warm(spec):
     """The exact program of the held-out evaluation, compiled (by running a small evaluation of
     the same shape) in a thread while the main thread compiles the gradient program: the two
     compilations overlap on a 2-core machine, and the CLI test finds the exact one ready."""
-    from mcjax.sweep import run_sweep
+    from mcjax.study import run_sweep
 
     box: dict = {}
 
@@ -124,9 +124,9 @@ def _with_base(spec, **values) -> tune.TuneSpec:
     """The same program with other (untuned) Params values."""
     import dataclasses
 
-    sweep = dataclasses.replace(spec.sweep, base_params=spec.sweep.base_params._replace(
+    sweep = dataclasses.replace(spec.study, base_params=spec.study.base_params._replace(
         **{k: np.asarray(v, np.float64) for k, v in values.items()}))
-    return dataclasses.replace(spec, sweep=sweep)
+    return dataclasses.replace(spec, study=sweep)
 
 
 # ------------------------------------------------------------------ transforms and spec
@@ -243,10 +243,10 @@ def test_gradient_matches_central_differences(spec, evaluator):
 @pytest.mark.xdist_group("test_tune")  # one worker builds the module fixture once
 @pytest.mark.parametrize("case", ["uav_on_target", "coincident_uavs", "graph_breaks"])
 def test_gradients_finite_for_degenerate_runs(spec, evaluator, case):
-    pos = np.array(spec.sweep.base_params.initial_positions)
+    pos = np.array(spec.study.base_params.initial_positions)
     values = {}
     if case == "uav_on_target":
-        pos[1] = np.asarray(spec.sweep.base_params.target_x0)[[0, 2]]
+        pos[1] = np.asarray(spec.study.base_params.target_x0)[[0, 2]]
         values["initial_positions"] = pos
     elif case == "coincident_uavs":
         pos[1] = pos[0]

@@ -56,9 +56,9 @@ def evaluator(spec) -> tune.Evaluator:
 
 def _with_base(spec, **values) -> tune.TuneSpec:
     """The same program with other (untuned) Params values."""
-    sweep = dataclasses.replace(spec.sweep, base_params=spec.sweep.base_params._replace(
+    sweep = dataclasses.replace(spec.study, base_params=spec.study.base_params._replace(
         **{k: np.asarray(v, np.float64) for k, v in values.items()}))
-    return dataclasses.replace(spec, sweep=sweep)
+    return dataclasses.replace(spec, study=sweep)
 
 
 @pytest.mark.xdist_group("tune_urban")  # one worker builds the module fixture once
@@ -67,7 +67,7 @@ def test_spec_takes_the_weights_and_the_smoothing_table():
     data["tune"]["smoothing"] = {"geometry": 30.0, "plan": 0.2, "command": 2e-3}
     s = tune.build_tune_spec(data, ROOT)
     assert s.names == ["c1", "c2", "c3"] and s.smoothing == ub.Smoothing(30.0, 0.2, 2e-3)
-    assert s.sweep.config.planner == "grid"  # the paper's planner, whose argmax the surrogate smooths
+    assert s.study.config.planner == "grid"  # the paper's planner, whose argmax the surrogate smooths
 
 
 @pytest.mark.xdist_group("tune_urban")  # one worker builds the module fixture once
@@ -111,7 +111,7 @@ def test_gradients_finite_for_degenerate_runs(spec, evaluator, case):
     s = _with_base(spec, **values)
     if case == "hidden_whole_run":  # the exact simulation sees nothing on this run
         from mcjax.scenarios.urban_bearing import environment as env
-        b = ub._buildings_np(s.sweep.base_params.buildings)
+        b = ub._buildings_np(s.study.base_params.buildings)
         # 8 steps of 50 m stay within 400 m of the start and 35 m of its altitude (|θ| ≤ 5°):
         # no point of that cylinder sees the emitter
         r, a, z = np.meshgrid(np.linspace(0, 400, 9), np.linspace(0, 2 * np.pi, 16), [165.0, 200.0, 235.0])

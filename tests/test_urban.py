@@ -502,7 +502,7 @@ def _cli_spec(tmp_path, config="", params=""):
 
 def test_cli_spec_without_bad_input_validates(tmp_path):
     """The control for the cases below: the same small spec, clean, passes validation."""
-    from mcjax.sweep import load_spec
+    from mcjax.study import load_spec
 
     spec = load_spec(_cli_spec(tmp_path))
     assert spec.scenario is S.SCENARIO and spec.config.n_steps == 5 and spec.n_runs == 2

@@ -16,7 +16,7 @@ from mcjax.cli import main
 from mcjax.filters.imm import combine
 from mcjax.models.motion import ct_matrix, cv_matrices, cv_process_noise
 from mcjax.scenarios import uuv_imm as S
-from mcjax.sweep import load_config_file
+from mcjax.study import load_config_file
 
 CONFIG = str((Path(__file__).parents[1] / "configs" / "ren2017.toml").resolve())
 

@@ -229,7 +229,7 @@ def test_cli_rejects_bad_config(tmp_path):
 
 
 def test_spec_validates_and_library_raises():
-    from mcjax.sweep import load_config_file
+    from mcjax.study import load_config_file
 
     loaded = load_config_file(CONFIG)
     assert loaded[0] is S.SCENARIO and loaded[1] == S.Config()

@@ -54,7 +54,7 @@ def chunk_rows(study: Study, chunks: list[int] | None = None) -> Iterator[ChunkR
 class Executor(Protocol):
     """Computes the chunks of a sweep somewhere and hands their rows back to the caller, which
     publishes them (:func:`run_sweep`). Implementations: :class:`LocalExecutor` (this process,
-    the default) and :class:`mcjax.cluster.DaskExecutor` (the workers of a Dask cluster)."""
+    the default) and :class:`mcjax.study.dask.DaskExecutor` (the workers of a Dask cluster)."""
 
     def map_chunks(self, study: Study, chunks: list[int],
                    should_stop: Callable[[], bool]) -> Iterator[ChunkRows]:
