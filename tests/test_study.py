@@ -1,0 +1,63 @@
+"""The Study: built once from a spec, its points table and Params built once, and the
+Parquet key columns of the swept fields taken from the Params that ran."""
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mcjax.study import Study, build_spec, chunk_keys, run_rows
+
+ROOT = Path(__file__).resolve().parents[1]
+SUN = str(ROOT / "configs" / "sun2011.toml")
+
+
+def _study(**tables) -> Study:
+    return build_spec({"base": SUN, **tables}, ROOT, seeds=3)
+
+
+def test_points_params_and_plan_are_built_once_and_again_for_a_changed_study():
+    s = _study(grid={"comm_radius": [60e3, 80e3]}, zip={"horizon": [4, 5], "sigma_bearing": [0.01, 0.02]})
+    assert s.points is s.points and s.params is s.params and s.plan is s.plan
+    assert list(s.points.columns) == ["point_id", "comm_radius", "horizon", "sigma_bearing"]
+    assert len(s.points) == s.n_points == 4 and s.n_runs == 12
+    np.testing.assert_array_equal(s.params.comm_radius, [60e3, 60e3, 80e3, 80e3])
+    np.testing.assert_array_equal(s.params.horizon, [4, 5, 4, 5])
+    other = dataclasses.replace(s, seeds=5)
+    assert other.points is not s.points and other.n_runs == 20
+    np.testing.assert_array_equal(other.params.comm_radius, s.params.comm_radius)
+    one = s.point(3)
+    assert float(one.comm_radius) == 80e3 and float(one.horizon) == 5
+    assert np.shape(one.initial_positions) == np.shape(s.base_params.initial_positions)
+
+
+def test_swept_columns_come_from_the_params_that_ran():
+    # integers written for a float field run as floats, and the column says so; an integer
+    # field's column stays integer; a per-agent axis gives one list per row
+    s = _study(grid={"comm_radius": [60000, 80000], "horizon": [4, 5]})
+    keys = chunk_keys(s, 0, s.n_runs)
+    assert keys["comm_radius"].dtype == np.float64 and keys["horizon"].dtype == np.int64
+    pid = keys["point_id"]
+    np.testing.assert_array_equal(keys["comm_radius"], np.asarray(s.params.comm_radius)[pid])
+    np.testing.assert_array_equal(keys["horizon"], np.asarray(s.params.horizon)[pid].astype(np.int64))
+    assert list(keys["seed_index"][:4]) == [0, 1, 2, 0]
+
+    n = s.config.n_agents
+    per_agent = [[50e3] * n, [70e3] * (n - 1) + [90e3]]
+    s = _study(grid={"sensing_radius": per_agent})
+    keys = chunk_keys(s, 0, s.n_runs)
+    assert [list(v) for v in keys["sensing_radius"][::3]] == per_agent
+
+
+@pytest.mark.parametrize("start, n", [(0, 6), (4, 5)])
+def test_rows_carry_the_swept_values_of_their_own_point(start, n):
+    s = _study(grid={"comm_radius": [60e3, 70e3, 80e3]})
+    F = len(s.config.filters)
+    outputs = {name: (np.zeros((n, F)) if o.per_filter else np.zeros(n))
+               for name, o in s.scenario.outputs(s.config).items()}
+    rows = run_rows(s.scenario, s.config, outputs, chunk_keys(s, start, n))
+    assert len(rows) == n * F
+    expected = np.asarray(s.params.comm_radius)[rows["point_id"].to_numpy()]
+    np.testing.assert_array_equal(rows["comm_radius"].to_numpy(), expected)
+    assert set(rows["point_id"]) == {r // 3 for r in range(start, start + n)}
