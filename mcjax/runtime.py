@@ -26,8 +26,9 @@ once per process; the CLI and the engine's entry points call it.
   time. The stored programs are kept under ``$MCJAX_CACHE_MAX_GB`` gigabytes (default 2; a
   program of the closed loop is ~8 MB): past it, the least recently used ones are deleted when
   a new one is stored. (JAX's own persistent compilation cache is not used: it traces and
-  lowers before it can look a program up, ~2-3x the store's warm start, and in some runs the
-  programs it loaded failed; docs/benchmarks.md, 2026-12-02.)
+  lowers a program before it can look it up, so a warm sweep started in 7-10 s against the
+  store's 3-4 s, and with two devices every warm sweep failed, "NOT_FOUND: Function … not
+  found", jax 0.10.2: docs/benchmarks.md, 2026-12-02.)
 """
 
 from __future__ import annotations
