@@ -37,6 +37,9 @@ import numpy as np
 
 from mcjax import engine, runtime
 from mcjax.study import load_config_file
+from mcjax import configure
+
+configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 
 ROOT = Path(__file__).resolve().parents[1]
 VARIANTS = (("every step", dict(plan_period=0, max_horizon=8)),

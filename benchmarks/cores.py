@@ -52,6 +52,9 @@ import dataclasses, json, sys, time
 import numpy as np
 from mcjax import engine, runtime
 from mcjax.study import load_config_file
+from mcjax import configure
+
+configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 
 path, overrides, runs, out = sys.argv[1], json.loads(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 sc, cfg, values = load_config_file(path)

@@ -22,6 +22,9 @@ from pathlib import Path
 from divergence_sun2011 import case_params, setup
 
 from mcjax import engine, runtime
+from mcjax import configure
+
+configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 
 ROOT = Path(__file__).resolve().parents[1]
 

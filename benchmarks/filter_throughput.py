@@ -165,7 +165,10 @@ def main(argv=None) -> None:
 
     import jax
 
+    from mcjax import configure
     from mcjax.filters import recorded, run_filter
+
+    configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
     try:
         import numba
         import numba_peer

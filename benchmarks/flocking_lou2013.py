@@ -100,6 +100,9 @@ from mcjax.scenarios.flocking import Params as FlockingParams
 from mcjax.scenarios.flocking import target_state
 from mcjax.statistics import mean_ci, t_critical, wilson_interval
 from mcjax.study import build_spec, run_rows
+from mcjax import configure
+
+configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 
 ROOT = Path(__file__).resolve().parent.parent
 FILTERS = ("kcf", "local")

@@ -31,6 +31,9 @@ import pandas as pd
 from mcjax import engine
 from mcjax.results import environment_metadata, write_part
 from mcjax.study import load_config_file, run_rows
+from mcjax import configure
+
+configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 
 ROOT = Path(__file__).resolve().parent.parent
 FILTERS = ("imm", "cv", "ct")

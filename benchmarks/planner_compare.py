@@ -29,6 +29,9 @@ from mcjax.planning import PlannerOptions, solve
 from mcjax.scenarios.leader_follower.horizon import Dynamics, Problem, horizon_cost, horizon_plan_cost
 from mcjax.scenarios.leader_follower.objectives import CostParams
 from mcjax.study import load_config_file
+from mcjax import configure
+
+configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 
 ROOT = Path(__file__).resolve().parent.parent
 BUDGETS = [("gradient", dict(iterations=k)) for k in (5, 10, 20, 40)] + \

@@ -38,6 +38,9 @@ import numpy as np  # noqa: E402
 
 from mcjax import engine  # noqa: E402
 from mcjax.study import load_config_file  # noqa: E402
+from mcjax import configure  # noqa: E402
+
+configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 
 ROOT = Path(__file__).resolve().parents[1]
 

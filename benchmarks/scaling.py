@@ -39,6 +39,9 @@ import pandas as pd
 
 from mcjax import engine, runtime
 from mcjax.study import load_config_file
+from mcjax import configure
+
+configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 
 ROOT = Path(__file__).resolve().parents[1]
 CURVES = ("runs", "agents", "horizon", "consensus")

@@ -95,6 +95,9 @@ from mcjax.results import environment_metadata, write_part
 from mcjax.scenarios import urban_bearing as ub
 from mcjax.statistics import mean_ci, t_critical, wilson_interval
 from mcjax.study import load_spec, run_rows
+from mcjax import configure
+
+configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 
 ROOT = Path(__file__).resolve().parent.parent
 #: Chen & Hao 2022 Table 1: final error (m), mean over 50 runs of eq. 23 at the last step.

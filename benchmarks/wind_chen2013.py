@@ -68,6 +68,9 @@ from mcjax import engine
 from mcjax.scenarios import wind_formation as S
 from mcjax.statistics import mean_ci
 from mcjax.study import load_config_file
+from mcjax import configure
+
+configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Chen & Lu 2013 Table 1, UAV2, printed in 0.1 m/s: (mean, largest) per axis.
