@@ -360,13 +360,15 @@ def _user_module(scenario: Scenario):
 
 def _source_digest(scenario: Scenario) -> str | None:
     """A hash of the source files of a scenario defined outside mcjax: the files of its
-    functions (``init``, ``step``, ``reduce``, ``timeseries``), every ``.py`` file of the
-    package they belong to (a plugin), and the modules next to a scenario file that it imports
-    (its own helpers). Code it imports from elsewhere (other installed packages) is not
+    functions (``init``, ``step``, ``summary`` or ``reduce``, ``series`` or ``timeseries``),
+    every ``.py`` file of the package they belong to (a plugin), and the modules next to a
+    scenario file that it imports (its own helpers). Code it imports from elsewhere (other installed packages) is not
     covered: after changing such code, delete the program store's folder."""
     files = set()
     try:
-        for fn in (scenario.init, scenario.step, scenario.reduce, scenario.timeseries):
+        own = (scenario.init, scenario.step, scenario.summary or scenario.reduce,
+               scenario.series or scenario.timeseries)
+        for fn in own:
             if fn is None:
                 continue
             path = Path(inspect.getsourcefile(fn)).resolve()

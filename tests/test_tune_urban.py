@@ -111,7 +111,7 @@ def test_gradients_finite_for_degenerate_runs(spec, evaluator, case):
     s = _with_base(spec, **values)
     if case == "hidden_whole_run":  # the exact simulation sees nothing on this run
         from mcjax.scenarios.urban_bearing import environment as env
-        b = ub._buildings_np(s.study.base_params.buildings)
+        b = ub.buildings_np(s.study.base_params.buildings)
         # 8 steps of 50 m stay within 400 m of the start and 35 m of its altitude (|θ| ≤ 5°):
         # no point of that cylinder sees the emitter
         r, a, z = np.meshgrid(np.linspace(0, 400, 9), np.linspace(0, 2 * np.pi, 16), [165.0, 200.0, 235.0])
@@ -129,14 +129,14 @@ def test_smooth_measurement_pieces_have_finite_derivatives_straight_above():
     """With the UAV exactly above the emitter and the estimate exactly under the UAV (a
     bearing undefined at both), the smooth bearing, the gated mode filter and the FIM
     increment have finite derivatives with respect to the UAV's position and the gate."""
-    b = ub._buildings_np(ub.DEFAULT_BUILDINGS)
+    b = ub.buildings_np(ub.DEFAULT_BUILDINGS)
     T = ub.Smoothing().geometry
 
     def f(shift):
         uav = jnp.asarray([*EMITTER[:2], 200.0]) + shift
         bearing, los, refl = urban.soft_measured_bearing(b, jnp.asarray(EMITTER), uav, 0.5, 1.0, 1.0, T)
         gate = 1e-9 + (1 - 1e-9) * los
-        x, P, ll = ub._gated_mode_filter(uav[:2], 1e4 * jnp.eye(2), (0.0, 0.0035), bearing, uav, 0.0, gate)
+        x, P, ll = ub.gated_mode_filter(uav[:2], 1e4 * jnp.eye(2), (0.0, 0.0035), bearing, uav, 0.0, gate)
         info = urban.bearing_information(uav[:2], uav, 0.0035)
         return jnp.concatenate([jnp.stack([bearing, los, refl, ll]), x, P.ravel(), info.ravel()])
 

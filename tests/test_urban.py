@@ -83,7 +83,7 @@ class BiasedAzimuthEKF(ExtendedKalmanFilter):
         super().update(z, self.jacobian, self.hx, residual=lambda a, b: wrap(a - b))
 
 
-_imm_jit = jax.jit(lambda st, tr, bias, sigma, z, uav, q: imm_step(st, tr, S._mode_filter, (bias, sigma), z, uav, q))
+_imm_jit = jax.jit(lambda st, tr, bias, sigma, z, uav, q: imm_step(st, tr, S.mode_filter, (bias, sigma), z, uav, q))
 
 
 @pytest.mark.parametrize("transition", [

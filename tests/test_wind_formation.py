@@ -97,7 +97,7 @@ def test_cap_step_eq15():
 def test_paper_offsets_give_the_3200_2062_2062_formation():
     """The reference vectors read as d_13, d_32 (sign restored), d_12: slots about the centroid
     (summing to 0) whose pairwise offsets are the chain's."""
-    chain = jnp.asarray(S._PAPER_OFFSETS)
+    chain = jnp.asarray(S.PAPER_OFFSETS)
     d = np.asarray(guidance.centre_offsets(chain))
     np.testing.assert_allclose(d.sum(0), 0.0, atol=1e-9)
     np.testing.assert_allclose(d[1] - d[0], [0, 3200])        # d_12
@@ -111,7 +111,7 @@ def test_formation_term_sign():
     """Eq. 12's term η (X_j − X_i − d_ij) as printed; negated by the corrective reading."""
     rng = np.random.default_rng(2)
     pos = rng.normal(0, 1000, (3, 2))
-    d = np.asarray(guidance.centre_offsets(jnp.asarray(S._PAPER_OFFSETS)))
+    d = np.asarray(guidance.centre_offsets(jnp.asarray(S.PAPER_OFFSETS)))
     p = S.default_params(S.Config(), eta=0.02)
     want = np.array([[0.02 * (pos[j] - pos[i] - (d[j] - d[i])) for j in range(3)] for i in range(3)])
     got = np.asarray(S.formation_term(S.Config(formation_sign="printed"), p, jnp.asarray(pos), jnp.asarray(d)))
@@ -193,9 +193,9 @@ def test_check_params_names_the_field():
     bad = S.check_params(S.Config(), BAD["offsets_open"][1])
     assert bad and bad[0][0] == "offsets" and "sum" in bad[0][1]
     # with a sweep-point axis, one open formation among closed ones is still caught
-    points = np.stack([S._PAPER_OFFSETS, np.asarray(BAD["offsets_open"][1]["offsets"])])
+    points = np.stack([S.PAPER_OFFSETS, np.asarray(BAD["offsets_open"][1]["offsets"])])
     assert [f for f, _ in S.check_params(S.Config(), {"offsets": points})] == ["offsets"]
-    assert S.check_params(S.Config(), {"offsets": np.stack([S._PAPER_OFFSETS] * 2)}) == []
+    assert S.check_params(S.Config(), {"offsets": np.stack([S.PAPER_OFFSETS] * 2)}) == []
 
 
 def _spec(tmp_path, config="", params=""):

@@ -19,9 +19,6 @@ from mcjax.scenarios.urban_bearing.scenario import (
     smooth_step, step, summary, timeseries, timeseries_outputs, training_weights,
 )
 
-#: The mode filters' and the layout helper's earlier names, which the tests still use.
-_mode_filter, _gated_mode_filter, _buildings_np = mode_filter, gated_mode_filter, buildings_np
-
 __all__ = ["Config", "DEFAULT_BUILDINGS", "DEG", "FILTER_KINDS", "LOS", "NAME", "NLOS_MINUS", "NLOS_PLUS", "PLANNERS",
            "Params", "Record", "SCENARIO", "Smoothing", "State", "buildings_np", "buildings_of", "check_params",
            "default_params", "filter_bank", "gated_mode_filter", "init", "limits_of", "mode_filter", "mode_models",

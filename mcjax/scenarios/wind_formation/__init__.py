@@ -12,9 +12,6 @@ from mcjax.scenarios.wind_formation.scenario import (
     reference_distances, series, step, summary, timeseries, timeseries_outputs, wind,
 )
 
-#: The paper's offsets by their earlier name, which the tests still use.
-_PAPER_OFFSETS = PAPER_OFFSETS
-
 __all__ = ["CAP_TOL", "CLOSURE_TOL", "Config", "FILTER_KINDS", "FORMATION_SIGNS", "NAME", "NOISES", "PAPER_OFFSETS",
            "PAPER_START", "Params", "Record", "SCENARIO", "State", "check_params", "default_params", "formation_term",
            "init", "noise_variance", "outputs", "pairs", "reduce", "reference_distances", "series", "step", "summary",
