@@ -121,7 +121,8 @@ def _run_batched(kind, opts, z, s, a, consts, dt):
     if single:
         z, s, a = z[None], s[None], a[None]
     B = z.shape[0]
-    if USE_NATIVE and dt == "float64" and (kind == "local" or z.shape[2] <= native.MAX_AGENTS) and native.available():
+    native_ok = dt == "float64" and jax.config.jax_enable_x64  # the C++ kernels take float64 buffers only
+    if USE_NATIVE and native_ok and (kind == "local" or z.shape[2] <= native.MAX_AGENTS) and native.available():
         xs, Ps = native.run_batch(kind, opts, z, s, a, *consts)
         return (xs[0], Ps[0]) if single else (xs, Ps)
     if B == 1:  # XLA compiles a batch of one differently (last-bit changes): run two copies
