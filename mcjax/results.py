@@ -295,7 +295,7 @@ def _arrow_table(out: Path, table_name: str, files: list[Path]) -> pa.Table:
     try:
         dataset = _dataset(out, table_name, files)
         table = dataset.to_table()
-    except _READ_ERRORS as exc:
+    except _READ_ERRORS:
         for f in files:  # which part is damaged?
             try:
                 pq.read_table(f)

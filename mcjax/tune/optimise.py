@@ -14,8 +14,6 @@ import pandas as pd
 
 from mcjax.files import atomic_write
 from mcjax.study import Study, build_spec, store
-from mcjax.study.store import TUNE_IDENTITY_FILE as IDENTITY_FILE  # noqa: F401  (the tune's own name for it)
-from mcjax.study.store import prepare_evaluation  # noqa: F401  (part of a tune's steps: mcjax.tune)
 from mcjax.tune.loss import Evaluator
 from mcjax.tune.spec import TuneSpec, from_unconstrained, to_unconstrained
 
