@@ -20,11 +20,11 @@ from typing import NamedTuple
 import click
 
 from mcjax import configure, envvars
-from mcjax.study.checks import set_value
 from mcjax.interrupt import ACK, ACK_DASK, ctrl_c, exit_now, finish, own_process
 
 def _parse_set(values: tuple[str, ...]) -> dict:
     """``--set key=value`` pairs (see :func:`mcjax.study.checks.set_value`)."""
+    from mcjax.study.checks import set_value  # here: the package imports the scenarios (and JAX)
     out = {}
     for item in values:
         key, eq, raw = item.partition("=")

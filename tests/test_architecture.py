@@ -169,3 +169,15 @@ def test_no_scenario_filter_or_unit_names_above_the_scenarios():
         code = path.read_text(encoding="utf-8")
         assert not words.search(code), (path.name, words.search(code).group(0))
         assert not re.search(r"(?<![A-Za-z_])\[m\]", code), path.name
+
+
+def test_the_command_line_starts_without_jax():
+    """`mcjax --help`, `mcjax report` and the CLI's up-front checks import no JAX (~0.6 s) and no
+    scenario: importing the CLI module leaves both out."""
+    import subprocess
+    import sys
+
+    code = "import sys, mcjax.cli; print(sorted(m for m in ('jax', 'mcjax.scenarios', 'mcjax.study') if m in sys.modules))"
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[]", r.stdout
