@@ -191,7 +191,6 @@ def _executor(remote: _Remote):
 def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state, stop, hint, remote=_Remote()):
     overrides = _parse_set(sets)
     from mcjax import results
-    from mcjax.engine import chunk_plan
     from mcjax.study import OutputError, SpecError, load_spec, prepare_output, read_identity, run_sweep
 
     if resume and not dry_run:  # what the interrupted sweep was given, unless given again
@@ -206,10 +205,9 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
         s = load_spec(spec, seeds=seeds, chunk_size=chunk_size, overrides=overrides, out_dir=out_dir)
     except SpecError as exc:
         _fail(str(exc))
-    plan = chunk_plan(s.n_runs, s.chunk_size)
-    size = plan[0][1] - plan[0][0]
+    plan = s.plan
     headline = (f"scenario {s.scenario.name}: {s.n_points} point(s) x {s.seeds} seed(s) = {s.n_runs} runs, "
-                f"{len(plan)} chunk(s) of {size}, filters {', '.join(s.config.filters)}")
+                f"{len(plan)} chunk(s) of {s.chunk_runs}, filters {', '.join(s.config.filters)}")
     if dry_run:
         from mcjax.tables import format_table
 
@@ -243,7 +241,7 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
 
         from mcjax.study import ChunkError
 
-        remaining = s.n_runs if todo is None else sum(plan[i][1] - plan[i][0] for i in todo)
+        remaining = s.runs_in(todo)
         t0 = time.perf_counter()
 
         def progress(n: int) -> None:
@@ -433,11 +431,9 @@ def _tune(spec_path, out_dir, resume, force, state, stop, hint):
         todo = tuning.prepare_evaluation(ev, out_dir, spec_file=spec_path)
     except (SpecError, OutputError) as exc:
         _fail(str(exc))
-    from mcjax.engine import chunk_plan
     from mcjax.study import run_sweep
 
-    plan = chunk_plan(ev.n_runs, ev.chunk_size)
-    remaining = ev.n_runs if todo is None else sum(plan[i][1] - plan[i][0] for i in todo)
+    remaining = ev.runs_in(todo)
     click.echo(f"held-out evaluation (exact simulation): {ev.n_points} point(s) x {ev.seeds} seed(s) = "
                f"{ev.n_runs} runs" + ("" if todo is None else f", {remaining} still to run"))
     with tqdm(total=remaining, unit="run", desc="evaluate", disable=None) as bar:

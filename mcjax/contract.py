@@ -244,13 +244,14 @@ class Param(NamedTuple):
         shape (its scenario's ``check_params`` checks it)."""
         return self.shape is None and not self.per_agent and np.ndim(self.default_value(cfg)) == 0
 
-    def _integral(self) -> bool:
+    def integral(self) -> bool:
+        """Takes integers only: an integer field, or one whose choices are all integers."""
         return self.integer or (self.choices is not None and all(_is_int(c) for c in self.choices))
 
     def expected(self, n_agents: int | None = None, cfg=None) -> str:
         """What the field takes, in words: its form (a number, one per agent, a shape) and
         its allowed values, e.g. ``"a number or a list of n_agents = 5 numbers, >= 0 m"``."""
-        kind = "integer" if self._integral() else "number"
+        kind = "integer" if self.integral() else "number"
         one = f"a{'n' if kind == 'integer' else ''} {kind}"
         if self.shape is not None:
             want = "" if n_agents is None else f" ({_shape_text(self.shape, n_agents)})"
@@ -279,7 +280,7 @@ class Param(NamedTuple):
             arr = np.asarray(value, dtype=np.float64)
         except (TypeError, ValueError, OverflowError):  # ragged, or an integer beyond float range
             return _bad(self.expected(n_agents, cfg) if exact else "a number or a list of numbers", value)
-        if exact and self._integral() and not _integral_leaves(leaves):
+        if exact and self.integral() and not _integral_leaves(leaves):
             return _bad(self.expected(n_agents, cfg), value)
         if exact and cfg is not None and self.scalar(cfg) and arr.ndim != 0:
             return _bad(self.expected(n_agents, cfg), value)

@@ -272,8 +272,7 @@ def program_futures(fn, args: tuple, devs, label: str | None = None, local=None)
               tuple((np.shape(a), np.asarray(a).dtype.str) for a in jax.tree.leaves(args)))
     sig = ("programs", fn, shapes, tuple(devs))
     disk_key = None if label is None else f"{label}|{shapes}"
-    built = []
-    futures = cached(sig, lambda: built.append(_build(fn, args, devs, disk_key, local)) or built[0])
+    futures = cached(sig, lambda: _build(fn, args, devs, disk_key, local))
 
     def forget_if_failed(f):  # a program that failed to build is not kept: the next call tries again
         if f.exception() is not None:
@@ -281,9 +280,8 @@ def program_futures(fn, args: tuple, devs, label: str | None = None, local=None)
                 if _CACHE.get(sig) is futures:
                     del _CACHE[sig]
 
-    if built and built[0] is futures:  # built here (not found): watch it
-        for f in futures:
-            f.add_done_callback(forget_if_failed)
+    for f in futures:  # (on a future already done, the check runs at once)
+        f.add_done_callback(forget_if_failed)
     return futures
 
 

@@ -46,6 +46,7 @@ from pathlib import Path
 import jax
 
 from mcjax import envvars, jaxcompat
+from mcjax.files import atomic_write
 
 OFF = ("off", "none", "0", "")
 #: Guards :func:`configure`, :func:`prepare_loading` and :data:`STATS` (the engine's loading threads).
@@ -225,11 +226,7 @@ def store_executable(key: str, data: tuple | None, targets: frozenset, local=Non
     try:
         buffer = io.BytesIO()
         _Pickler(buffer, local).dump((*data, tuple(sorted(targets))))
-        blob = buffer.getvalue()
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_bytes(blob)
-        os.replace(tmp, path)
+        atomic_write(path, buffer.getvalue(), durable=False)  # a cache: a lost program is compiled again
         STATS["stored"] += 1
         _prune(path.parent, limit, keep=path)
     except Exception:

@@ -38,10 +38,13 @@ def test_swept_columns_come_from_the_params_that_ran():
     s = _study(grid={"comm_radius": [60000, 80000], "horizon": [4, 5]})
     keys = chunk_keys(s, 0, s.n_runs)
     assert keys["comm_radius"].dtype == np.float64 and keys["horizon"].dtype == np.int64
-    pid = keys["point_id"]
-    np.testing.assert_array_equal(keys["comm_radius"], np.asarray(s.params.comm_radius)[pid])
-    np.testing.assert_array_equal(keys["horizon"], np.asarray(s.params.horizon)[pid].astype(np.int64))
-    assert list(keys["seed_index"][:4]) == [0, 1, 2, 0]
+    # points: the grid's product in the order written, 3 seeds each, point-major
+    np.testing.assert_array_equal(keys["point_id"], np.repeat([0, 1, 2, 3], 3))
+    np.testing.assert_array_equal(keys["seed_index"], np.tile([0, 1, 2], 4))
+    np.testing.assert_array_equal(keys["comm_radius"], np.repeat([60000.0, 60000.0, 80000.0, 80000.0], 3))
+    np.testing.assert_array_equal(keys["horizon"], np.repeat([4, 5, 4, 5], 3))
+    # and they are what the engine runs
+    np.testing.assert_array_equal(keys["comm_radius"], np.asarray(s.params.comm_radius)[keys["point_id"]])
 
     n = s.config.n_agents
     per_agent = [[50e3] * n, [70e3] * (n - 1) + [90e3]]
@@ -58,6 +61,6 @@ def test_rows_carry_the_swept_values_of_their_own_point(start, n):
                for name, o in s.scenario.outputs(s.config).items()}
     rows = run_rows(s.scenario, s.config, outputs, chunk_keys(s, start, n))
     assert len(rows) == n * F
-    expected = np.asarray(s.params.comm_radius)[rows["point_id"].to_numpy()]
+    expected = np.array([60e3, 70e3, 80e3])[rows["point_id"].to_numpy()]
     np.testing.assert_array_equal(rows["comm_radius"].to_numpy(), expected)
     assert set(rows["point_id"]) == {r // 3 for r in range(start, start + n)}

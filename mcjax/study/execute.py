@@ -107,7 +107,7 @@ def run_sweep(study: Study, out_dir: str | Path | None = None, *, chunks: list[i
         for rows in work:
             if out_dir is not None:
                 if metadata is None:
-                    metadata = part_metadata(study, plan[0][1] - plan[0][0])
+                    metadata = part_metadata(study, study.chunk_runs)
                 publish_chunk(out_dir, rows, metadata)
             done[rows.index] = rows.runs
             if progress is not None:

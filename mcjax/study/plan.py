@@ -112,13 +112,23 @@ class Study:
 
         return chunk_plan(self.n_runs, self.chunk_size)
 
+    @property
+    def chunk_runs(self) -> int:
+        """Runs per chunk as planned: the chunk size rounded up to whole batches, at most the runs."""
+        start, stop = self.plan[0]
+        return stop - start
+
+    def runs_in(self, chunks: list[int] | None) -> int:
+        """Runs of the chunks ``chunks`` of the plan (None: every chunk)."""
+        return self.n_runs if chunks is None else sum(self.plan[i][1] - self.plan[i][0] for i in chunks)
+
     def swept_values(self, axis: str, point_ids) -> np.ndarray:
         """The values of the swept field ``axis`` at ``point_ids``, taken from the Params that
         run (:attr:`params`): integers for an integer field, one list per point for a field
         with more than one number."""
         values = np.asarray(getattr(self.params, axis))[np.asarray(point_ids)]
         p = self.scenario.params_table[axis]
-        if p.integer or (p.choices is not None and all(isinstance(c, int) for c in p.choices)):
+        if p.integral():
             values = values.astype(np.int64)
         if values.ndim > 1:
             out = np.empty(len(values), dtype=object)

@@ -284,8 +284,7 @@ def build_spec(data: dict, base_dir: str | Path, *, seeds: int | None = None, ch
         axes[table] = {}
         for k, v in raw.items():
             p = scenario.params_table[k]
-            values = _axis_values(f"{table}.{k}", v, p.integer or (p.choices is not None and all(
-                isinstance(c, int) for c in p.choices)))
+            values = _axis_values(f"{table}.{k}", v, p.integral())
             for value in values:
                 _check_params(scenario, cfg, {k: value}, f"{table}.")
             values = _same_shape(f"{table}.{k}", values, p, cfg)

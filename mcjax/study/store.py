@@ -39,9 +39,8 @@ def default_out_dir(spec_path: str | Path) -> Path:
 
 def identity(study: Study) -> dict:
     """What makes two sweeps the same for ``--resume``: spec, seeds, base seed, chunking."""
-    plan = study.plan
     return json.loads(json.dumps({"spec": study.source, "seeds": study.seeds, "base_seed": study.base_seed,
-                                  "chunk_size": plan[0][1] - plan[0][0], "n_runs": study.n_runs}, default=str))
+                                  "chunk_size": study.chunk_runs, "n_runs": study.n_runs}, default=str))
 
 
 def read_identity(out_dir: str | Path) -> dict:
