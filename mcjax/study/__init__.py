@@ -13,9 +13,10 @@
 ``mcjax run``, ``mcjax sweep``, ``mcjax tune`` and the Dask executor all take a Study. The
 names below are the pipeline's public face::
 
-    from mcjax.study import load_spec, run_sweep
-    study = load_spec("sweeps/default.toml", seeds=10)
-    rows = run_sweep(study, "results/default")
+    from mcjax.study import load_spec, prepare_output, run_sweep
+    study = load_spec("sweeps/default.toml", seeds=10, out_dir="results/default")
+    prepare_output(study, study.out_dir)   # the identity file, as mcjax sweep writes it
+    rows = run_sweep(study)                # the parts, into study.out_dir; and the rows
 """
 
 from mcjax.study.checks import SpecError

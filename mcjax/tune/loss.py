@@ -152,9 +152,9 @@ class Evaluator:
     def __init__(self, spec: TuneSpec):
         import jax
 
-        from mcjax import engine
+        from mcjax import engine, runtime
 
-        engine.devices()  # JAX's process settings first (mcjax.configure)
+        runtime.configure()  # JAX's process settings, before the training keys are computed
         self.spec = spec
         self.fn = batch_function(spec)
         keys = train_keys(spec)
