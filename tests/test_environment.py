@@ -110,30 +110,141 @@ def test_line_of_sight_random_vs_shapely():
     np.testing.assert_array_equal(np.asarray(_los_cases(bld, b, a)), los)
 
 
+def _exact_blocked_any(a, b, lo, hi, h):
+    """Exact (Fractions) "the segment a–b meets one of the boxes": ``lo``, ``hi`` (N, B, 2),
+    ``h`` (N, B) integers, ``a``, ``b`` (N, 3) integers or Fractions; per box
+    :func:`_reference_blocked`, OR-ed. Returns (N,) bool."""
+    frac = np.vectorize(Fraction, otypes=[object])
+    fa, fb = (x if x.dtype == object else frac(x) for x in (a, b))
+    out = np.zeros(len(a), bool)
+    for j in range(lo.shape[1]):
+        out |= _reference_blocked(fa, fb, frac(lo[:, j]), frac(hi[:, j]), frac(h[:, j])).astype(bool)
+    return out
+
+
+def _as_buildings(lo, hi, h):
+    return Buildings(jnp.asarray(lo, float), jnp.asarray(hi, float), jnp.asarray(h, float))
+
+
 def test_line_of_sight_integer_grid_exact():
-    """Small-integer coordinates: touching faces, edges, corners and roofs are common; the
-    reference is exact (Fractions) and the closed convention says touching blocks."""
+    """Integer coordinates, two and three boxes per case: touching faces, edges, corners and
+    roofs are common; the reference is exact (Fractions) and the closed convention says
+    touching blocks. Coordinates up to 40 make most slab quotients inexact (1/3, 1/7, ...),
+    so a division rewritten as a multiplication by the reciprocal would show."""
     rng = np.random.default_rng(5)
-    n = 4000
+    n = 3000
+    for nb, span in ((2, 3), (3, 40)):
+        lo = rng.integers(0, span, (n, nb, 2))
+        hi = lo + rng.integers(1, max(3, span), (n, nb, 2))
+        h = rng.integers(1, max(4, span), (n, nb))
+        a = np.concatenate([rng.integers(-1, 2 * span, (n, 2)), rng.integers(0, span, (n, 1))], 1)
+        b = np.concatenate([rng.integers(-1, 2 * span, (n, 2)), rng.integers(0, span, (n, 1))], 1)
+        ref = _exact_blocked_any(a, b, lo, hi, h)
+        los = np.asarray(_los_cases(_as_buildings(lo, hi, h), a.astype(float), b.astype(float)))
+        np.testing.assert_array_equal(~los, ref)
+        assert 0.1 < ref.mean() < 0.9
+    # the small grid really exercises the boundary (the last layout of span 3 is gone; redo one)
     lo = rng.integers(0, 3, (n, 2))
     hi = lo + rng.integers(1, 3, (n, 2))
-    h = rng.integers(1, 4, n)
-    a = np.concatenate([rng.integers(-1, 6, (n, 2)), rng.integers(0, 5, (n, 1))], 1)
-    b = np.concatenate([rng.integers(-1, 6, (n, 2)), rng.integers(0, 5, (n, 1))], 1)
-    frac = np.vectorize(Fraction, otypes=[object])
-    ref = _reference_blocked(frac(a), frac(b), frac(lo), frac(hi), frac(h))
-    bld = Buildings(jnp.asarray(lo[:, None], float), jnp.asarray(hi[:, None], float),
-                    jnp.asarray(h[:, None], float))
-    los = np.asarray(_los_cases(bld, a.astype(float), b.astype(float)))
-    np.testing.assert_array_equal(~los, ref.astype(bool))
-    # the grid really exercises the boundary: many 2-D touches (shapely), and segments
-    # whose lowest point over the footprint is exactly at roof height
-    fa, fb = a[:, :2].astype(float), b[:, :2].astype(float)
-    nondeg = ~np.all(fa == fb, 1)
-    touches = shapely.touches(shapely.linestrings(np.stack([fa, fb], 1)[nondeg]),
+    a = np.concatenate([rng.integers(-1, 6, (n, 2)), rng.integers(0, 5, (n, 1))], 1).astype(float)
+    b = np.concatenate([rng.integers(-1, 6, (n, 2)), rng.integers(0, 5, (n, 1))], 1).astype(float)
+    nondeg = ~np.all(a[:, :2] == b[:, :2], 1)
+    touches = shapely.touches(shapely.linestrings(np.stack([a[:, :2], b[:, :2]], 1)[nondeg]),
                               shapely.box(*lo[nondeg].T, *hi[nondeg].T))
     assert touches.sum() > 100
-    assert ((np.minimum(a[:, 2], b[:, 2]) == h) & ref.astype(bool)).sum() > 100
+
+
+def _touch_cases(rng, n, kind):
+    """Segments through a boundary feature of box 0 (its lower corner sits at ``base``), with two
+    more boxes in the scene: ``a`` random, the feature ``f`` at a fraction 1/k of the way
+    (``b = a + k (f − a)``, k = 1: the end point ON the feature, e.g. a UAV on a roof edge)."""
+    base = rng.integers(0, 60, (n, 2))
+    size = rng.integers(3, 50, (n, 2))
+    h0 = rng.integers(3, 90, n)
+    lo0, hi0 = base, base + size
+    pick = rng.integers(0, 2, (n, 2)).astype(bool)
+    corner_xy = np.where(pick, hi0, lo0)
+    along = lo0 + rng.integers(1, 1000, (n, 2)) * size // 1000           # an integer inside the span
+    if kind == "roof corner":
+        f = np.c_[corner_xy, h0]
+    elif kind == "roof edge":                                             # x = x_lo or x_hi, y inside
+        f = np.c_[corner_xy[:, 0], along[:, 1], h0]
+    elif kind == "vertical edge":
+        f = np.c_[corner_xy, rng.integers(0, 90, n) % (h0 + 1)]
+    else:                                                                 # "roof": sliding on it
+        f = np.c_[along, h0]
+    a = np.c_[rng.integers(-200, 200, (n, 2)), rng.integers(0, 150, n)]
+    if kind == "roof":
+        a[:, 2] = h0
+    k = rng.integers(1, 8, n)[:, None]
+    b = a + k * (f - a)
+    others_lo = rng.integers(-100, 200, (n, 2, 2))
+    others_hi = others_lo + rng.integers(1, 60, (n, 2, 2))
+    lo = np.concatenate([lo0[:, None], others_lo], 1)
+    hi = np.concatenate([hi0[:, None], others_hi], 1)
+    h = np.c_[h0, rng.integers(1, 120, (n, 2))]
+    keep = ~np.all(a == b, 1)
+    return lo[keep], hi[keep], h[keep], a[keep], b[keep]
+
+
+@pytest.mark.parametrize("kind", ["roof corner", "roof edge", "vertical edge", "roof"])
+def test_line_of_sight_touching_with_three_boxes_exact(kind):
+    """Segments through a roof corner, along a roof edge or a vertical edge, or sliding on a
+    roof, with two more boxes per case: the exact (Fractions) reference against the slab test,
+    in both directions. Many cases only touch box 0 (blocked by it, clear of it shrunk by
+    1/1000): those are the cases a rounding error would call clear."""
+    rng = np.random.default_rng(["roof corner", "roof edge", "vertical edge", "roof"].index(kind))
+    lo, hi, h, a, b = _touch_cases(rng, 3000, kind)
+    ref = _exact_blocked_any(a, b, lo, hi, h)
+    bld = _as_buildings(lo, hi, h)
+    np.testing.assert_array_equal(~np.asarray(_los_cases(bld, a.astype(float), b.astype(float))), ref)
+    np.testing.assert_array_equal(~np.asarray(_los_cases(bld, b.astype(float), a.astype(float))), ref)
+    eps = Fraction(1, 1000)
+    frac = np.vectorize(Fraction, otypes=[object])
+    touch_only = _reference_blocked(frac(a), frac(b), frac(lo[:, 0]), frac(hi[:, 0]), frac(h[:, 0])).astype(bool)
+    touch_only &= ~_reference_blocked(frac(a), frac(b), frac(lo[:, 0]) + eps, frac(hi[:, 0]) - eps,
+                                      frac(h[:, 0]) - eps).astype(bool)
+    assert touch_only.sum() > 150
+
+
+def test_reflection_leg_ending_on_a_box_corner_is_blocked():
+    """Wall x = x_hi of box 0 reflects towards a UAV that sits exactly on a corner (or a roof
+    edge) of box 1, a third box elsewhere: the leg point → UAV ends on box 1, so the
+    reflection is blocked (closed convention). Checked against the region test alone
+    (``check_legs=False``): in the region, and blocked only by the leg."""
+    rng = np.random.default_rng(17)
+    n = 3000
+    y0 = rng.integers(0, 50, n)
+    lo0 = np.c_[np.zeros(n, int), y0]
+    hi0 = np.c_[rng.integers(5, 30, n), y0 + rng.integers(40, 120, n)]
+    h0 = rng.integers(40, 150, n)
+    emitter = np.c_[hi0[:, 0] + rng.integers(1, 60, n), rng.integers(0, 200, n), np.zeros(n, int)]
+    uav = np.c_[hi0[:, 0] + rng.integers(1, 200, n), rng.integers(-50, 250, n), rng.integers(1, 120, n)]
+    # box 1 has the UAV on its top corner or on a roof edge, and extends away from wall 0
+    w1 = rng.integers(1, 30, (n, 2))
+    sx = rng.integers(0, 2, n).astype(bool)
+    lo1 = np.c_[uav[:, 0], np.where(sx, uav[:, 1], uav[:, 1] - w1[:, 1])]
+    hi1 = np.c_[uav[:, 0] + w1[:, 0], np.where(sx, uav[:, 1] + w1[:, 1], uav[:, 1])]
+    edge = rng.integers(0, 2, n).astype(bool)                            # roof edge: y strictly inside
+    lo1[:, 1] = np.where(edge, uav[:, 1] - w1[:, 1], lo1[:, 1])
+    hi1[:, 1] = np.where(edge, uav[:, 1] + w1[:, 1], hi1[:, 1])
+    h1 = uav[:, 2]
+    lo2 = np.c_[rng.integers(-300, -200, n), rng.integers(-300, -200, n)]
+    lo = np.stack([lo0, lo1, lo2], 1)
+    hi = np.stack([hi0, hi1, lo2 + 10], 1)
+    h = np.c_[h0, h1, np.full(n, 10)]
+    # box 1 must not hold the emitter (the emitter is then blocked on its own)
+    ok = ~np.all((emitter[:, :2] >= lo1) & (emitter[:, :2] <= hi1), 1)
+    bld = _as_buildings(lo[ok], hi[ok], h[ok])
+    e, u = emitter[ok].astype(float), uav[ok].astype(float)
+    region = np.asarray(_refl_cases_region(bld, e, u).valid[:, 0, 1])
+    valid = np.asarray(_refl_cases(bld, e, u).valid[:, 0, 1])
+    assert region.sum() > 300
+    assert not valid[region].any()
+
+
+_refl_cases_region = jax.jit(jax.vmap(lambda b, e, u: reflections(b, e, u, check_legs=False),
+                                      in_axes=(_PER_CASE, 0, 0)))
 
 
 def test_line_of_sight_many_boxes_vs_shapely():

@@ -25,7 +25,11 @@ Conventions:
 * The slab test divides coordinate differences; IEEE division is correctly rounded and
   monotone, so equal slab parameters stay equal and touching configurations on small-integer
   (or otherwise exactly representable) coordinates are decided exactly. For general floats
-  the decision is exact up to the rounding of those quotients (relative 1e-16).
+  the decision is exact up to the rounding of those quotients (relative 1e-16). XLA would
+  rewrite a division by a divisor broadcast over the boxes as a multiplication by its
+  reciprocal (not correctly rounded: with two or more boxes a segment through a roof corner
+  was called clear); the divisor is kept behind ``jax.lax.optimization_barrier`` so the
+  division stays a division.
 * Boolean outputs have no gradient; the field and the bearing use
   :func:`mcjax.numerics.safe_norm`-style double-``where`` guards, so ``jax.grad`` of the
   bearing is finite wherever the set of arriving paths does not change.
@@ -147,7 +151,11 @@ def _segment_hits(a: jax.Array, c: jax.Array, lo3: jax.Array, hi3: jax.Array) ->
     """
     d = c - a
     zero = d == 0
-    safe = jnp.where(zero, 1.0, d)
+    shape = jnp.broadcast_shapes(a.shape, c.shape, lo3.shape, hi3.shape)
+    # the divisor at the quotients' full shape, behind an optimisation barrier: XLA rewrites
+    # ``x / broadcast(d)`` as ``x * broadcast(1 / d)``, which is not correctly rounded
+    # (−98 · (1/−196) = 0.49999999999999994), and equal slab parameters would then differ
+    safe = jax.lax.optimization_barrier(jnp.broadcast_to(jnp.where(zero, 1.0, d), shape))
     t1 = (lo3 - a) / safe
     t2 = (hi3 - a) / safe
     in_slab = (a >= lo3) & (a <= hi3)
