@@ -88,6 +88,6 @@ def graph_summary(lambda2):
 
 def error_series(errors, weights):
     """Per-step ``error_mean`` and ``error_max`` over the agents (last axis) with non-zero
-    ``weights`` (n,) — the per-step series of a sweep's timeseries table."""
-    return dict(error_mean=jnp.sum(errors * weights, -1) / jnp.maximum(jnp.sum(weights), 1.0),
+    ``weights`` (n,), or per step (T, n) — the per-step series of a sweep's timeseries table."""
+    return dict(error_mean=jnp.sum(errors * weights, -1) / jnp.maximum(jnp.sum(weights, -1), 1.0),
                 error_max=jnp.max(jnp.where(weights > 0, errors, -jnp.inf), -1))

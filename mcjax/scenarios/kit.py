@@ -14,7 +14,9 @@
 
 **Dropped-out agents** (``alive = 0``) count in no team statistic: RMSE, mean, final and
 largest error and the divergence rule run over the alive agents only (a run with no alive
-agent gets NaN). Per-agent columns (a named agent's own error) report that agent regardless.
+agent gets NaN); an agent lost to faults during a run (:mod:`mcjax.scenarios.faults`) leaves
+them from its loss step on. Per-agent columns (a named agent's own error) report that agent
+regardless.
 """
 
 from __future__ import annotations
@@ -130,8 +132,10 @@ def error_outputs(unit: str = "m", what: str = "position error") -> dict[str, Ou
 
 def error_summary(errors, alive, warmup: int, threshold) -> dict:
     """Per-filter error statistics of one run: ``errors`` (T, F, n) for F filters and n
-    agents, ``alive`` (n,) 0/1 weights. Returns each field of :func:`error_outputs` as (F,)."""
+    agents, ``alive`` 0/1 weights, (n,) or per step (T, n) (agents lost during the run:
+    :func:`mcjax.scenarios.faults.weights`). Returns each field of :func:`error_outputs` as (F,)."""
     T = errors.shape[0]
+    last = alive[-1] if alive.ndim == 2 else alive
     after = (jnp.arange(T) >= warmup)[:, None] & (alive > 0)
     any_alive = jnp.any(alive > 0)
     out = {k: [] for k in error_outputs()}
@@ -139,7 +143,7 @@ def error_summary(errors, alive, warmup: int, threshold) -> dict:
         e = errors[:, f, :]
         out["rmse"].append(metrics.rmse(e, warmup, alive))
         out["mean_error"].append(metrics.mean_over(e, warmup, alive))
-        out["final_error"].append(metrics.mean_over(e[-1:], 0, alive))
+        out["final_error"].append(metrics.mean_over(e[-1:], 0, last))
         out["max_error"].append(metrics.nan_max(jnp.where(after, e, -jnp.inf)))
         out["diverged"].append(metrics.diverged(e, threshold, warmup, alive))
         out["nonfinite"].append(metrics.nonfinite(e))

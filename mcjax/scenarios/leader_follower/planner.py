@@ -1,6 +1,6 @@
 """The leader's re-planning in the closed loop of Sun et al. 2011 §4.2 (steps ① – ③): when a
-plan is due, the leader (agent 0) solves the horizon problem of eq. 16 (:mod:`.horizon`,
-:mod:`.objectives`) from its own modified-ICF estimate with a generic planner
+plan is due, the leader (agent 0, or the lowest-numbered UAV left if it is lost to faults)
+solves the horizon problem of eq. 16 (:mod:`.horizon`, :mod:`.objectives`) from its own modified-ICF estimate with a generic planner
 (:func:`mcjax.planning.solvers.solve`), in ``Config.plan_dtype``."""
 
 from __future__ import annotations
@@ -21,36 +21,37 @@ def planner_options(cfg) -> PlannerOptions:
                           cfg.plan_elite_fraction)
 
 
-def plan_if_due(cfg, params, state, uavs, filters, age, key):
+def plan_if_due(cfg, params, state, uavs, filters, age, key, team, leader):
     """Re-plan if due (every τ_r steps, and at step 0): Sun et al. 2011 §4.2 steps ① – ③.
 
-    The leader (agent 0) plans from its own modified-ICF estimate and the UAV states it
-    knows. With ``Config.plan_period = 0`` the plan is computed every step (one program for
+    The leader (agent ``leader``: 0 until it is lost to faults) plans from its own
+    modified-ICF estimate and the UAV states it knows, for the ``team`` (n,) 0/1 weights of the
+    UAVs alive. With ``Config.plan_period = 0`` the plan is computed every step (one program for
     every τ_r in a batch: under ``vmap`` a branch on a per-run condition computes both sides)
     and kept only when due. With ``plan_period = τ_r > 0`` "due" depends only on the step
     (t mod τ_r = 0, the same in every run of the batch), so ``lax.cond`` skips the planner on
     the other steps; the plans are the same."""
     if cfg.plan_period > 0:
         return jax.lax.cond(state.t % cfg.plan_period == 0,
-                            lambda: new_plan(cfg, params, state, uavs, filters, age, key),
+                            lambda: new_plan(cfg, params, state, uavs, filters, age, key, team, leader),
                             lambda: (state.plan_u, state.plan_cmd, age, state.plan_cost))
-    new = new_plan(cfg, params, state, uavs, filters, age, key)
+    new = new_plan(cfg, params, state, uavs, filters, age, key, team, leader)
     due = (state.t == 0) | (age >= params.replan_every)
     return tuple(jnp.where(due, a, b) for a, b in zip(new, (state.plan_u, state.plan_cmd, age, state.plan_cost)))
 
 
-def new_plan(cfg, params, state, uavs, filters, age, key):
+def new_plan(cfg, params, state, uavs, filters, age, key, team, leader):
     """A new plan (Sun et al. 2011 §4.2 steps ① – ③): ``(u, commands, 0, cost)``."""
     n, dtype = cfg.n_agents, uavs.dtype
-    leader = per_agent("modified_icf", filters[cfg.filters.index("modified_icf")], n)
-    problem = Problem(uavs, leader.x[0], symmetrize(leader.Y[0]))
+    estimate = per_agent("modified_icf", filters[cfg.filters.index("modified_icf")], n)
+    problem = Problem(uavs, estimate.x[leader], symmetrize(estimate.Y[leader]))
     horizon = jnp.asarray(params.horizon, dtype)
     dyn = Dynamics(params.dt, params.alpha_phi, params.turn_rate_max, horizon, params.sigma_accel)
     cost = CostParams(
         params.alpha_I, params.alpha_C, params.alpha_L, params.alpha_S, params.d_safe, params.d_lt,
         params.robustness_scale, params.plan_temperature, kit.agents(params.sensing_radius, n, dtype),
         kit.agents(params.comm_radius, n, dtype), params.sigma_range, params.sigma_bearing,
-        kit.agents(params.alive, n, dtype))
+        team)
     warm = shift_plan(state.plan_u, age, horizon)
     plan = solve_plan(cfg, problem, dyn, cost, warm, key)
     _, _, commands, _ = rollout(problem, plan.u, dyn)

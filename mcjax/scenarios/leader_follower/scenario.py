@@ -45,7 +45,7 @@ from mcjax.filters.gaussian import first_step_model
 from mcjax.models.motion import cv_matrices, cv_process_noise, cv_step
 from mcjax.models.platforms import UnicycleLimits, unicycle_step
 from mcjax.models.sensors import range_bearing
-from mcjax.scenarios import kit
+from mcjax.scenarios import faults, kit
 from mcjax.scenarios.leader_follower.objectives import ROBUSTNESS_PENALTIES
 from mcjax.scenarios.leader_follower.planner import plan_if_due, planner_options
 from mcjax.scenarios.leader_follower.surrogate import (
@@ -96,6 +96,7 @@ Config = config_type("Config", dict(
     robustness_penalty=Setting("barrier", "penalty of the connectivity robustness R_I (barrier = "
                                "softplus(-R_I/s), ours; inverse = the paper's 1/|R_I|)",
                                choices=ROBUSTNESS_PENALTIES),
+    **faults.SETTINGS,
 ), __name__, _check)
 
 
@@ -152,6 +153,7 @@ Params = params_type("Params", dict(
     plan_temperature=Param(1e3, "m", "temperature of the smooth cost (gradient planner)", **_POS),
     horizon=Param(5, "steps", "t_r, the planning horizon (paper: 5; <= max_horizon)", low=1, integer=True),
     replan_every=Param(3, "steps", "tau_r, steps between re-plans (paper: 3; <= t_r)", low=1, integer=True),
+    **faults.PARAMS,
 ), __name__)
 
 
@@ -171,7 +173,7 @@ def check_params(cfg, values: dict) -> list[tuple[str, str]]:
     elif cfg.plan_period > 0 and np.any(tau != cfg.plan_period):
         bad.append(("replan_every", f"equal to config.plan_period = {cfg.plan_period} (set plan_period = 0 "
                                     "to vary it)"))
-    return bad
+    return bad + faults.check(cfg, values, Params)
 
 
 class State(NamedTuple):
@@ -183,6 +185,7 @@ class State(NamedTuple):
     plan_cmd: jax.Array        # (H, n) its heading commands, rad
     plan_age: jax.Array        # commands of the plan applied so far
     plan_cost: jax.Array       # exact eq. 16 cost of the plan in force
+    faults: faults.State | None  # lost links and agents (mcjax.scenarios.faults; None: off)
 
 
 class Record(NamedTuple):
@@ -197,13 +200,13 @@ class Record(NamedTuple):
     measurements: jax.Array    # (n, 2) range–bearing, NaN where none
     adjacency: jax.Array       # (n, n) comm graph
     plan_cost: jax.Array       # () exact eq. 16 cost of the plan in force (0 in open loop)
+    faults: faults.Record | None  # the step's faults (None: off)
 
 
 
 def init(cfg, params, key) -> State:
     """State before step 0: true target, UAVs at their initial poses, filters at the prior
-    (the true initial state with covariance ``diag(p0_diag)``, Sun et al. 2011 §5)."""
-    del key
+    (the true initial state with covariance ``diag(p0_diag)``, Sun et al. 2011 §5); no fault yet."""
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
     params = kit.cast(params, dtype)
     uavs = jnp.concatenate([
@@ -216,19 +219,37 @@ def init(cfg, params, key) -> State:
     # the plan entries become per-run at the first re-plan: per-run from the start (kit.per_run)
     plan, cost = kit.per_run(params.dt, jnp.zeros((cfg.max_horizon, n), dtype), jnp.zeros((), dtype))
     return State(jnp.asarray(0, jnp.int32), x0, uavs, init_states(cfg.filters, x0, P0, n),
-                 plan, plan, jnp.asarray(0, jnp.int32), cost)
+                 plan, plan, jnp.asarray(0, jnp.int32), cost, faults.init(cfg, key, params))
+
+
+class _Step(NamedTuple):
+    """What one step computed, for :func:`step`'s record."""
+
+    target: jax.Array
+    sensors: jax.Array
+    z: jax.Array
+    comm_graph: jax.Array      # (n, n) links in range between the agents switched on
+    carried: jax.Array         # (n, n) the links that carried a message (faults removed)
+    faults: faults.Step | None
+    filters: tuple
 
 
 def _advance(cfg, params, state: State, key, smoothing):
     """The physics and filters of one step (shared by :func:`step` and :func:`smooth_step`):
-    ``(new State, target, sensors, z, adjacency, filters)``. ``smoothing`` None is the exact
-    simulation; a :class:`Smoothing` swaps the sensing gate and the comm graph for their
-    smooth surrogates (:func:`smooth_step`)."""
+    ``(new State, _Step)``. ``smoothing`` None is the exact simulation; a :class:`Smoothing`
+    swaps the sensing gate and the comm graph for their smooth surrogates (:func:`smooth_step`).
+
+    Faults (:mod:`mcjax.scenarios.faults`): a lost UAV stops where it is, senses and sends
+    nothing, and its filter states stay as they were; if the leader is lost, the
+    lowest-numbered UAV not lost takes over the planning (from its own modified-ICF estimate,
+    at the next re-plan); a lost link drops the step's consensus message, not the link in R_I."""
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
     first = state.t == 0
     k_target, k_meas = jax.random.split(key)
     dt = jnp.asarray(params.dt, dtype)
     dt_move = jnp.where(first, 0.0, dt)
+    switched_on = kit.agents(params.alive, n, dtype) > 0.5
+    fault_state, fault = faults.advance(key, state.faults, params, switched_on)
 
     target = jnp.where(first, state.target, cv_step(state.target, k_target, dt, params.target_sigma_accel))
     speed = kit.agents(params.uav_speed, n, dtype)
@@ -240,8 +261,10 @@ def _advance(cfg, params, state: State, key, smoothing):
         command = state.plan_cmd[jnp.minimum(state.plan_age, cfg.max_horizon - 1)]
         age = jnp.where(first, state.plan_age, state.plan_age + 1)
     uavs = unicycle_step(state.uavs, command, 0.0, params.alpha_phi, limits, dt_move)
+    if fault is not None:
+        uavs = jnp.where(fault.alive[:, None], uavs, state.uavs)
     sensors = uavs[:, :2]
-    alive = kit.agents(params.alive, n, dtype) > 0.5
+    alive = switched_on
 
     # R = diag(σ_r², σ_θ²) is diagonal: its inverse needs no LAPACK call on the hot path
     R_inv = jnp.diag(jnp.stack([1.0 / params.sigma_range**2, 1.0 / params.sigma_bearing**2]))
@@ -249,25 +272,36 @@ def _advance(cfg, params, state: State, key, smoothing):
     comm = kit.agents(params.comm_radius, n, dtype)
     sensing = kit.agents(params.sensing_radius, n, dtype)
     if smoothing is None:
-        z = kit.team_measurements(k_meas, target, sensors, params.sigma_range, params.sigma_bearing,
-                                  sensing, alive)
+        z = faults.measurements(kit.team_measurements(k_meas, target, sensors, params.sigma_range,
+                                                      params.sigma_bearing, sensing, alive), fault)
         adj = graph.adjacency(sensors, comm, alive)
-        meas = Measurements(z, sensors, adj, R_inv)
-    else:
+        carried = faults.messages(adj, fault)
+        meas = Measurements(z, sensors, carried, R_inv)
+    else:  # (the smooth component sizes see lost agents, not lost links)
         z, gates = smooth_measurements(k_meas, target, sensors, params, sensing, alive, smoothing.sensing)
+        z = faults.measurements(z, fault)
         adj = smooth_adjacency(sensors, comm, alive, smoothing.comm)
-        meas = Measurements(z, sensors, adj, R_inv * gates[:, None, None],
-                            smooth_component_sizes(sensors, comm, alive, smoothing.comm))
+        carried = faults.messages(adj, fault)
+        meas = Measurements(z, sensors, carried, R_inv * gates[:, None, None],
+                            smooth_component_sizes(sensors, comm, alive & faults.alive(fault, n), smoothing.comm))
 
     F, Q = first_step_model(first, cv_matrices(dt, dtype)[0], cv_process_noise(dt, params.sigma_accel, dtype))
     angle_mask = jnp.array([False, True])
+    shielded = tuple(f if k == "cif" else faults.shield(fault, f) for k, f in zip(cfg.filters, state.filters))
     filters = filter_step(cfg.filters, filter_options(cfg), range_bearing, angle_mask,
-                          state.filters, meas, F, Q, jnp.asarray(params.kcf_epsilon, dtype))
+                          shielded, meas, F, Q, jnp.asarray(params.kcf_epsilon, dtype))
+    filters = tuple(f if k == "cif" else faults.hold(fault, f, old)
+                    for k, f, old in zip(cfg.filters, filters, state.filters))
 
     plan = (state.plan_u, state.plan_cmd, age, state.plan_cost)
     if cfg.planner != "none":
-        plan = plan_if_due(cfg, params, state, uavs, filters, age, jax.random.fold_in(key, 0x9A11))
-    return State(state.t + 1, target, uavs, filters, *plan), target, sensors, z, adj, filters
+        team, leader = kit.agents(params.alive, n, dtype), 0
+        if fault is not None:
+            team, leader = team * fault.alive.astype(dtype), jnp.argmax(fault.alive)
+        plan = plan_if_due(cfg, params, state, uavs, filters, age, jax.random.fold_in(key, 0x9A11),
+                           team, leader)
+    return (State(state.t + 1, target, uavs, filters, *plan, fault_state),
+            _Step(target, sensors, z, adj, carried, fault, filters))
 
 
 def step(cfg, params, state: State, key) -> tuple[State, Record]:
@@ -275,28 +309,29 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
     build the comm graph (eq. 13), run every filter, record errors and graph metrics.
 
     Step 0 is the first measurement time: nothing moves and the filters update their prior
-    without predicting (docs/equations.md).
+    without predicting (docs/equations.md). The graph statistics are those of the links
+    that carried a message (the comm graph less the links lost to faults).
     """
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
     params = kit.cast(params, dtype)
-    new, target, sensors, z, adj, filters = _advance(cfg, params, state, key, None)
+    new, s = _advance(cfg, params, state, key, None)
     comm = kit.agents(params.comm_radius, n, dtype)
-    plan = new[4:]
-    post = [per_agent(k, f, n) for k, f in zip(cfg.filters, filters)]
-    err = jnp.stack([metrics.position_error(g.x, target) for g in post])
-    ne = jnp.stack([metrics.nees(g.x, g.Y, target) for g in post])
+    post = [per_agent(k, f, n) for k, f in zip(cfg.filters, s.filters)]
+    err = jnp.stack([metrics.position_error(g.x, s.target) for g in post])
+    ne = jnp.stack([metrics.nees(g.x, g.Y, s.target) for g in post])
     rec = Record(
         error=err,
         nees=ne,
-        lambda2=graph.algebraic_connectivity(adj),
-        degrees=graph.degree(adj),
-        robustness=graph.connectivity_robustness(sensors, comm),
-        n_seeing=jnp.sum(jnp.all(jnp.isfinite(z), axis=-1)),
-        positions=sensors,
-        target=target,
-        measurements=z,
-        adjacency=adj,
-        plan_cost=plan[3],
+        lambda2=graph.algebraic_connectivity(s.carried),
+        degrees=graph.degree(s.carried),
+        robustness=graph.connectivity_robustness(s.sensors, comm),
+        n_seeing=jnp.sum(jnp.all(jnp.isfinite(s.z), axis=-1)),
+        positions=s.sensors,
+        target=s.target,
+        measurements=s.z,
+        adjacency=s.carried,
+        plan_cost=new.plan_cost,
+        faults=faults.record(s.comm_graph, s.carried, s.faults, kit.agents(params.alive, n, dtype) > 0.5),
     )
     return new, rec
 
@@ -309,9 +344,9 @@ def smooth_step(cfg, params, state: State, key, smoothing: Smoothing) -> tuple[S
     the position errors (F, n) of every filter and agent."""
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
     params = kit.cast(params, dtype)
-    new, target, _, _, _, filters = _advance(cfg, params, state, key, smoothing)
-    post = [per_agent(k, f, n) for k, f in zip(cfg.filters, filters)]
-    return new, jnp.stack([metrics.position_error(g.x, target) for g in post])
+    new, s = _advance(cfg, params, state, key, smoothing)
+    post = [per_agent(k, f, n) for k, f in zip(cfg.filters, s.filters)]
+    return new, jnp.stack([metrics.position_error(g.x, s.target) for g in post])
 
 
 def training_weights(cfg, params):
@@ -324,7 +359,8 @@ def summary(cfg, records: Record | None, params) -> dict:
     """One run's records (stacked over time) reduced to its outputs, each declared next to its
     value (:func:`mcjax.contract.declare`; ``records`` None: the declarations alone)."""
     r, w, F = records, cfg.warmup_steps, len(cfg.filters)
-    alive = cache(lambda: metrics.alive_weights(params.alive, cfg.n_agents, r.error.dtype))
+    switched_on = cache(lambda: metrics.alive_weights(params.alive, cfg.n_agents, r.error.dtype))
+    alive = cache(lambda: faults.weights(switched_on(), r.faults))
     return declare(
         **kit.error_items(lambda: r.error, alive, cfg, "m"),
         leader_rmse=(Output("m", "the leader's (agent 0) position RMSE after warm-up"),
@@ -339,6 +375,7 @@ def summary(cfg, records: Record | None, params) -> dict:
         seeing_min=(Output("", "fewest agents that see the target at any step", False), lambda: jnp.min(r.n_seeing)),
         plan_cost_mean=(Output("", "mean exact eq. 16 cost of the plans in force (0 in open loop)", False),
                         lambda: jnp.mean(r.plan_cost)),
+        **faults.summary_items(cfg, r and r.faults, switched_on),
     )
 
 
@@ -346,7 +383,8 @@ def series(cfg, records: Record | None, params) -> dict:
     """A few per-step series of one run, (T, F) per filter, (T,) otherwise, each declared next
     to its value; written when a sweep asks for them."""
     r = records
-    alive = cache(lambda: metrics.alive_weights(params.alive, cfg.n_agents, r.error.dtype))
+    switched_on = cache(lambda: metrics.alive_weights(params.alive, cfg.n_agents, r.error.dtype))
+    alive = cache(lambda: faults.weights(switched_on(), r.faults))
     return declare(
         **kit.error_series_items(lambda: r.error, alive, "m"),
         leader_error=(Output("m", "the leader's (agent 0) position error"), lambda: r.error[..., 0]),
@@ -356,6 +394,7 @@ def series(cfg, records: Record | None, params) -> dict:
         n_seeing=(Output("", "agents that see the target", False), lambda: r.n_seeing),
         plan_cost=(Output("", "exact eq. 16 cost of the plan in force (0 in open loop)", False),
                    lambda: r.plan_cost),
+        **faults.series_items(cfg, r and r.faults, switched_on),
     )
 
 
