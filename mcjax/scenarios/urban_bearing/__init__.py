@@ -14,13 +14,13 @@ the scenario ``urban_bearing`` and everything only it uses:
 from mcjax.scenarios.urban_bearing.mode_filters import filter_bank, gated_mode_filter, mode_filter, mode_models
 from mcjax.scenarios.urban_bearing.planner import limits_of, plan_command, planner_options, smooth_plan_command
 from mcjax.scenarios.urban_bearing.scenario import (
-    DEFAULT_BUILDINGS, DEG, FILTER_KINDS, LOS, NAME, NLOS_MINUS, NLOS_PLUS, PLANNERS, SCENARIO, Config, Params, Record,
-    Smoothing, State, buildings_np, buildings_of, check_params, default_params, init, outputs, reduce, series,
-    smooth_step, step, summary, timeseries, timeseries_outputs, training_weights,
+    DEFAULT_BUILDINGS, DEG, FILTER_KINDS, INITS, LOS, NAME, NLOS_MINUS, NLOS_PLUS, PLANNERS, SCENARIO, Config, Params,
+    Record, Smoothing, State, buildings_np, buildings_of, check_params, default_params, first_bearing_prior, init, inv2,
+    measure, outputs, reduce, series, smooth_step, step, summary, timeseries, timeseries_outputs, training_weights,
 )
 
-__all__ = ["Config", "DEFAULT_BUILDINGS", "DEG", "FILTER_KINDS", "LOS", "NAME", "NLOS_MINUS", "NLOS_PLUS", "PLANNERS",
+__all__ = ["Config", "DEFAULT_BUILDINGS", "DEG", "FILTER_KINDS", "INITS", "LOS", "NAME", "NLOS_MINUS", "NLOS_PLUS", "PLANNERS",
            "Params", "Record", "SCENARIO", "Smoothing", "State", "buildings_np", "buildings_of", "check_params",
-           "default_params", "filter_bank", "gated_mode_filter", "init", "limits_of", "mode_filter", "mode_models",
+           "default_params", "filter_bank", "first_bearing_prior", "gated_mode_filter", "init", "inv2", "measure", "limits_of", "mode_filter", "mode_models",
            "outputs", "plan_command", "planner_options", "reduce", "series", "smooth_plan_command", "smooth_step",
            "step", "summary", "timeseries", "timeseries_outputs", "training_weights"]

@@ -43,6 +43,7 @@ NAME = "urban_bearing"
 
 FILTER_KINDS = ("imm", "ekf")
 PLANNERS = ("grid", "gradient")
+INITS = ("first_bearing", "prior")
 LOS, NLOS_PLUS, NLOS_MINUS = 0, 1, 2
 DEG = float(np.pi / 180.0)
 
@@ -74,6 +75,9 @@ Config = config_type("Config", dict(
                     "surrogate", choices=PLANNERS),
     plan_iterations=Setting(20, "gradient planner: Adam steps per re-plan", low=1, integer=True),
     plan_learning_rate=Setting(0.3, "gradient planner: Adam step on the squashed command", low=0, low_open=True),
+    init=Setting("first_bearing", "the filters' start: first_bearing = on the bearing measured at uav0, at a range "
+                 "drawn with std prior_sigma (ours: bearings-only practice); prior = a point drawn with std prior_sigma "
+                 "per axis about the emitter", choices=INITS),
 ), __name__, _check)
 
 
@@ -110,6 +114,8 @@ Params = params_type("Params", dict(
     prior_sigma=Param(1000.0, "m", "std of the initial estimate about the emitter per axis; the initial FIM "
                       "is its inverse square (ours)", **_POS),
     process_noise=Param(0.0, "m", "std of the filters' random walk per step (paper: none)", low=0.0),
+    max_hold_steps=Param(0, "steps", "most steps in a row the shadow's hold may last, then the planner flies "
+                         "(ours; 0 = no limit, the paper's rule)", low=0, integer=True),
     c1=Param(0.2, "", "weight of J_FIM (paper: 0.2)"),
     c2=Param(0.5, "", "weight of J_T, steps clear of buildings and shadow (paper: 0.5)"),
     c3=Param(-0.3, "", "weight of J_NLOS, steps in the reflection region (paper: -0.3)"),
@@ -171,6 +177,7 @@ class State(NamedTuple):
     measured: jax.Array   # () bool: the last step brought a measurement
     filters: tuple        # one IMMState per filter: μ (M,), x (M, 2), P (M, 2, 2)
     fim: jax.Array        # (3, 2, 2) the IMM modes' accumulated FIM (eq. 13)
+    held_for: jax.Array   # () int32: steps in a row the command has been held (shadow)
 
 
 class Record(NamedTuple):
@@ -187,21 +194,80 @@ class Record(NamedTuple):
 
 
 def init(cfg, params, key) -> State:
-    """The UAV at ``uav0`` with command (0, 0); every filter at the prior: mean drawn about the
-    emitter with std ``prior_sigma`` per axis (one draw per run, shared by the filters),
-    covariance ``prior_sigma² I``; the IMM modes at ``mu0``; FIM_0 = the prior's information."""
+    """The UAV at ``uav0`` with command (0, 0); every filter (the IMM's modes and the LOS EKF)
+    at one initial estimate (x0, P0) per run; the IMM modes at ``mu0``; FIM_0 = P0⁻¹, the
+    initial information (Chen & Hao 2022, Alg. 1's initialisation of X̂_T,0 and FIM).
+    ``Config.init`` chooses (x0, P0):
+
+    * ``"prior"``: x0 drawn about the emitter with std ``prior_sigma`` per axis, P0 =
+      ``prior_sigma² I``.
+    * ``"first_bearing"`` (ours; bearings-only practice: Ristic, Arulampalam & Gordon 2004,
+      ch. 6, and the range-parameterised EKF): :func:`first_bearing_prior` at the bearing the
+      UAV measures at ``uav0`` (the measurement model of :func:`step`), as a line-of-sight
+      bearing; if ``uav0`` has no line of sight, the ``"prior"`` start."""
     dtype = jnp.dtype(cfg.dtype)
     p = kit.cast(params, dtype)
-    x0 = p.emitter[:2] + p.prior_sigma * jax.random.normal(key, (2,), dtype)
-    P0 = p.prior_sigma**2 * jnp.eye(2, dtype=dtype)
+    if cfg.init == "prior":
+        x0 = p.emitter[:2] + p.prior_sigma * jax.random.normal(key, (2,), dtype)
+        P0 = p.prior_sigma**2 * jnp.eye(2, dtype=dtype)
+        fim0 = jnp.broadcast_to(jnp.eye(2, dtype=dtype) / p.prior_sigma**2, (3, 2, 2))
+    else:
+        k_prior, k_range, k_noise = jax.random.split(key, 3)
+        b = buildings_of(p)
+        z0, los = measure(p, b, p.uav0[:3], k_noise)
+        true_range = jnp.sqrt(jnp.sum((p.emitter[:2] - p.uav0[:2]) ** 2))
+        r0 = true_range + p.prior_sigma * jax.random.normal(k_range, (), dtype)
+        xb, Pb = first_bearing_prior(p.uav0[:2], jnp.where(los, z0, 0.0), r0, p.prior_sigma, p.sigma_los)
+        xp = p.emitter[:2] + p.prior_sigma * jax.random.normal(k_prior, (2,), dtype)
+        x0 = jnp.where(los, xb, xp)
+        P0 = jnp.where(los, Pb, p.prior_sigma**2 * jnp.eye(2, dtype=dtype))
+        fim0 = jnp.broadcast_to(inv2(P0), (3, 2, 2))
     filters = []
     for name in cfg.filters:
         m = 3 if name == "imm" else 1
         mu = p.mu0 if m == 3 else kit.per_run(p.prior_sigma, jnp.ones(1, dtype))  # per-run: kit.per_run
         filters.append(IMMState(mu, jnp.broadcast_to(x0, (m, 2)), jnp.broadcast_to(P0, (m, 2, 2))))
-    fim0 = jnp.broadcast_to(jnp.eye(2, dtype=dtype) / p.prior_sigma**2, (3, 2, 2))
     command, measured = kit.per_run(p.prior_sigma, jnp.zeros(2, dtype), jnp.asarray(True))
-    return State(jnp.asarray(0, jnp.int32), p.uav0, command, measured, tuple(filters), fim0)
+    held_for = kit.per_run(p.prior_sigma, jnp.asarray(0, jnp.int32))
+    return State(jnp.asarray(0, jnp.int32), p.uav0, command, measured, tuple(filters), fim0, held_for)
+
+
+def first_bearing_prior(uav_xy, bearing, range_, sigma_range, sigma_bearing):
+    """A bearings-only start (Ristic, Arulampalam & Gordon 2004, ch. 6; the range-parameterised
+    EKF's single-filter case): the target at ``range_`` along the measured ``bearing`` from
+    ``uav_xy``, x0 = uav + r (cos β, sin β), with the covariance of a range σ_r along the
+    bearing and a cross-range σ_c = r σ_β across it: P0 = R(β) diag(σ_r², (r σ_β)²) R(β)ᵀ.
+    ``range_`` is clipped at 1 m (a range is positive). Returns ``(x0 (2,), P0 (2, 2))``."""
+    r = jnp.maximum(range_, 1.0)
+    c, s = jnp.cos(bearing), jnp.sin(bearing)
+    x0 = uav_xy + r * jnp.stack([c, s])
+    vr, vc = sigma_range**2, (r * sigma_bearing) ** 2
+    P0 = jnp.stack([jnp.stack([vr * c * c + vc * s * s, (vr - vc) * c * s]),
+                    jnp.stack([(vr - vc) * c * s, vr * s * s + vc * c * c])])
+    return x0, P0
+
+
+def inv2(m):
+    """Inverse of a 2 x 2 matrix (closed form; the initial information P0⁻¹)."""
+    det = m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]
+    return jnp.stack([jnp.stack([m[1, 1], -m[0, 1]]), jnp.stack([-m[1, 0], m[0, 0]])]) / det
+
+
+def measure(p, b, pos, key):
+    """The azimuth the UAV measures at ``pos`` (3,) (Chen & Hao 2022, eqs. 2, 5–6): the bearing of
+    the summed field plus noise of std σ_NLOS when a reflection arrives, σ_LOS otherwise; NaN
+    without line of sight. Returns ``(z, los)``."""
+    los, reflected, clean = _measurement_geometry(p, b, pos)
+    sigma = jnp.where(reflected, p.sigma_nlos, p.sigma_los)
+    z = jnp.where(los, wrap_angle(clean + sigma * jax.random.normal(key, (), clean.dtype)), jnp.nan)
+    return z, los
+
+
+def _measurement_geometry(p, b, pos):
+    los = env.line_of_sight(b, p.emitter, pos)
+    reflected = jnp.any(env.reflections(b, p.emitter, pos).valid) & (p.R2 > 0)
+    clean = env.measured_bearing(b, p.emitter, pos, p.R2, p.power, p.directivity)
+    return los, reflected, clean
 
 
 def _violation(cfg, params, previous, command, uav):
@@ -232,15 +298,15 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
     hold_track = urban.predicted_track(state.uav, state.command, p.speed, cfg.dt, cfg.horizon)
     hold_ok = urban.admissible(b, state.uav, state.command, hold_track, lim, p.speed, cfg.dt,
                                cfg.theta_rate_max * cfg.dt)
-    held = ~state.measured & hold_ok
+    # ours: at most max_hold_steps in a row (0: no limit, the paper's rule); then the planner flies
+    within_limit = (p.max_hold_steps <= 0) | (state.held_for < p.max_hold_steps)
+    held = ~state.measured & hold_ok & within_limit
     command = jnp.where(held, state.command, planned)
     uav = fixed_wing_step(state.uav, command[0], command[1], p.speed, cfg.dt)
 
     # the measurement (eqs. 2, 5–6): no line of sight -> none; a reflection -> NLOS noise
     pos = uav[:3]
-    los = env.line_of_sight(b, p.emitter, pos)
-    reflected = jnp.any(env.reflections(b, p.emitter, pos).valid) & (p.R2 > 0)
-    clean = env.measured_bearing(b, p.emitter, pos, p.R2, p.power, p.directivity)
+    los, reflected, clean = _measurement_geometry(p, b, pos)
     sigma = jnp.where(reflected, p.sigma_nlos, p.sigma_los)
     z = jnp.where(los, wrap_angle(clean + sigma * jax.random.normal(k_noise, (), dtype)), jnp.nan)
 
@@ -253,7 +319,8 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
         error=jnp.stack(errors), uav=uav, command=command, held=held, shadow=~los, nlos=los & reflected,
         in_building=env.inside(b, pos), violation=_violation(cfg, p, state.command, command, uav),
         mu=imm_new.mu, score=jnp.where(held, jnp.nan, score))
-    return State(state.t + 1, uav, command, los, tuple(new_filters), fim), rec
+    held_for = jnp.where(held, state.held_for + 1, 0)
+    return State(state.t + 1, uav, command, los, tuple(new_filters), fim, held_for), rec
 
 
 class Smoothing(NamedTuple):
@@ -280,6 +347,8 @@ def smooth_step(cfg, params, state: State, key, smoothing: Smoothing) -> tuple[S
       (:func:`.score.soft_measured_bearing`), its noise σ blended between LOS
       and NLOS by the smooth "a reflection arrives";
     * the FIM accumulation (eq. 13: only with LOS) -> weighted by ``los``.
+
+    The hold has no step limit here (``max_hold_steps`` is not modelled: the paper's rule).
 
     Returns the new state and the position errors (F, 1) of every filter."""
     dtype = jnp.dtype(cfg.dtype)
@@ -314,7 +383,8 @@ def smooth_step(cfg, params, state: State, key, smoothing: Smoothing) -> tuple[S
     imm_new = new_filters[cfg.filters.index("imm")]
     gained = jax.vmap(lambda x, s: urban.bearing_information(x, uav, s))(imm_new.x, sig)
     fim = state.fim + los * gained
-    return State(state.t + 1, uav, command, los > 0.5, tuple(new_filters), fim), jnp.stack(errors)
+    return (State(state.t + 1, uav, command, los > 0.5, tuple(new_filters), fim, state.held_for),
+            jnp.stack(errors))
 
 
 def training_weights(cfg, params):
