@@ -33,6 +33,23 @@ a lagging UAV further back. ``formation_sign = "corrective"`` (ours, the default
 with the sign that pulls the UAV towards its slot; ``"printed"`` keeps the paper's.
 Units: SI (m, s, rad). Our choices where the paper is silent are marked in
 ``configs/chen2013.toml``.
+
+Faults (:mod:`mcjax.scenarios.faults`, ``Config.faults = "on"``; ours, the paper has none).
+A *lost link* drops that step's kcf exchange on it — the neighbour's prior, its measurement
+information and eq. 12's formation term (all ride on the message; eq. 7's weights are those of
+the links that carried one). A *sensor dropout* leaves the UAV without its wind measurement
+that step. A *lost UAV* leaves the formation: it measures, sends and receives nothing, stops
+where it is, its kcf and local filters hold, and it drops out of the others' consensus and
+formation terms (it has no link) and of the error and formation statistics (pairs with it). The
+others keep their slots d_i — the lost UAV's slot stays empty — and place the formation's
+centre from their own positions, c = mean over them of (p_i − d_i) (with all alive, the
+centroid): the survivors' pairwise offsets d_ij, which eq. 12 and the formation statistics are
+about, stay as they were, losing a UAV makes no one manoeuvre, and the path is still flown by
+the formation's centre; re-assigning slots would need a rule the paper does not give. The
+``cif`` and the centre filter are the centralised references: they fuse every measurement
+taken (none from a dropped-out or lost sensor) and see no link loss. The report agent's
+per-axis wind errors stay its own after a loss (its held estimate); its measurement errors run
+over the steps it had a measurement.
 """
 
 from __future__ import annotations
@@ -57,7 +74,7 @@ from mcjax.filters.consensus import (
 )
 from mcjax.filters.gaussian import Gaussian, first_step_model
 from mcjax.numerics import spd_inverse, symmetrize
-from mcjax.scenarios import kit
+from mcjax.scenarios import faults, kit
 from mcjax.scenarios.wind_formation import guidance
 
 NAME = "wind_formation"
@@ -93,6 +110,7 @@ Config = config_type("Config", dict(
                          low=1, integer=True),
     root_grid=Setting(128, "grid cells that bracket eq. 13's roots before bisection (ours)", low=2,
                       integer=True),
+    **faults.SETTINGS,
 ), __name__, _check)
 
 #: The paper's starting positions of its three UAVs (m).
@@ -137,6 +155,7 @@ Params = params_type("Params", dict(
                 shape=("n", 2)),
     offsets=Param(_default_offsets, "m", "pairwise formation offsets d_ij = p_j - p_i: rows d_12, d_23, ..., "
                   "then the closing d_1n (= their sum)", shape=("n", 2)),
+    **faults.PARAMS,
 ), __name__)
 
 
@@ -148,7 +167,7 @@ def check_params(cfg, values: dict) -> list[tuple[str, str]]:
         if np.any(gaps > CLOSURE_TOL * (1.0 + np.max(np.abs(offsets)))):
             bad.append(("offsets", f"pairwise offsets that close: the last row d_1n must equal the sum of the "
                         f"rows d_12 ... d_(n-1)n (they are {float(np.max(gaps)):g} m apart)"))
-    return bad
+    return bad + faults.check(cfg, values, Params)
 
 
 class State(NamedTuple):
@@ -156,19 +175,21 @@ class State(NamedTuple):
     positions: jax.Array    # (n, 2) ground positions
     filters: tuple          # one Gaussian per filter (cif: single, else a UAV axis first)
     centre: Gaussian        # the centre Kalman filter's wind estimate
+    faults: faults.State | None  # lost links and UAVs (mcjax.scenarios.faults; None: off)
 
 
 class Record(NamedTuple):
     error: jax.Array         # (F, n) |wind estimate - wind| per filter and UAV
     axis_error: jax.Array    # (F, 2) |estimate - wind| per axis, report agent
-    raw_error: jax.Array     # (2,) |measurement - wind| per axis, report agent
+    raw_error: jax.Array     # (2,) |measurement - wind| per axis, report agent (NaN: no measurement, faults)
     distances: jax.Array     # (pairs,) pairwise distances after the step
     path_error: jax.Array    # () |Y - psi(X)| of the centroid after the step
     on_path: jax.Array       # () eq. 13 had a forward root
     capped: jax.Array        # () some UAV's air step was capped at l
     air_max: jax.Array       # () longest air step
-    lambda2: jax.Array       # () algebraic connectivity of the comm graph
+    lambda2: jax.Array       # () algebraic connectivity of the links that carried a message
     positions: jax.Array     # (n, 2) after the step
+    faults: faults.Record | None  # the step's faults (None: off)
 
 
 def pairs(n: int) -> list[tuple[int, int]]:
@@ -196,8 +217,8 @@ def noise_variance(cfg, p):
 
 
 def init(cfg, params, key) -> State:
-    """The UAVs at ``start``; every filter at zero wind with covariance ``sigma_wind_prior``² I."""
-    del key
+    """The UAVs at ``start``; every filter at zero wind with covariance ``sigma_wind_prior``² I;
+    no fault yet."""
     dtype = jnp.dtype(cfg.dtype)
     p = kit.cast(params, dtype)
     n = cfg.n_agents
@@ -205,7 +226,7 @@ def init(cfg, params, key) -> State:
     g = Gaussian(kit.per_run(p.dt, jnp.zeros(2, dtype)), P0, symmetrize(spd_inverse(P0)))  # per-run: kit.per_run
     per_agent = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), g)
     filters = tuple(g if k == "cif" else per_agent for k in cfg.filters)
-    return State(jnp.asarray(0, jnp.int32), p.start, filters, g)
+    return State(jnp.asarray(0, jnp.int32), p.start, filters, g, faults.init(cfg, key, p))
 
 
 def _identity(x, sensor):
@@ -226,54 +247,83 @@ def formation_term(cfg, p, positions, offsets):
     return sign * p.eta * (rel - want)
 
 
+def formation_centre(positions, offsets, alive):
+    """The formation's centre as the UAVs ``alive`` (n,) bool hold it: the mean of p_i − d_i
+    over them, where d_i is UAV i's slot about the centre (:func:`guidance.centre_offsets`; with
+    every UAV alive it is the centroid of eqs. 13–14, since Σ d_i = 0). A lost UAV's slot stays
+    empty: the others keep theirs (module docstring, "Faults")."""
+    a = alive.astype(positions.dtype)[:, None]
+    return jnp.sum(a * (positions - offsets), axis=0) / jnp.maximum(jnp.sum(a), 1.0)
+
+
 def step(cfg, params, state: State, key) -> tuple[State, Record]:
     """One step of ``dt`` (module docstring): measure (eq. 2), filter (eqs. 6–12), correct the
-    path (eqs. 13–16), fly through the true wind."""
+    path (eqs. 13–16), fly through the true wind.
+
+    Faults (``Config.faults = "on"``, module docstring "Faults"): a dropped-out or lost UAV's
+    measurement is missing (every filter and the centre filter go without it); a lost link
+    drops the kcf's exchange on it (the neighbour's prior, measurement information and eq. 12's
+    formation term); a lost UAV stops where it is, its filter states hold, and the others
+    place the formation's centre from their own slots (:func:`formation_centre`)."""
     dtype = jnp.dtype(cfg.dtype)
     p = kit.cast(params, dtype)
     n = cfg.n_agents
     w = wind(params, dtype)
     offsets = guidance.centre_offsets(p.offsets)
+    switched_on = jnp.ones(n, bool)
+    fault_state, fault = faults.advance(key, state.faults, p, switched_on)
 
-    # 1. measurements
+    # 1. measurements (NaN where a sensor dropped out or its UAV is lost: faults)
     if cfg.wind_noise == "uniform":
         noise = p.noise_scale * jax.random.uniform(key, (n, 2), dtype, -1.0, 1.0)
     else:
         noise = p.noise_scale * jax.random.normal(key, (n, 2), dtype)
-    z = w[None, :] + noise
+    z = faults.measurements(w[None, :] + noise, fault)
 
-    # 2. the filters over the comm graph (step 0 updates the prior without predicting)
+    # 2. the filters over the links that carry a message (step 0 updates the prior without predicting)
     adj = graph.adjacency(state.positions, p.comm_radius)
+    carried = faults.messages(adj, fault)
     R_inv = jnp.broadcast_to(jnp.eye(2, dtype=dtype) / noise_variance(cfg, p), (n, 2, 2))
-    meas = Measurements(z, state.positions, adj, R_inv)
+    meas = Measurements(z, state.positions, carried, R_inv)
     F, Q = first_step_model(state.t == 0, jnp.eye(2, dtype=dtype), jnp.eye(2, dtype=dtype) * p.sigma_wind_process ** 2)
     no_angle = jnp.array([False, False])
     opts = FilterOptions(weights=cfg.weights, kcf_gain="prior_consensus")
     filters = []
     for kind, post in zip(cfg.filters, state.filters):
         if kind == "kcf":
-            filters.append(prior_consensus_kcf_step(_identity, no_angle, opts, post, meas, F, Q,
+            filters.append(prior_consensus_kcf_step(_identity, no_angle, opts, faults.shield(fault, post), meas, F, Q,
                                                     formation_term(cfg, p, state.positions, offsets)))
         elif kind == "local":
-            filters.append(local_step(_identity, no_angle, post, meas, F, Q))
+            filters.append(local_step(_identity, no_angle, faults.shield(fault, post), meas, F, Q))
         else:
             filters.append(cif_step(_identity, no_angle, post, meas, F, Q))
-    filters = tuple(filters)
+    filters = tuple(f if k == "cif" else faults.hold(fault, f, old)
+                    for k, f, old in zip(cfg.filters, filters, state.filters))
     centre = cif_step(_identity, no_angle, state.centre, meas, F, Q)
     estimates = [_per_agent(k, f, n).x for k, f in zip(cfg.filters, filters)]
 
     # 3.–4. path correction and flight
     psi = guidance.sine_path(p.path_amplitude, p.path_scale)
-    predicted = jnp.mean(state.positions, axis=0) + centre.x * p.dt
+    if fault is None:
+        here = jnp.mean(state.positions, axis=0)
+    else:
+        here = formation_centre(state.positions, offsets, fault.alive)
+    predicted = here + centre.x * p.dt
     nxt = guidance.next_centre(psi, predicted, p.step_length, cfg.root_grid)
     steer = estimates[cfg.filters.index("kcf") if "kcf" in cfg.filters else 0]
     wanted = guidance.wanted_steps(nxt.point, offsets, state.positions, steer, p.dt)
     air = guidance.cap_step(wanted, p.step_length)                                   # eq. 15
     positions = state.positions + air + w[None, :] * p.dt
+    if fault is None:
+        centroid = jnp.mean(positions, axis=0)
+    else:  # a lost UAV stops where it is
+        flying = fault.alive[:, None]
+        wanted, air = jnp.where(flying, wanted, 0.0), jnp.where(flying, air, 0.0)
+        positions = jnp.where(flying, positions, state.positions)
+        centroid = formation_centre(positions, offsets, fault.alive)
 
     a = cfg.report_agent - 1
     ij = np.array(pairs(n))
-    centroid = jnp.mean(positions, axis=0)
     rec = Record(
         error=jnp.stack([jnp.linalg.norm(e - w, axis=-1) for e in estimates]),
         axis_error=jnp.stack([jnp.abs(e[a] - w) for e in estimates]),
@@ -283,9 +333,10 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
         on_path=nxt.on_path,
         capped=jnp.any(jnp.linalg.norm(wanted, axis=-1) > p.step_length * (1.0 + CAP_TOL)),
         air_max=jnp.max(jnp.linalg.norm(air, axis=-1)),
-        lambda2=graph.algebraic_connectivity(adj),
-        positions=positions)
-    return State(state.t + 1, positions, filters, centre), rec
+        lambda2=graph.algebraic_connectivity(carried),
+        positions=positions,
+        faults=faults.record(adj, carried, fault, switched_on))
+    return State(state.t + 1, positions, filters, centre, fault_state), rec
 
 
 def _first(mask, dtype):
@@ -295,17 +346,26 @@ def _first(mask, dtype):
 
 def _axis_errors(cfg, records: Record) -> dict:
     """Table 1's per-axis errors of the report agent after warm-up: the mean and largest
-    |estimate − wind| per filter (F,) and |measurement − wind| (a scalar), along x and y."""
+    |estimate − wind| per filter (F,) and |measurement − wind| (a scalar), along x and y. With
+    faults on, the measurement's over the steps it had one (NaN if none); the estimate's over
+    every step (a named agent's own error: kit's rule; a lost agent's estimate holds)."""
     dtype = records.error.dtype
     after = (jnp.arange(records.error.shape[0]) >= cfg.warmup_steps).astype(dtype)
     count = jnp.sum(after)
+    raw, raw_after, raw_count = records.raw_error, after, count
+    if faults.on(cfg):
+        measured = jnp.all(jnp.isfinite(raw), axis=-1)
+        raw, raw_after = jnp.where(measured[:, None], raw, 0.0), after * measured
+        raw_count = jnp.where(jnp.sum(raw_after) > 0, jnp.sum(raw_after), jnp.nan)
     out = {}
     for k, ax in enumerate(("x", "y")):
         out[f"wind_mean_{ax}"] = jnp.sum(records.axis_error[:, :, k] * after[:, None], axis=0) / count
         out[f"wind_max_{ax}"] = metrics.nan_max(jnp.where(after[:, None] > 0, records.axis_error[:, :, k], -jnp.inf),
                                                 axis=0)
-        out[f"raw_mean_{ax}"] = jnp.sum(records.raw_error[:, k] * after) / count
-        out[f"raw_max_{ax}"] = metrics.nan_max(jnp.where(after > 0, records.raw_error[:, k], -jnp.inf))
+        out[f"raw_mean_{ax}"] = jnp.sum(raw[:, k] * raw_after) / raw_count
+        out[f"raw_max_{ax}"] = metrics.nan_max(jnp.where(raw_after > 0, raw[:, k], -jnp.inf))
+        if faults.on(cfg):
+            out[f"raw_max_{ax}"] = jnp.where(jnp.isnan(raw_count), jnp.nan, out[f"raw_max_{ax}"])
     return out
 
 
@@ -316,7 +376,11 @@ def _formation(cfg, records: Record, params) -> dict:
     T = records.error.shape[0]
     steps = jnp.arange(T)
     ref = reference_distances(cfg, jnp.asarray(params.offsets, dtype))
-    dev = jnp.max(jnp.abs(records.distances - ref[None, :]), axis=1)                 # (T,)
+    gap = jnp.abs(records.distances - ref[None, :])
+    if records.faults is not None:  # pairs with a lost UAV leave the formation statistics
+        ij = np.array(pairs(cfg.n_agents))
+        gap = jnp.where(records.faults.alive[:, ij[:, 0]] & records.faults.alive[:, ij[:, 1]], gap, 0.0)
+    dev = jnp.max(gap, axis=1)                                                       # (T,)
     inside = dev <= jnp.asarray(params.formation_tolerance, dtype)
     holds = jnp.flip(jnp.cumprod(jnp.flip(inside).astype(jnp.int32))) > 0           # inside from here to the end
     joined = _first(records.on_path, dtype)
@@ -330,6 +394,8 @@ def summary(cfg, records: Record | None, params) -> dict:
     r = records
     axes = cache(lambda: _axis_errors(cfg, r))
     fm = cache(lambda: _formation(cfg, r, params))
+    switched_on = cache(lambda: jnp.ones(cfg.n_agents, r.error.dtype))
+    alive = cache(lambda: faults.weights(switched_on(), r.faults))
 
     def axis_items(prefix: str, what: str, per_filter: bool) -> dict:
         def pick(name):
@@ -341,8 +407,7 @@ def summary(cfg, records: Record | None, params) -> dict:
 
     pe = cache(lambda: r.path_error)
     return declare(
-        **kit.error_items(lambda: r.error, lambda: jnp.ones(cfg.n_agents, r.error.dtype), cfg, "m/s",
-                          "wind estimate error"),
+        **kit.error_items(lambda: r.error, alive, cfg, "m/s", "wind estimate error"),
         **axis_items("wind", "estimate", True),
         **axis_items("raw", "measurement", False),
         **kit.graph_items(lambda: r.lambda2),
@@ -366,6 +431,7 @@ def summary(cfg, records: Record | None, params) -> dict:
                       lambda: jnp.sum(r.capped)),
         max_air_step=(Output("m", "longest air step of any UAV (eq. 15: at most step_length)", False),
                       lambda: metrics.nan_max(r.air_max)),
+        **faults.summary_items(cfg, r and r.faults, switched_on),
     )
 
 
@@ -373,15 +439,21 @@ def series(cfg, records: Record | None, params) -> dict:
     """Per-step series of one run, each declared next to its value: errors, per-axis errors,
     the centroid's path error, λ2, every pairwise distance and every UAV's position."""
     r = records
+    switched_on = cache(lambda: jnp.ones(cfg.n_agents, r.error.dtype))
+
+    def alive():  # (n,), or (T, 1, n) per step and filter with faults on
+        w = faults.weights(switched_on(), r.faults)
+        return w if r.faults is None else w[:, None, :]
+
     items = dict(
-        **kit.error_series_items(lambda: r.error, lambda: jnp.ones(cfg.n_agents, r.error.dtype), "m/s",
-                                 "wind estimate error"),
+        **kit.error_series_items(lambda: r.error, alive, "m/s", "wind estimate error"),
         wind_error_x=(Output("m/s", "|estimate - wind| along x, report_agent"), lambda: r.axis_error[:, :, 0]),
         wind_error_y=(Output("m/s", "|estimate - wind| along y, report_agent"), lambda: r.axis_error[:, :, 1]),
         raw_error_x=(Output("m/s", "|measurement - wind| along x, report_agent", False), lambda: r.raw_error[:, 0]),
         raw_error_y=(Output("m/s", "|measurement - wind| along y, report_agent", False), lambda: r.raw_error[:, 1]),
         path_error=(Output("m", "|Y - psi(X)| of the centroid", False), lambda: r.path_error),
         lambda2=(Output("", "algebraic connectivity of the comm graph", False), lambda: r.lambda2),
+        **faults.series_items(cfg, r and r.faults, switched_on),
     )
     for k, (i, j) in enumerate(pairs(cfg.n_agents)):
         items[f"distance_{i + 1}_{j + 1}"] = (Output("m", f"distance between UAV{i + 1} and UAV{j + 1}", False),
