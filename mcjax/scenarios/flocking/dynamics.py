@@ -90,14 +90,19 @@ def controls(state: FlockState, adj, sensing, ref_q, ref_p, g: Gains):
     return potential_forces(state.q, adj, g.R) - (1.0 - h) * align - h * track
 
 
-def derivative(state: FlockState, adj, sensing, ref_q, ref_p, g: Gains) -> FlockState:
+def derivative(state: FlockState, adj, sensing, ref_q, ref_p, g: Gains, moving=None) -> FlockState:
     """Time derivative of the flock (eqs. 1, 11, 13): ``(p, u, ḃ)`` with
-    ``ḃ_ij = k ‖p_i − p_j‖²`` on the links of type-II rows (0 elsewhere)."""
+    ``ḃ_ij = k ‖p_i − p_j‖²`` on the links of type-II rows (0 elsewhere). ``moving`` (N,)
+    bool, optional: the nodes not in it are frozen (derivative 0, whatever their control; a node
+    lost to faults, which has no link)."""
     u = controls(state, adj, sensing, ref_q, ref_p, g)
     dp = state.p[:, None, :] - state.p[None, :, :]
     linked = adj * (1.0 - jnp.eye(adj.shape[0], dtype=adj.dtype))
     bdot = g.k * jnp.sum(dp * dp, -1) * linked * (1.0 - sensing)[:, None]
-    return FlockState(state.p, u, bdot)
+    if moving is None:
+        return FlockState(state.p, u, bdot)
+    m = moving[:, None]
+    return FlockState(jnp.where(m, state.p, 0.0), jnp.where(m, u, 0.0), jnp.where(m, bdot, 0.0))
 
 
 def potential_curvature(r, R):
@@ -119,12 +124,14 @@ def _rk4_substep(f, s: FlockState, tau, h) -> FlockState:
     return jax.tree.map(lambda a, b1, b2, b3, b4: a + h / 6 * (b1 + 2 * b2 + 2 * b3 + b4), s, k1, k2, k3, k4)
 
 
-def _track_margins(s: FlockState, adj, R, margin, dmin):
-    """Running minima of ``R − r_ij`` over links and of the pairwise distance."""
+def _track_margins(s: FlockState, adj, R, margin, dmin, moving=None):
+    """Running minima of ``R − r_ij`` over links and of the pairwise distance (between nodes
+    ``moving`` (N,) bool, if given)."""
     _, r, eye = _pair_vectors(s.q)
     linked = (adj > 0.5) & ~eye
+    apart = eye if moving is None else eye | ~(moving[:, None] & moving[None, :])
     return (jnp.minimum(margin, jnp.min(jnp.where(linked, R - r, jnp.inf))),
-            jnp.minimum(dmin, jnp.min(jnp.where(eye, jnp.inf, r))))
+            jnp.minimum(dmin, jnp.min(jnp.where(apart, jnp.inf, r))))
 
 
 def _stability_bounds(state: FlockState, adj, sensing, g: Gains):
@@ -191,15 +198,18 @@ def stable_step(state: FlockState, adj, sensing, g: Gains, safety=1.0):
     return safety * h
 
 
-def rk4_adaptive(state: FlockState, adj, sensing, reference, g: Gains, dt, max_substeps: int, safety=1.0):
+def rk4_adaptive(state: FlockState, adj, sensing, reference, g: Gains, dt, max_substeps: int, safety=1.0,
+                 moving=None):
     """Integrate the flock over ``dt`` at a fixed topology with classical RK4 sub-steps whose
     size is chosen before each sub-step from the current state (:func:`stable_step`), so a
     pair that closes in mid-step gets smaller sub-steps (ours). At most ``max_substeps``: the
     last one allowed takes whatever time is left (and the step is reported as capped).
-    Returns ``(state, min_link_margin, min_distance, substeps_taken, capped)``."""
+    ``moving`` (N,) bool, optional: only these nodes move (:func:`derivative`), and the
+    smallest distance is over pairs of them. Returns ``(state, min_link_margin, min_distance,
+    substeps_taken, capped)``."""
     def f(s, tau):
         rq, rp = reference(tau)
-        return derivative(s, adj, sensing, rq, rp, g)
+        return derivative(s, adj, sensing, rq, rp, g, moving)
 
     def cond(carry):
         _, tau, k, _, _ = carry
@@ -211,7 +221,7 @@ def rk4_adaptive(state: FlockState, adj, sensing, reference, g: Gains, dt, max_s
         h = jnp.where(k == max_substeps - 1, dt - tau, h)
         h = jnp.where(jnp.isfinite(h) & (h > 0), h, dt - tau)
         s = _rk4_substep(f, s, tau, h)
-        margin, dmin = _track_margins(s, adj, g.R, margin, dmin)
+        margin, dmin = _track_margins(s, adj, g.R, margin, dmin, moving)
         # a NaN state ends the step (it is flagged by its NaN margin / distance)
         tau = jnp.where(jnp.all(jnp.isfinite(s.q)), tau + h, dt)
         return s, tau, k + 1, margin, dmin
@@ -226,11 +236,12 @@ def rk4_adaptive(state: FlockState, adj, sensing, reference, g: Gains, dt, max_s
     return state, margin, dmin, k, k >= max_substeps
 
 
-def energy(state: FlockState, adj, sensing, target_q, target_p, g: Gains, l):
+def energy(state: FlockState, adj, sensing, target_q, target_p, g: Gains, l, nodes=None):
     """The flocking energy φ of Lou et al. 2013, eq. 15:
     ``½ Σ_i [Σ_{j∈N_i} ψ(‖q_i − q_j‖) + h_i c1 ‖q_i − q_γ‖² + ‖p_i − p_γ‖²
     + Σ_{j∈N_i} (1 − h_i)(b_ij − l)²/(2 k_ij)]`` for the true target ``(q_γ, p_γ)`` (2,) each.
-    Eq. 16 takes ``l = c2``. +∞ if a link is at or beyond R."""
+    Eq. 16 takes ``l = c2``. +∞ if a link is at or beyond R. ``nodes`` (N,) bool, optional:
+    the sum over i runs over these nodes only (the flock less the nodes lost to faults)."""
     _, r, eye = _pair_vectors(state.q)
     linked = (adj > 0.5) & ~eye
     psi = jnp.where(linked, potential(jnp.where(linked, r, g.R / 2), g.R), 0.0)
@@ -238,4 +249,6 @@ def energy(state: FlockState, adj, sensing, target_q, target_p, g: Gains, l):
     U = jnp.sum(psi, axis=1) + h * g.c1 * jnp.sum((state.q - target_q) ** 2, -1)
     kin = jnp.sum((state.p - target_p) ** 2, -1)
     gains = jnp.sum(jnp.where(linked, (state.b - l) ** 2, 0.0), axis=1) * (1.0 - h) / (2.0 * g.k)
-    return 0.5 * jnp.sum(U + kin + gains)
+    if nodes is None:
+        return 0.5 * jnp.sum(U + kin + gains)
+    return 0.5 * jnp.sum(jnp.where(nodes, U + kin + gains, 0.0))

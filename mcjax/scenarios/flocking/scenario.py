@@ -32,6 +32,20 @@ Filters (``Config.filters``): ``kcf`` and ``local`` (each type-I node's standalo
 filter: the paper's Fig. 2–3 baseline). Errors are the position errors of the type-I
 nodes' estimates. Units: the paper's (m, s). Our choices where it is silent are marked in
 ``configs/lou2013.toml``.
+
+Faults (:mod:`mcjax.scenarios.faults`, ``Config.faults = "on"``; ours, the paper has none).
+The graph of the flocking control is the hysteresis graph of radius R, the same as the
+filters'; its interactions — the potential of eq. 12 and the velocity alignment of eq. 11 —
+are relative positions and velocities a node senses, not messages. So a *lost link* drops only
+that step's KCF exchange (the neighbour's prior and measurement information), never a link of
+the control; a *sensor dropout* leaves a type-I node without its measurement. A *lost node*
+leaves the flock at once: it measures, sends and receives nothing, has no link of the graph
+(so no neighbour feels its potential, and none forms with it later — kept, the potential's
+barrier at R would tie the flock to a stopped node and break at R, which Theorem 2 excludes),
+stops where it is, its filter states hold, and it leaves the error statistics, the energy of
+eq. 15, the speed mismatch and the smallest distance. Its links' removal is not a link broken
+(``edges_removed``). The fault counts count the links between filter nodes and the type-I
+nodes' sensors.
 """
 
 from __future__ import annotations
@@ -50,7 +64,7 @@ from mcjax.filters.consensus import KCF_GAINS, FilterOptions, Measurements, filt
 from mcjax.filters.gaussian import Gaussian, first_step_model
 from mcjax.models.motion import cv_matrices, cv_process_noise
 from mcjax.numerics import spd_inverse, symmetrize
-from mcjax.scenarios import kit
+from mcjax.scenarios import faults, kit
 from mcjax.scenarios.flocking import dynamics as fl
 
 NAME = "flocking"
@@ -82,6 +96,7 @@ Config = config_type("Config", dict(
     start_layout=Setting("uniform", "initial positions: uniform = U[0, box]^2 (paper); lattice = a square lattice "
                          "of lattice_spacing jittered by lattice_jitter (ours: a valid start for any n_agents)",
                          choices=START_LAYOUTS),
+    **faults.SETTINGS,
 ), __name__, _check)
 
 
@@ -117,6 +132,7 @@ Params = params_type("Params", dict(
                           "density; with R = 8.4 no lattice distance falls near R)", **_POS),
     lattice_jitter=Param(0.1, "m", "start_layout = lattice: each node moves by U[-jitter, jitter]^2 from its "
                          "site (ours)", low=0.0),
+    **faults.PARAMS,
 ), __name__)
 
 
@@ -141,7 +157,7 @@ def check_params(cfg, values: dict) -> list[tuple[str, str]]:
             bad.append(("lattice_jitter", "small enough that no jittered lattice pair can start in [R - start_margin, "
                         "R), neighbours stay below R - start_margin and at least start_min_distance apart "
                         "(start_layout = lattice)"))
-    return bad
+    return bad + faults.check(cfg, values, Params)
 
 
 def lattice_sites(n: int) -> np.ndarray:
@@ -180,6 +196,7 @@ class State(NamedTuple):
     filters: tuple          # one Gaussian per filter, node axis first
     start_failed: jax.Array
     attempts: jax.Array
+    faults: faults.State | None  # lost links and nodes (mcjax.scenarios.faults; None: off)
 
 
 class Record(NamedTuple):
@@ -197,6 +214,7 @@ class Record(NamedTuple):
     target: jax.Array            # (4,) [x, vx, y, vy]
     start_failed: jax.Array      # () no valid initial draw (the same at every step)
     attempts: jax.Array          # () initial draws used (the same at every step)
+    faults: faults.Record | None  # the step's faults (None: off)
 
 
 def target_state(cfg, params, t):
@@ -232,7 +250,7 @@ def _draw_start(cfg, p, key):
 
 def init(cfg, params, key) -> State:
     """The first valid draw of the initial flock (module docstring), every filter at the true
-    target state with covariance ``diag(p0_diag)``, the adaptive gains at 0."""
+    target state with covariance ``diag(p0_diag)``, the adaptive gains at 0; no fault yet."""
     dtype = jnp.dtype(cfg.dtype)
     p = kit.cast(params, dtype)
     n = cfg.n_agents
@@ -245,7 +263,8 @@ def init(cfg, params, key) -> State:
     P0 = jnp.diag(p.p0_diag)
     g = Gaussian(x0, P0, symmetrize(spd_inverse(P0)))
     filters = tuple(jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), g) for _ in cfg.filters)
-    return State(jnp.asarray(0, jnp.int32), flock, adj[pick], filters, ~found, pick + 1)
+    return State(jnp.asarray(0, jnp.int32), flock, adj[pick], filters, ~found, pick + 1,
+                 faults.init(cfg, key, p))
 
 
 def _position(x, sensor):
@@ -255,7 +274,12 @@ def _position(x, sensor):
 
 def step(cfg, params, state: State, key) -> tuple[State, Record]:
     """One sampling step (module docstring): measure, filter (Lou et al. 2013 Alg. 1), fly
-    (eqs. 1, 10–13), update the hysteresis graph (Section 1.1, rules 2–3)."""
+    (eqs. 1, 10–13), update the hysteresis graph (Section 1.1, rules 2–3).
+
+    Faults (``Config.faults = "on"``, module docstring "Faults"): a dropped-out or lost node
+    measures nothing; a lost link drops the step's KCF exchange on it, not the link of the
+    flocking control (eqs. 11–12: sensed, not sent); a lost node leaves the flock at once — no
+    link of the graph, frozen where it is, its filter states held, out of every statistic."""
     dtype = jnp.dtype(cfg.dtype)
     p = kit.cast(params, dtype)
     n = cfg.n_agents
@@ -263,19 +287,27 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
     h = sensing_mask(cfg, p, dtype)
     target = target_state(cfg, p, t)
     gains = fl.Gains(p.c1, p.c2, p.k, p.R)
+    switched_on = jnp.ones(n, bool)
+    fault_state, fault = faults.advance(key, state.faults, p, switched_on)
+    graph_now = state.adj
+    if fault is not None:  # a node lost this step takes its links with it
+        a = fault.alive.astype(dtype)
+        graph_now = graph_now * a[:, None] * a[None, :]
 
     # 1. measurements of the type-I nodes; the filters (step 0 updates the prior without predicting)
     noise = p.sigma_meas * jax.random.normal(key, (n, 2), dtype)
-    z = jnp.where(h[:, None] > 0.5, _position(target, None)[None, :] + noise, jnp.nan)
+    z = faults.measurements(jnp.where(h[:, None] > 0.5, _position(target, None)[None, :] + noise, jnp.nan), fault)
     runs_filter = h if cfg.filter_nodes == "sensing" else jnp.ones(n, dtype)
-    adj_f = state.adj * runs_filter[:, None] * runs_filter[None, :]
+    adj_f = graph_now * runs_filter[:, None] * runs_filter[None, :]
+    carried = faults.messages(adj_f, fault)
     R_inv = jnp.broadcast_to(jnp.eye(2, dtype=dtype) / p.sigma_meas**2, (n, 2, 2))
-    meas = Measurements(z, state.flock.q, adj_f, R_inv)
+    meas = Measurements(z, state.flock.q, carried, R_inv)
     F, _ = cv_matrices(p.dt, dtype)
     F, Q = first_step_model(state.t == 0, F, cv_process_noise(p.dt, p.sigma_accel, dtype))
     opts = FilterOptions(kcf_gain=cfg.kcf_gain)
-    filters = filter_step(cfg.filters, opts, _position, jnp.array([False, False]), state.filters, meas, F, Q,
-                          p.kcf_epsilon)
+    filters = filter_step(cfg.filters, opts, _position, jnp.array([False, False]), faults.shield(fault, state.filters),
+                          meas, F, Q, p.kcf_epsilon)
+    filters = faults.hold(fault, filters, state.filters)
     errors = jnp.stack([metrics.position_error(f.x, target) * h for f in filters])
 
     # 2. fly: type-I nodes steer to their KCF estimate (the first filter's without a KCF) or the
@@ -292,23 +324,34 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
             rq = jnp.broadcast_to(x[jnp.array([0, 2])], (n, 2))
             return rq, jnp.broadcast_to(x[jnp.array([1, 3])], (n, 2))
 
-    flock, margin, dmin, n_sub, capped = fl.rk4_adaptive(state.flock, state.adj, h, reference, gains, p.dt,
-                                                         cfg.max_substeps, p.substep_safety)
+    moving = None if fault is None else fault.alive
+    flock, margin, dmin, n_sub, capped = fl.rk4_adaptive(state.flock, graph_now, h, reference, gains, p.dt,
+                                                         cfg.max_substeps, p.substep_safety, moving)
+    if fault is not None:  # a lost node has stopped
+        flock = flock._replace(p=jnp.where(moving[:, None], flock.p, 0.0))
 
-    # 3. the hysteresis graph at the step's end
-    adj = graph.hysteresis_adjacency(state.adj, flock.q, p.R, p.epsilon)
-    added = jnp.sum((adj > 0.5) & (state.adj < 0.5)) // 2
-    removed = jnp.sum((adj < 0.5) & (state.adj > 0.5)) // 2
+    # 3. the hysteresis graph at the step's end (a lost node forms no link)
+    adj = graph.hysteresis_adjacency(graph_now, flock.q, p.R, p.epsilon)
+    if fault is not None:
+        adj = adj * a[:, None] * a[None, :]
+    added = jnp.sum((adj > 0.5) & (graph_now < 0.5)) // 2
+    removed = jnp.sum((adj < 0.5) & (graph_now > 0.5)) // 2
     target_end = target_state(cfg, p, t + p.dt)
     tq, tp = target_end[jnp.array([0, 2])], target_end[jnp.array([1, 3])]
+    mismatch = jnp.sum((flock.p - tp) ** 2)
+    record = faults.record(adj_f, carried, fault, runs_filter > 0.5)
+    if fault is not None:
+        mismatch = jnp.sum(jnp.where(moving[:, None], (flock.p - tp) ** 2, 0.0))
+        record = record._replace(dropouts=jnp.sum(fault.alive & (h > 0.5) & ~fault.sensing))  # sensors: type I
     rec = Record(
         error=errors, lambda2=graph.algebraic_connectivity(adj), edges=jnp.sum(adj) / 2, added=added,
         removed=removed, min_distance=dmin, min_link_margin=margin,
-        energy=fl.energy(flock, adj, h, tq, tp, gains, p.c2),
-        speed_mismatch=jnp.sum((flock.p - tp) ** 2), substeps=n_sub, capped=capped, target=target,
+        energy=fl.energy(flock, adj, h, tq, tp, gains, p.c2, moving),
+        speed_mismatch=mismatch, substeps=n_sub, capped=capped, target=target,
         start_failed=state.start_failed,
-        attempts=state.attempts)
-    return State(state.t + 1, flock, adj, filters, state.start_failed, state.attempts), rec
+        attempts=state.attempts,
+        faults=record)
+    return State(state.t + 1, flock, adj, filters, state.start_failed, state.attempts, fault_state), rec
 
 
 def summary(cfg, records: Record | None, params) -> dict:
@@ -317,9 +360,10 @@ def summary(cfg, records: Record | None, params) -> dict:
     r = records
     dtype = cache(lambda: r.error.dtype)
     h = cache(lambda: sensing_mask(cfg, kit.cast(params, dtype()), dtype()))
+    alive = cache(lambda: faults.weights(h(), r.faults))
     e = cache(lambda: r.energy)
     return declare(
-        **kit.error_items(lambda: r.error, h, cfg, "m", "position error of the type-I nodes' estimates"),
+        **kit.error_items(lambda: r.error, alive, cfg, "m", "position error of the type-I nodes' estimates"),
         **kit.graph_items(lambda: r.lambda2),
         edges_added=(Output("", "links formed over the run", False), lambda: jnp.sum(r.added)),
         edges_removed=(Output("", "links broken over the run (Theorem 2: none)", False), lambda: jnp.sum(r.removed)),
@@ -346,6 +390,7 @@ def summary(cfg, records: Record | None, params) -> dict:
                          lambda: jnp.sum(r.capped)),
         start_failed=(Output("", "no valid initial draw within start_attempts", False), lambda: r.start_failed[0]),
         start_attempts_used=(Output("", "initial draws until a valid one", False), lambda: r.attempts[0]),
+        **faults.summary_items(cfg, r and r.faults, lambda: jnp.ones(cfg.n_agents, dtype())),
     )
 
 
@@ -353,12 +398,18 @@ def series(cfg, records: Record | None, params) -> dict:
     """Per-step series of one run, each declared next to its value."""
     r = records
     h = cache(lambda: sensing_mask(cfg, kit.cast(params, r.error.dtype), r.error.dtype))
+
+    def alive():  # (n,), or (T, 1, n) per step and filter with faults on
+        w = faults.weights(h(), r.faults)
+        return w if r.faults is None else w[:, None, :]
+
     return declare(
-        **kit.error_series_items(lambda: r.error, h, "m", "position error of the type-I nodes' estimates"),
+        **kit.error_series_items(lambda: r.error, alive, "m", "position error of the type-I nodes' estimates"),
         energy=(Output("", "flocking energy (eq. 15)", False), lambda: r.energy),
         lambda2=(Output("", "algebraic connectivity of the graph", False), lambda: r.lambda2),
         min_distance=(Output("m", "smallest distance between two nodes", False), lambda: r.min_distance),
         edges=(Output("", "links", False), lambda: r.edges),
+        **faults.series_items(cfg, r and r.faults, lambda: jnp.ones(cfg.n_agents, r.error.dtype)),
     )
 
 
