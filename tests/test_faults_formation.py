@@ -115,10 +115,14 @@ def test_wind_formation_a_lost_uavs_nan_state_reaches_no_one(k):
             if kind != "cif":
                 assert np.isfinite(np.asarray(f.x)[others]).all() and np.isnan(np.asarray(f.x)[k]).all()
     np.testing.assert_array_equal(np.asarray(state.positions[k]), where)
-    out = wf.reduce(cfg, jax.tree.map(lambda *a: jnp.stack(a), *records), params)
+    stacked = jax.tree.map(lambda *a: jnp.stack(a), *records)
+    out = wf.reduce(cfg, stacked, params)
     assert np.isfinite(np.asarray(out["rmse"])).all() and int(out["agents_lost"]) == 1
     assert np.isfinite(np.asarray(out["formation_error_final"]))
     assert np.asarray(out["links_lost"]) > 0
+    series = wf.timeseries(cfg, stacked, params)
+    assert np.asarray(series["error_mean"]).shape == (25, len(cfg.filters))
+    assert np.isfinite(np.asarray(series["error_mean"])).all() and (np.asarray(series["agents_alive"]) == 2).all()
 
 
 # --------------------------------------------------------------------------- Lou et al. 2013
@@ -191,8 +195,12 @@ def test_flocking_a_lost_nodes_nan_state_reaches_no_one():
         assert np.isfinite(np.asarray(state.flock.q)).all() and np.isfinite(np.asarray(state.flock.p)).all()
         assert np.asarray(state.adj)[k].sum() == 0 and np.isfinite(np.asarray(rec.energy))
     np.testing.assert_array_equal(np.asarray(state.flock.q[k]), where)
-    out = fl.reduce(cfg, jax.tree.map(lambda *a: jnp.stack(a), *records), params)
+    stacked = jax.tree.map(lambda *a: jnp.stack(a), *records)
+    out = fl.reduce(cfg, stacked, params)
     assert np.isfinite(np.asarray(out["rmse"])).all() and int(out["agents_lost"]) == 1
+    series = fl.timeseries(cfg, stacked, params)
+    assert np.asarray(series["error_mean"]).shape == (25, len(cfg.filters))
+    assert np.isfinite(np.asarray(series["error_max"])).all() and (np.asarray(series["agents_alive"]) == n - 1).all()
 
 
 # --------------------------------------------------------------------------- bad input

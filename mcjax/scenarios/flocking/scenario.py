@@ -398,11 +398,7 @@ def series(cfg, records: Record | None, params) -> dict:
     """Per-step series of one run, each declared next to its value."""
     r = records
     h = cache(lambda: sensing_mask(cfg, kit.cast(params, r.error.dtype), r.error.dtype))
-
-    def alive():  # (n,), or (T, 1, n) per step and filter with faults on
-        w = faults.weights(h(), r.faults)
-        return w if r.faults is None else w[:, None, :]
-
+    alive = cache(lambda: faults.weights(h(), r.faults))
     return declare(
         **kit.error_series_items(lambda: r.error, alive, "m", "position error of the type-I nodes' estimates"),
         energy=(Output("", "flocking energy (eq. 15)", False), lambda: r.energy),

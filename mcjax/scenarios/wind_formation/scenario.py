@@ -440,11 +440,7 @@ def series(cfg, records: Record | None, params) -> dict:
     the centroid's path error, λ2, every pairwise distance and every UAV's position."""
     r = records
     switched_on = cache(lambda: jnp.ones(cfg.n_agents, r.error.dtype))
-
-    def alive():  # (n,), or (T, 1, n) per step and filter with faults on
-        w = faults.weights(switched_on(), r.faults)
-        return w if r.faults is None else w[:, None, :]
-
+    alive = cache(lambda: faults.weights(switched_on(), r.faults))
     items = dict(
         **kit.error_series_items(lambda: r.error, alive, "m/s", "wind estimate error"),
         wind_error_x=(Output("m/s", "|estimate - wind| along x, report_agent"), lambda: r.axis_error[:, :, 0]),
