@@ -299,6 +299,16 @@ def weights(static_alive, r: Record | None):
     return static_alive * r.alive.astype(static_alive.dtype)
 
 
+def masked(values, weights):
+    """``values`` (T, …, n) with 0 wherever ``weights`` (T, n) is 0, so that a lost agent's
+    values (which may be anything, NaN included) leave a weighted statistic instead of entering
+    it as ``0 × value``; unchanged for (n,) weights (faults off: the statistic as it was)."""
+    if weights.ndim < 2:
+        return values
+    w = weights.reshape(weights.shape[:1] + (1,) * (values.ndim - 2) + weights.shape[-1:])
+    return jnp.where(w > 0, values, jnp.zeros_like(values))
+
+
 def summary_items(cfg, r: Record | None, static_alive):
     """The per-run fault outputs of the stacked records ``r``, each declared next to its value
     (``static_alive``: a function of no arguments giving the (n,) 0/1 weights of the agents the

@@ -30,6 +30,7 @@ import numpy as np
 from mcjax import metrics
 from mcjax.contract import Output, Setting, declare
 from mcjax.models.sensors import measure_range_bearing
+from mcjax.scenarios import faults
 
 DTYPES = ("float64", "float32")
 
@@ -110,7 +111,7 @@ def error_items(errors, alive, cfg, unit: str = "m", what: str = "position error
     """The per-filter error summary of one run (:func:`error_summary` after ``cfg``'s warm-up,
     with its divergence threshold), each field declared next to its value: ``errors`` and
     ``alive`` are functions of no arguments giving (T, F, n) errors (``what`` in ``unit``) and
-    the (n,) alive weights; nothing is computed before a value is asked for."""
+    the alive weights, (n,) or (T, n); nothing is computed before a value is asked for."""
     stats = cache(lambda: error_summary(errors(), alive(), cfg.warmup_steps, cfg.divergence_threshold))
     return declare(
         rmse=(Output(unit, f"RMS {what} over alive agents and steps after warm-up", True, "error"),
@@ -135,6 +136,7 @@ def error_summary(errors, alive, warmup: int, threshold) -> dict:
     agents, ``alive`` 0/1 weights, (n,) or per step (T, n) (agents lost during the run:
     :func:`mcjax.scenarios.faults.weights`). Returns each field of :func:`error_outputs` as (F,)."""
     T = errors.shape[0]
+    errors = faults.masked(errors, alive)
     last = alive[-1] if alive.ndim == 2 else alive
     after = (jnp.arange(T) >= warmup)[:, None] & (alive > 0)
     any_alive = jnp.any(alive > 0)
@@ -173,10 +175,17 @@ GRAPH_OUTPUTS = declarations(graph_items(None))
 
 def error_series_items(errors, alive, unit: str = "m", what: str = "position error"):
     """The per-step series of :func:`mcjax.metrics.error_series` (``errors`` (T, F, n) and the
-    ``alive`` weights (n,) given by functions of no arguments), each declared next to its value."""
-    series = cache(lambda: metrics.error_series(errors(), alive()))
+    ``alive`` weights (n,) or (T, n) given by functions of no arguments), each declared next to its value."""
+    series = cache(lambda: _error_series(errors(), alive()))
     return declare(error_mean=(Output(unit, f"mean {what} over alive agents"), lambda: series()["error_mean"]),
                    error_max=(Output(unit, f"largest {what} of any alive agent"), lambda: series()["error_max"]))
+
+
+def _error_series(errors, alive):
+    """:func:`mcjax.metrics.error_series` of (T, F, n) errors with (n,) or (T, n) weights."""
+    if alive.ndim == 2:
+        return metrics.error_series(faults.masked(errors, alive), alive[:, None, :])
+    return metrics.error_series(errors, alive)
 
 
 def error_series_outputs(unit: str = "m", what: str = "position error") -> dict[str, Output]:

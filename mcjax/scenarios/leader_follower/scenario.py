@@ -366,7 +366,8 @@ def summary(cfg, records: Record | None, params) -> dict:
         leader_rmse=(Output("m", "the leader's (agent 0) position RMSE after warm-up"),
                      lambda: jnp.stack([metrics.rmse(r.error[:, f, :1], w) for f in range(F)])),
         anees=(Output("", "mean full-state NEES over alive agents and steps after warm-up (4 dof)"),
-               lambda: jnp.stack([metrics.mean_over(r.nees[:, f, :], w, alive()) for f in range(F)])),
+               lambda: jnp.stack([metrics.mean_over(faults.masked(r.nees[:, f, :], alive()), w, alive())
+                                   for f in range(F)])),
         **kit.graph_items(lambda: r.lambda2),
         robustness_min=(Output("m", "smallest connectivity robustness R_I of any agent over the run", False),
                         lambda: jnp.min(r.robustness)),

@@ -15,6 +15,12 @@ graph is fixed within a run; the default radius gives a ring). Each step records
 UUV's position error per filter (the paper's error E, read as the Euclidean position
 error), the true mode and the IMM's CT probability.
 
+Faults (``Config.faults = "on"``, :mod:`mcjax.scenarios.faults`): a lost link drops the
+step's consensus messages on it (every iteration of the step: the graph is the step's); a
+lost UUV measures nothing, its links carry nothing and its filters hold their states; a
+dropped-out sonar gives no measurement that step. The UUVs do not move, so a lost one
+changes no geometry.
+
 Units are SI (m, s, rad). The paper's values and our choices for what it leaves open are
 listed in ``configs/ren2017.toml``.
 """
@@ -32,11 +38,11 @@ from mcjax import graph, metrics
 from mcjax.contract import Output, Param, Scenario, Setting, config_type, declare, params_type
 from mcjax.filters.consensus_imm import LIKELIHOODS, consensus_imm_ukf_step
 from mcjax.filters.gaussian import Unscented, first_step_model
-from mcjax.filters.imm import IMMState
+from mcjax.filters.imm import IMMState, combine
 from mcjax.models.motion import ct_matrix, cv_matrices, cv_process_noise
 from mcjax.models.sensors import range_bearing
 from mcjax.numerics import matvec, spd_inverse
-from mcjax.scenarios import kit
+from mcjax.scenarios import faults, kit
 
 NAME = "uuv_imm"
 
@@ -62,6 +68,7 @@ Config = config_type("Config", dict(
     ut_beta=Setting(2.0, "unscented transform beta (ours)", low=0),
     ut_kappa=Setting(0.0, "unscented transform kappa (ours; > -4, the state has 4 components)", low=-4,
                      low_open=True),
+    **faults.SETTINGS,
 ), __name__, kit.check_common)
 
 
@@ -114,6 +121,7 @@ Params = params_type("Params", dict(
                   "prior variances at the first measurement (ours)", **_POS, shape=(4,)),
     alive=Param(lambda cfg: np.ones(cfg.n_agents), "", "1 = alive, 0 = dropped out (masked, never removed)",
                 choices=(0, 1), per_agent=True),
+    **faults.PARAMS,
 ), __name__)
 
 
@@ -132,7 +140,7 @@ def check_params(cfg, values: dict) -> list[tuple[str, str]]:
     stop = np.asarray(values.get("ct_stop", table["ct_stop"].default_value(cfg)), np.float64)
     if np.any(stop < start):
         bad.append(("ct_stop", "a step >= ct_start"))
-    return bad
+    return bad + faults.check(cfg, values, Params)
 
 
 class State(NamedTuple):
@@ -140,6 +148,7 @@ class State(NamedTuple):
     target: jax.Array   # (4,)
     mode: jax.Array     # () int, the target's current mode (0 = CV, 1 = CT)
     filters: tuple      # one IMMState per filter, node axis first: μ (n, M), x (n, M, 4), P (n, M, 4, 4)
+    faults: faults.State | None  # lost links and UUVs (None: faults off)
 
 
 class Record(NamedTuple):
@@ -151,13 +160,14 @@ class Record(NamedTuple):
     n_seeing: jax.Array  # () UUVs with a measurement
     target: jax.Array   # (4,)
     measurements: jax.Array  # (n, 2) range–bearing, NaN where none
+    faults: faults.Record | None  # the step's faults (None: off)
 
 
 
 def init(cfg, params, key) -> State:
     """State before step 0: the target at ``target_x0`` in CV, and every UUV's filters at the
-    prior (the true initial state, covariance ``diag(p0_diag)``; IMM mode probabilities ``mu0``)."""
-    del key
+    prior (the true initial state, covariance ``diag(p0_diag)``; IMM mode probabilities ``mu0``);
+    no fault yet."""
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
     params = kit.cast(params, dtype)
     x0 = params.target_x0
@@ -168,7 +178,8 @@ def init(cfg, params, key) -> State:
         mu = params.mu0 if m == 2 else kit.per_run(params.dt, jnp.ones(1, dtype))  # per-run: kit.per_run
         states.append(IMMState(jnp.broadcast_to(mu, (n, m)), jnp.broadcast_to(x0, (n, m, 4)),
                                jnp.broadcast_to(P0, (n, m, 4, 4))))
-    return State(jnp.asarray(0, jnp.int32), x0, kit.per_run(params.dt, jnp.asarray(CV, jnp.int32)), tuple(states))
+    return State(jnp.asarray(0, jnp.int32), x0, kit.per_run(params.dt, jnp.asarray(CV, jnp.int32)), tuple(states),
+                 faults.init(cfg, key, params))
 
 
 def _true_mode(cfg, params, state: State, key):
@@ -202,9 +213,11 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
 
     sensors = jnp.asarray(params.uuv_positions, dtype)
     alive = kit.agents(params.alive, n, dtype) > 0.5
-    z = kit.team_measurements(k_meas, target, sensors, params.sigma_range, params.sigma_bearing,
-                              kit.agents(params.sensing_radius, n, dtype), alive)
-    adj = graph.adjacency(sensors, kit.agents(params.comm_radius, n, dtype), alive)
+    fault_state, fault = faults.advance(key, state.faults, params, alive)
+    z = faults.measurements(kit.team_measurements(k_meas, target, sensors, params.sigma_range, params.sigma_bearing,
+                                                  kit.agents(params.sensing_radius, n, dtype), alive), fault)
+    comm_graph = graph.adjacency(sensors, kit.agents(params.comm_radius, n, dtype), alive)
+    adj = faults.messages(comm_graph, fault)
 
     Q = cv_process_noise(dt, params.sigma_accel, dtype)
     F_model, Q_model = first_step_model(
@@ -221,9 +234,12 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
         transition = params.imm_transition if m == 2 else jnp.ones((1, 1), dtype)
         transition = jnp.where(first, jnp.eye(m, dtype=dtype), transition)
         fnew, (x, P) = consensus_imm_ukf_step(
-            fstate, transition, F_model[modes], Q_model[modes], z, sensors, range_bearing, R, adj,
+            faults.shield(fault, fstate), transition, F_model[modes], Q_model[modes], z, sensors, range_bearing, R, adj,
             steps=cfg.consensus_steps, weights=cfg.consensus_weights, likelihood=cfg.likelihood,
             ut=unscented(cfg), angle_mask=angle_mask)
+        if fault is not None:  # a lost UUV's filter holds its state (and its combined estimate)
+            fnew = faults.hold(fault, fnew, fstate)
+            x, P = jax.vmap(combine)(fnew)
         new_filters.append(fnew)
         err.append(metrics.position_error(x, target))
         ne.append(metrics.nees(x, spd_inverse(P), target))
@@ -238,8 +254,9 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
         n_seeing=jnp.sum(jnp.all(jnp.isfinite(z), axis=-1)),
         target=target,
         measurements=z,
+        faults=faults.record(comm_graph, adj, fault, alive),
     )
-    return State(state.t + 1, target, mode, tuple(new_filters)), rec
+    return State(state.t + 1, target, mode, tuple(new_filters), fault_state), rec
 
 
 def _masked_mean(values, mask):
@@ -254,12 +271,12 @@ def _per_filter(cfg, records: Record, alive, after, in_ct) -> dict:
     extra = {k: [] for k in ("error_cv", "error_ct", "anees")}
     per_uuv = {f"uuv{i + 1}_{s}_error": [] for i in range(n) for s in ("max", "min", "mean")}
     for f in range(len(cfg.filters)):
-        e = records.error[:, f, :]
+        e, e_own = faults.masked(records.error[:, f, :], alive), records.error[:, f, :]
         extra["error_cv"].append(_masked_mean(e, (after & ~in_ct)[:, None] * alive))
         extra["error_ct"].append(_masked_mean(e, (after & in_ct)[:, None] * alive))
-        extra["anees"].append(metrics.mean_over(records.nees[:, f, :], w, alive))
+        extra["anees"].append(metrics.mean_over(faults.masked(records.nees[:, f, :], alive), w, alive))
         for i in range(n):
-            ei = e[:, i]
+            ei = e_own[:, i]
             per_uuv[f"uuv{i + 1}_max_error"].append(jnp.max(jnp.where(after, ei, -jnp.inf)))
             per_uuv[f"uuv{i + 1}_min_error"].append(jnp.min(jnp.where(after, ei, jnp.inf)))
             per_uuv[f"uuv{i + 1}_mean_error"].append(jnp.sum(jnp.where(after, ei, 0.0)) / jnp.sum(after))
@@ -272,7 +289,8 @@ def summary(cfg, records: Record | None, params) -> dict:
     turns, and per UUV i (numbered from 1, as in the paper's Table 1) the max / min / mean over
     the steps after warm-up of its own position error."""
     r = records
-    alive = cache(lambda: metrics.alive_weights(params.alive, cfg.n_agents, r.error.dtype))
+    switched_on = cache(lambda: metrics.alive_weights(params.alive, cfg.n_agents, r.error.dtype))
+    alive = cache(lambda: faults.weights(switched_on(), r.faults))
     after = cache(lambda: jnp.arange(r.error.shape[0]) >= cfg.warmup_steps)
     in_ct = cache(lambda: r.mode == CT)
     per_filter = cache(lambda: _per_filter(cfg, r, alive(), after(), in_ct()))
@@ -298,7 +316,8 @@ def summary(cfg, records: Record | None, params) -> dict:
                                          _masked_mean(((r.mu_ct > 0.5) == in_ct()[:, None]).astype(r.error.dtype),
                                                       after()[:, None] * alive()))),
         mu_ct_during_ct=(Output("", "the IMM's mean CT probability while the target turns", False),
-                         lambda: _masked_mean(r.mu_ct, (after() & in_ct())[:, None] * alive())),
+                         lambda: _masked_mean(faults.masked(r.mu_ct, alive()), (after() & in_ct())[:, None] * alive())),
+        **faults.summary_items(cfg, r and r.faults, switched_on),
     )
 
 
@@ -306,13 +325,15 @@ def series(cfg, records: Record | None, params) -> dict:
     """A few per-step series of one run, (T, F) per filter, (T,) otherwise, each declared next
     to its value; written when a sweep asks for them."""
     r = records
-    alive = cache(lambda: metrics.alive_weights(params.alive, cfg.n_agents, r.error.dtype))
+    switched_on = cache(lambda: metrics.alive_weights(params.alive, cfg.n_agents, r.error.dtype))
+    alive = cache(lambda: faults.weights(switched_on(), r.faults))
     return declare(
         **kit.error_series_items(lambda: r.error, alive, "m"),
         mode=(Output("", "the target's true mode (0 = CV, 1 = CT)", False), lambda: r.mode),
         mu_ct=(Output("", "the IMM's CT probability, mean over alive UUVs (NaN without 'imm')", False),
-               lambda: jnp.sum(r.mu_ct * alive(), -1) / jnp.maximum(jnp.sum(alive()), 1.0)),
+               lambda: jnp.sum(faults.masked(r.mu_ct, alive()) * alive(), -1) / jnp.maximum(jnp.sum(alive(), -1), 1.0)),
         lambda2=(Output("", "algebraic connectivity of the comm graph", False), lambda: r.lambda2),
+        **faults.series_items(cfg, r and r.faults, switched_on),
     )
 
 
