@@ -315,3 +315,16 @@ def test_a_scheduler_that_cannot_be_reached_is_one_line_and_writes_nothing(tmp_p
     assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
     assert r.output.startswith(f"error: cannot reach the Dask scheduler at tcp://127.0.0.1:{port}"), r.output
     assert not out.exists()
+
+
+def test_faults_are_the_same_on_dask(lab, tmp_path):
+    """A sweep with every fault drawn gives on the Dask workers the dataset it gives here."""
+    from test_faults_tracking import faulty_spec
+
+    spec = faulty_spec(tmp_path)
+    for name, extra in (("local", []), ("dask", _dask(lab))):
+        r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / name), *extra])
+        assert r.exit_code == 0, r.output
+    local = read_table(tmp_path / "local")
+    assert local.agents_lost.sum() > 0
+    pd.testing.assert_frame_equal(read_table(tmp_path / "dask"), local, check_exact=True)

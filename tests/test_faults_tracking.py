@@ -8,6 +8,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pandas as pd
 import pytest
 from click.testing import CliRunner
 from scipy.stats import binomtest
@@ -182,3 +183,45 @@ def test_bad_fault_input_exits_2_with_one_line_naming_the_field(tmp_path, lines,
     text = r.output.strip()
     assert len(text.splitlines()) == 1 and field in text, text
     assert not out.exists()
+
+
+FAULTY = """base = "{base}"
+seeds = 6
+chunk_size = 4
+[config]
+faults = "on"
+n_steps = 20
+[params]
+link_burst = 3.0
+agent_loss_rate = 0.03
+sensor_dropout = 0.1
+[grid]
+link_loss = [0.1, 0.4]
+"""
+
+
+def faulty_spec(folder: Path) -> Path:
+    """A small Ren & Lv 2017 sweep with every fault drawn (two points, 6 seeds, chunks of 4 runs)."""
+    path = folder / "faulty.toml"
+    path.write_text(FAULTY.format(base=ROOT / "configs" / "ren2017.toml"))
+    return path
+
+
+def test_same_faults_on_one_or_two_devices(tmp_path):
+    """The fault draws follow the run keys: the dataset of a faulty sweep is the same in this
+    process (one device) and in a CLI process with two CPU devices (and another chunk size)."""
+    import os
+    import subprocess
+    import sys
+
+    from mcjax.results import read_table
+
+    spec = faulty_spec(tmp_path)
+    r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / "one")])
+    assert r.exit_code == 0, r.output
+    env = {**os.environ, "MCJAX_CPU_DEVICES": "2"}
+    subprocess.run([sys.executable, "-m", "mcjax.cli", "sweep", str(spec), "--out", str(tmp_path / "two"),
+                    "--chunk-size", "12"], check=True, env=env, timeout=600, capture_output=True)
+    one, two = read_table(tmp_path / "one"), read_table(tmp_path / "two")
+    assert one.agents_lost.sum() > 0 and one.dropout_steps.sum() > 0 and one.links_lost.min() > 0
+    pd.testing.assert_frame_equal(one, two, check_exact=True)
