@@ -4,8 +4,8 @@ The exact closed loop is piecewise constant in the weights (the grid planner's a
 jumps (the shadow hold, the measurement gate, reflections that appear and vanish), so
 training runs the scenario's smooth surrogate (``urban_bearing.smooth_step``, docs/tune.md).
 Every test shares ONE small gradient program: 8 steps, a 3-step planning horizon, the IMM
-only, 2 training runs, the UAV started 100 m south of the reflection region of the tall
-building's east wall, flying north into it, so that J_FIM, J_T and J_NLOS (eq. 20) all
+only, 2 training runs, on the first building layout (configs/chen2022_wide_prior.toml), the UAV
+started 100 m south of the reflection region of the tall building's east wall, flying north into it, so that J_FIM, J_T and J_NLOS (eq. 20) all
 differ between the candidate commands and each weight carries gradient. The degenerate runs
 use the same program (the Params are its argument).
 """
@@ -33,7 +33,7 @@ START = [5300.0, 5100.0, 200.0, float(np.pi / 2)]
 
 
 def _spec_data() -> dict:
-    return {"base": str(ROOT / "configs" / "chen2022.toml"),
+    return {"base": str(ROOT / "configs" / "chen2022_wide_prior.toml"),   # the first layout: the placements below
             "config": {"n_steps": 8, "warmup_steps": 1, "horizon": 3, "filters": ["imm"]},
             "params": {"uav0": START},
             "tune": {"steps": 1, "train_seeds": 2, "train_base_seed": 1, "heldout_seeds": 2,

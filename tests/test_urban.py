@@ -24,7 +24,9 @@ from mcjax.scenarios import urban_bearing as S
 DEG = np.pi / 180.0
 CONFIG = str((Path(__file__).parents[1] / "configs" / "chen2022.toml").resolve())
 WEIGHTS = [(0.2, 0.5, -0.3), (0.2, 0.0, 0.0)]
-BOXES = np.asarray(S.DEFAULT_BUILDINGS)   # [x_lo, y_lo, x_hi, y_hi, height]
+#: The first building layout (configs/chen2022_wide_prior.toml), [x_lo, y_lo, x_hi, y_hi, height]: the
+#: planner and closed-loop states below are placed by hand around its tall building.
+BOXES = np.array([[4750.0, 5050.0, 4850.0, 5150.0, 200.0], [5100.0, 4800.0, 5250.0, 4900.0, 100.0]])
 
 
 def wrap(a):
@@ -184,7 +186,7 @@ def test_accumulated_fim_det_has_the_closed_form():
 
 
 CFG = S.Config()
-P64 = kit.cast(S.default_params(CFG), jnp.float64)
+P64 = kit.cast(S.default_params(CFG, buildings=BOXES), jnp.float64)
 _plan_jit = jax.jit(lambda p, uav, prev, belief: S.plan_command(CFG, p, S.buildings_of(p), uav, prev, belief,
                                                                  jax.random.PRNGKey(0)))
 
@@ -387,7 +389,7 @@ UAV0 = np.array([4300.0, 4700.0, 200.0, np.pi / 2])  # west of the emitter: the 
 @pytest.fixture(scope="module")
 def closed_loop():
     cfg = S.Config(n_steps=N_STEPS)
-    points = [S.default_params(cfg, uav0=UAV0, c1=c1, c2=c2, c3=c3) for c1, c2, c3 in
+    points = [S.default_params(cfg, uav0=UAV0, buildings=BOXES, c1=c1, c2=c2, c3=c3) for c1, c2, c3 in
               ((0.2, 0.5, -0.3), (0.2, 0.5, 0.0), (0.2, 0.0, 0.0)) for _ in range(N_SEEDS)]
     params = engine.stack_points(points)
     keys = jax.vmap(lambda s: engine.run_key(0, s))(jnp.arange(len(points), dtype=jnp.uint32) % N_SEEDS)
@@ -465,8 +467,8 @@ def test_closed_loop_reduce_counts(closed_loop):
 BAD = {
     "degenerate box": ("buildings", {"buildings": [[10.0, 0.0, 5.0, 20.0, 50.0]]}),
     "zero-height box": ("buildings", {"buildings": [[0.0, 0.0, 10.0, 20.0, 0.0]]}),
-    "emitter inside": ("emitter", {"emitter": [4800.0, 5100.0, 0.0]}),
-    "start inside": ("uav0", {"uav0": [4800.0, 5100.0, 150.0, 0.0]}),
+    "emitter inside": ("emitter", {"emitter": [5000.0, 4700.0, 0.0]}),   # the tall building of the default layout
+    "start inside": ("uav0", {"uav0": [5000.0, 4700.0, 150.0, 0.0]}),
     "h_min >= h_max": ("h_min", {"h_min": 500.0}),
     "transition row": ("imm_transition", {"imm_transition": [[0.5, 0.4, 0.0], [0.05, 0.9, 0.05], [0.05, 0.05, 0.9]]}),
 }
@@ -578,7 +580,7 @@ def test_gradient_planner_falls_back_to_an_admissible_grid_command():
     cannot move (one Adam step of 1e-9) would return that inadmissible command; the scenario
     must fly the grid's best admissible one instead, whose track clears every box (numpy)."""
     cfg = S.Config(planner="gradient", plan_iterations=1, plan_learning_rate=1e-9)
-    p = kit.cast(S.default_params(cfg), jnp.float64)
+    p = kit.cast(S.default_params(cfg, buildings=BOXES), jnp.float64)
     b = S.buildings_of(p)
     uav = jnp.array([4450.0, 5100.0, 150.0, 0.0])
     belief = urban.Belief(jnp.array([5000.0, 5000.0]), jnp.full((3, 2), 5000.0), jnp.array([0.8, 0.1, 0.1]),

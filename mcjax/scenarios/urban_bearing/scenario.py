@@ -83,10 +83,13 @@ Config = config_type("Config", dict(
 
 _POS = dict(low=0.0, low_open=True)
 _PROB = dict(low=0.0, high=1.0)
-#: Our building layout (the paper gives heights only): rows [x_lo, y_lo, x_hi, y_hi, height] in m.
-DEFAULT_BUILDINGS = np.array([[4750.0, 5050.0, 4850.0, 5150.0, 200.0],
-                              [5100.0, 4800.0, 5250.0, 4900.0, 100.0]])
-_TRANSITION = np.array([[0.90, 0.05, 0.05], [0.05, 0.90, 0.05], [0.05, 0.05, 0.90]])
+#: Our building layout (the paper gives heights only): rows [x_lo, y_lo, x_hi, y_hi, height] in m, chosen by
+#: the criterion of benchmarks/urban_layout_check.py (configs/chen2022.toml; the first layout is in
+#: configs/chen2022_wide_prior.toml).
+DEFAULT_BUILDINGS = np.array([[4950.0, 4650.0, 5050.0, 4750.0, 200.0],
+                              [5270.0, 5300.0, 5400.0, 5400.0, 100.0]])
+#: The IMM's chain from dwell times (benchmarks/urban_dwell_times.py; configs/chen2022.toml).
+_TRANSITION = np.array([[0.9819, 0.00905, 0.00905], [0.0676, 0.9324, 0.0], [0.0676, 0.0, 0.9324]])
 
 #: Params: per-run values a sweep may vary without recompiling.
 Params = params_type("Params", dict(
@@ -109,7 +112,7 @@ Params = params_type("Params", dict(
     bias_los=Param(0.0, "rad", "the LOS mode's bearing bias (paper: 0)", low=-np.pi, high=np.pi),
     bias_nlos=Param(20.0 * DEG, "rad", "the NLOS modes' bearing bias +/- (paper: 20 deg)", low=0.0, high=np.pi),
     imm_transition=Param(_TRANSITION, "", "the IMM's mode transition matrix P(j | l), modes LOS, NLOS+, NLOS- "
-                         "(ours)", **_PROB, shape=(3, 3)),
+                         "(ours: from dwell times)", **_PROB, shape=(3, 3)),
     mu0=Param(np.array([0.8, 0.1, 0.1]), "", "the IMM's initial mode probabilities (ours)", **_PROB, shape=(3,)),
     prior_sigma=Param(1000.0, "m", "std of the initial estimate about the emitter per axis; the initial FIM "
                       "is its inverse square (ours)", **_POS),
