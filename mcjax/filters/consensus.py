@@ -74,17 +74,37 @@ def _check_choice(name, value, allowed):
         raise ValueError(f"{name} must be one of {', '.join(map(repr, allowed))}; got {value!r}")
 
 
+class Late(NamedTuple):
+    """Consensus messages that arrive late: ``means`` (n, d), the predicted estimates x̄ every
+    agent sent ``k`` steps ago (its own included, as it kept it), and ``adjacency`` (n, n), the
+    links that carried them."""
+
+    means: jax.Array
+    adjacency: jax.Array
+
+
 class Measurements(NamedTuple):
     """What the filters see at one step: ``z`` (n, m) with NaN where an agent has none,
     ``sensors`` (n, 2) positions, ``adjacency`` (n, n), ``R_inv`` (n, m, m), and optionally
     ``component_sizes`` (n,): the weights ``n_i`` of ``contribution="component"`` when the
-    caller has them (a smooth surrogate for training); None: from the adjacency."""
+    caller has them (a smooth surrogate for training); None: from the adjacency; ``late``:
+    the KCF's consensus messages when they arrive late (:class:`Late`; None: this step's)."""
 
     z: jax.Array
     sensors: jax.Array
     adjacency: jax.Array
     R_inv: jax.Array
     component_sizes: jax.Array | None = None
+    late: Late | None = None
+
+
+#: The filters whose structure takes consensus messages that arrive late (``Measurements.late``):
+#: the KCF's consensus term is a correction toward the neighbours' estimates, and a disagreement
+#: of k steps ago is the delayed consensus of Olfati-Saber & Murray 2004. The information filters
+#: (ICF, modified ICF) average quantities of the current step — a k-step-old pair describes
+#: another time and breaks the average (and its convergence to the centralised filter); the
+#: CIF and the local EKF send no consensus message.
+LATE_KINDS = ("kcf", "cif", "local")
 
 
 def consensus(W: jax.Array, values: jax.Array, steps: int) -> jax.Array:
@@ -203,9 +223,21 @@ def kcf_step(h, angle_mask, opts, epsilon, post: Gaussian, meas: Measurements, F
     ``x̂_i = x̄_i + M_i (y_i − S_i x̄_i) + G_i Σ_{N_i} (x̄_j − x̄_i)`` with
     ``G_i = γ M_i, γ = ε/(1+‖M_i‖_F)`` (``kcf_gain="gamma_M"``, Olfati-Saber 2009) or
     ``G_i = μ P̄_i, μ = ε/(1+‖P̄_i‖_F)`` (``"mu_P"``, Lou et al. 2013). One exchange per step.
+
+    With ``meas.late`` (messages k steps late, ours): the consensus term is the disagreement of
+    k steps ago, ``Σ_{N_i} (x̄_j − x̄_i)`` over the predictions sent then and the links that
+    carried them (Olfati-Saber & Murray 2004's consensus with a uniform delay; k = 0 is the
+    term above), and the neighbours' measurement information, k steps old, is not fused (it
+    measured the target at another time): ``S_i = U_i``, ``y_i = u_i``.
     """
-    xb, Pb, A, S, yv, Yb, Y, M = _neighbourhood_update(h, angle_mask, post, meas, F, Q)
-    disagreement = weighted_agent_sum(A, xb) - jnp.sum(A, axis=1)[:, None] * xb
+    if meas.late is not None:
+        own = meas._replace(adjacency=jnp.zeros_like(meas.adjacency))
+        xb, Pb, A, S, yv, Yb, Y, M = _neighbourhood_update(h, angle_mask, post, own, F, Q)
+        A, sent = meas.late.adjacency, meas.late.means
+        disagreement = weighted_agent_sum(A, sent) - jnp.sum(A, axis=1)[:, None] * sent
+    else:
+        xb, Pb, A, S, yv, Yb, Y, M = _neighbourhood_update(h, angle_mask, post, meas, F, Q)
+        disagreement = weighted_agent_sum(A, xb) - jnp.sum(A, axis=1)[:, None] * xb
     base = M if opts.kcf_gain == "gamma_M" else Pb
     fro = jnp.sqrt(sum(base[:, i, j] ** 2 for i in range(base.shape[-2]) for j in range(base.shape[-1])))
     gain = (epsilon / (1.0 + fro))[:, None, None] * base

@@ -44,6 +44,8 @@ import numpy as np
 
 from mcjax import graph
 from mcjax.contract import Output, Param, Setting, declare
+from mcjax.filters.consensus import Late
+from mcjax.numerics import matvec
 
 #: The constant folded into a step's key for the fault draws (``"FAUT"`` in ASCII).
 FAULT_STREAM = 0x46415554
@@ -53,6 +55,14 @@ SETTINGS = {
     "faults": Setting("off", "on: the fault Params (link_loss, link_burst, agent_loss_rate, min_alive, "
                       "sensor_dropout) draw faults; off: no fault draws in the program (the fault Params must "
                       "be at their defaults)", choices=("off", "on")),
+}
+
+#: The Config field of late consensus messages, for a scenario whose filters can take them
+#: (:data:`mcjax.filters.consensus.LATE_KINDS`; a scenario whose filters cannot does not declare it).
+DELAY_SETTINGS = {
+    "message_delay": Setting(0, "steps late the neighbours' consensus messages arrive (0: the same step); only "
+                             "for the filters whose structure takes late messages (kcf; cif and local send none)",
+                             "steps", low=0, integer=True),
 }
 
 #: The Params of lost links.
@@ -352,3 +362,35 @@ def series_items(cfg, r: Record | None, static_alive):
 #: The names of the fault outputs (summary and series), e.g. to leave them out of a comparison.
 SUMMARY_OUTPUTS = tuple(summary_items(None, None, None))
 SERIES_OUTPUTS = tuple(series_items(None, None, None))
+
+
+class Mailbox(NamedTuple):
+    """The consensus messages in flight when they arrive ``k = message_delay`` steps late: the
+    estimates x̂ of steps t−k−1 … t−2 (the predictions sent at t−k … t−1 are ``F x̂``) and the
+    links that carried the messages of steps t−k … t−1. (k, n, d) and (k, n, n)."""
+
+    estimates: jax.Array
+    links: jax.Array
+
+
+def mailbox(cfg, x0) -> Mailbox | None:
+    """The messages in flight before step 0: none carried (no link), every estimate the prior
+    ``x0`` (d,) — None when ``message_delay = 0``."""
+    k, n = cfg.message_delay, cfg.n_agents
+    if k == 0:
+        return None
+    return Mailbox(jnp.broadcast_to(x0, (k, n) + x0.shape), jnp.zeros((k, n, n), x0.dtype))
+
+
+def late(box: Mailbox, F) -> Late:
+    """The messages that arrive at this step, sent ``k`` steps ago: the predictions
+    ``F x̂(t−k−1) = x̄(t−k)`` (``F`` this step's transition; the model is time-invariant after
+    step 0) and the links that carried them."""
+    return Late(matvec(F, box.estimates[0]), box.links[0])
+
+
+def post(box: Mailbox, estimates, carried) -> Mailbox:
+    """The mailbox one step on: this step's sent estimates (the posteriors x̂(t−1) (n, d) the
+    agents predicted from) and ``carried`` (n, n), the links that carry this step's messages."""
+    return Mailbox(jnp.concatenate([box.estimates[1:], estimates[None]]),
+                   jnp.concatenate([box.links[1:], carried[None]]))

@@ -34,6 +34,7 @@ from mcjax.filters.consensus import (
     FILTER_KINDS,
     ICF_VARIANTS,
     KCF_GAINS,
+    LATE_KINDS,
     WEIGHT_KINDS,
     FilterOptions,
     Measurements,
@@ -64,6 +65,15 @@ def _check(cfg) -> None:
             raise ValueError("filters must include 'modified_icf' when a planner is on: "
                              "the leader plans from its modified-ICF estimate (Sun et al. 2011, sec. 4)")
         planner_options(cfg)  # validates the planner budget
+    if cfg.message_delay > 0:
+        other = [f for f in cfg.filters if f not in LATE_KINDS]
+        if other:
+            raise ValueError(f"filters must be among {', '.join(LATE_KINDS)} when message_delay > 0 (the ICF and "
+                             f"modified ICF average this step's information, which a late message cannot join; "
+                             f"so the planner, which needs modified_icf, must be 'none'); got {', '.join(other)}")
+        if cfg.kcf_gain == "prior_consensus":
+            raise ValueError("kcf_gain must be gamma_M or mu_P when message_delay > 0 (prior_consensus averages "
+                             "this step's priors); got 'prior_consensus'")
 
 
 #: Config: everything that fixes shapes or the compiled program (changing it recompiles).
@@ -97,6 +107,7 @@ Config = config_type("Config", dict(
                                "softplus(-R_I/s), ours; inverse = the paper's 1/|R_I|)",
                                choices=ROBUSTNESS_PENALTIES),
     **faults.SETTINGS,
+    **faults.DELAY_SETTINGS,
 ), __name__, _check)
 
 
@@ -186,6 +197,7 @@ class State(NamedTuple):
     plan_age: jax.Array        # commands of the plan applied so far
     plan_cost: jax.Array       # exact eq. 16 cost of the plan in force
     faults: faults.State | None  # lost links and agents (mcjax.scenarios.faults; None: off)
+    mailbox: faults.Mailbox | None  # the kcf's consensus messages in flight (None: message_delay = 0)
 
 
 class Record(NamedTuple):
@@ -219,7 +231,15 @@ def init(cfg, params, key) -> State:
     # the plan entries become per-run at the first re-plan: per-run from the start (kit.per_run)
     plan, cost = kit.per_run(params.dt, jnp.zeros((cfg.max_horizon, n), dtype), jnp.zeros((), dtype))
     return State(jnp.asarray(0, jnp.int32), x0, uavs, init_states(cfg.filters, x0, P0, n),
-                 plan, plan, jnp.asarray(0, jnp.int32), cost, faults.init(cfg, key, params))
+                 plan, plan, jnp.asarray(0, jnp.int32), cost, faults.init(cfg, key, params),
+                 _mailbox(cfg, params, x0))
+
+
+def _mailbox(cfg, params, x0):
+    """The kcf's messages in flight before step 0 (None without delay or without a kcf),
+    per-run from the start (:func:`kit.per_run`)."""
+    box = faults.mailbox(cfg, x0) if "kcf" in cfg.filters else None
+    return None if box is None else faults.Mailbox(*kit.per_run(params.dt, *box))
 
 
 class _Step(NamedTuple):
@@ -288,8 +308,14 @@ def _advance(cfg, params, state: State, key, smoothing):
     F, Q = first_step_model(first, cv_matrices(dt, dtype)[0], cv_process_noise(dt, params.sigma_accel, dtype))
     angle_mask = jnp.array([False, True])
     shielded = tuple(f if k == "cif" else faults.shield(fault, f) for k, f in zip(cfg.filters, state.filters))
-    filters = filter_step(cfg.filters, filter_options(cfg), range_bearing, angle_mask,
-                          shielded, meas, F, Q, jnp.asarray(params.kcf_epsilon, dtype))
+    eps, mailbox = jnp.asarray(params.kcf_epsilon, dtype), state.mailbox
+    if mailbox is None:
+        filters = filter_step(cfg.filters, filter_options(cfg), range_bearing, angle_mask, shielded, meas, F, Q, eps)
+    else:  # the kcf's consensus messages arrive message_delay steps late
+        late = meas._replace(late=faults.late(mailbox, F))
+        filters = tuple(filter_step((k,), filter_options(cfg), range_bearing, angle_mask, (f,),
+                                    late if k == "kcf" else meas, F, Q, eps)[0] for k, f in zip(cfg.filters, shielded))
+        mailbox = faults.post(mailbox, shielded[cfg.filters.index("kcf")].x, carried)
     filters = tuple(f if k == "cif" else faults.hold(fault, f, old)
                     for k, f, old in zip(cfg.filters, filters, state.filters))
 
@@ -300,7 +326,7 @@ def _advance(cfg, params, state: State, key, smoothing):
             team, leader = team * fault.alive.astype(dtype), jnp.argmax(fault.alive)
         plan = plan_if_due(cfg, params, state, uavs, filters, age, jax.random.fold_in(key, 0x9A11),
                            team, leader)
-    return (State(state.t + 1, target, uavs, filters, *plan, fault_state),
+    return (State(state.t + 1, target, uavs, filters, *plan, fault_state, mailbox),
             _Step(target, sensors, z, adj, carried, fault, filters))
 
 
