@@ -133,3 +133,22 @@ def test_filters_that_cannot_take_late_messages_are_refused(tmp_path, config, fi
     text = r.output.strip()
     assert len(text.splitlines()) == 1 and field in text, text
     assert not (tmp_path / "out").exists()
+
+
+def test_late_messages_in_the_flock_leave_the_control_alone():
+    """Lou et al. 2013: with the flock steering to the true target (control_reference = truth),
+    late KCF messages change the KCF's estimates, not the flock (its control is sensed, not
+    sent) nor the local filter — to rounding: the two are different programs."""
+    def rows(delay):
+        spec = build_spec({"base": str(ROOT / "configs" / "lou2013.toml"),
+                           "config": {"n_steps": 30, "n_agents": 12, "start_layout": "lattice",
+                                      "control_reference": "truth", "message_delay": delay}}, ROOT, seeds=2)
+        return run_sweep(spec).sort_values(["seed_index", "filter"])
+
+    base, late = rows(0), rows(3)
+    for c in ["energy_end", "min_distance", "edges_removed", "final_speed_mismatch", "lambda2_min"]:
+        np.testing.assert_allclose(base[c].to_numpy(), late[c].to_numpy(), rtol=1e-12, atol=1e-12, err_msg=c)
+    local = (base["filter"] == "local").to_numpy()
+    np.testing.assert_allclose(base[local].rmse.to_numpy(), late[local].rmse.to_numpy(), rtol=1e-12)
+    kcf_base, kcf_late = base[~local].rmse.to_numpy(), late[~local].rmse.to_numpy()
+    assert np.all(np.abs(kcf_late - kcf_base) > 1e-6 * kcf_base)

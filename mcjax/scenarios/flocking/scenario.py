@@ -45,7 +45,9 @@ barrier at R would tie the flock to a stopped node and break at R, which Theorem
 stops where it is, its filter states hold, and it leaves the error statistics, the energy of
 eq. 15, the speed mismatch and the smallest distance. Its links' removal is not a link broken
 (``edges_removed``). The fault counts count the links between filter nodes and the type-I
-nodes' sensors.
+nodes' sensors. With ``Config.message_delay = k > 0`` the KCF's consensus messages arrive k
+steps late (:func:`mcjax.filters.consensus.kcf_step`: the disagreement of k steps ago; the
+neighbours' old measurement information is not fused); the control, sensed, is not delayed.
 """
 
 from __future__ import annotations
@@ -77,6 +79,9 @@ START_LAYOUTS = ("uniform", "lattice")
 
 def _check(cfg) -> None:
     kit.check_common(cfg)
+    if cfg.message_delay > 0 and cfg.kcf_gain == "prior_consensus":
+        raise ValueError("kcf_gain must be mu_P or gamma_M when message_delay > 0 (prior_consensus averages "
+                         "this step's priors); got 'prior_consensus'")
 
 
 Config = config_type("Config", dict(
@@ -97,6 +102,7 @@ Config = config_type("Config", dict(
                          "of lattice_spacing jittered by lattice_jitter (ours: a valid start for any n_agents)",
                          choices=START_LAYOUTS),
     **faults.SETTINGS,
+    **faults.DELAY_SETTINGS,
 ), __name__, _check)
 
 
@@ -197,6 +203,7 @@ class State(NamedTuple):
     start_failed: jax.Array
     attempts: jax.Array
     faults: faults.State | None  # lost links and nodes (mcjax.scenarios.faults; None: off)
+    mailbox: faults.Mailbox | None  # the KCF's consensus messages in flight (None: message_delay = 0)
 
 
 class Record(NamedTuple):
@@ -263,8 +270,10 @@ def init(cfg, params, key) -> State:
     P0 = jnp.diag(p.p0_diag)
     g = Gaussian(x0, P0, symmetrize(spd_inverse(P0)))
     filters = tuple(jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), g) for _ in cfg.filters)
+    box = faults.mailbox(cfg, x0) if "kcf" in cfg.filters else None
+    box = None if box is None else faults.Mailbox(*kit.per_run(p.dt, *box))
     return State(jnp.asarray(0, jnp.int32), flock, adj[pick], filters, ~found, pick + 1,
-                 faults.init(cfg, key, p))
+                 faults.init(cfg, key, p), box)
 
 
 def _position(x, sensor):
@@ -305,8 +314,14 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
     F, _ = cv_matrices(p.dt, dtype)
     F, Q = first_step_model(state.t == 0, F, cv_process_noise(p.dt, p.sigma_accel, dtype))
     opts = FilterOptions(kcf_gain=cfg.kcf_gain)
-    filters = filter_step(cfg.filters, opts, _position, jnp.array([False, False]), faults.shield(fault, state.filters),
-                          meas, F, Q, p.kcf_epsilon)
+    shielded, no_angle, mailbox = faults.shield(fault, state.filters), jnp.array([False, False]), state.mailbox
+    if mailbox is None:
+        filters = filter_step(cfg.filters, opts, _position, no_angle, shielded, meas, F, Q, p.kcf_epsilon)
+    else:  # the KCF's consensus messages arrive message_delay steps late
+        late = meas._replace(late=faults.late(mailbox, F))
+        filters = tuple(filter_step((k,), opts, _position, no_angle, (f,), late if k == "kcf" else meas, F, Q,
+                                    p.kcf_epsilon)[0] for k, f in zip(cfg.filters, shielded))
+        mailbox = faults.post(mailbox, shielded[cfg.filters.index("kcf")].x, carried)
     filters = faults.hold(fault, filters, state.filters)
     errors = jnp.stack([metrics.position_error(f.x, target) * h for f in filters])
 
@@ -351,7 +366,7 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
         start_failed=state.start_failed,
         attempts=state.attempts,
         faults=record)
-    return State(state.t + 1, flock, adj, filters, state.start_failed, state.attempts, fault_state), rec
+    return State(state.t + 1, flock, adj, filters, state.start_failed, state.attempts, fault_state, mailbox), rec
 
 
 def summary(cfg, records: Record | None, params) -> dict:
