@@ -7,7 +7,9 @@ direct and the reflected paths, eqs. 5–6, so it is biased towards the mirror i
 UAV runs an IMM-EKF over three measurement modes — LOS (bias 0, σ 0.2°) and NLOS ± (bias
 ±20°, σ 1°), eqs. 11–12 — and every step picks its command (θ, ω) from a grid by the track
 score ``c1 J_FIM + c2 J_T + c3 J_NLOS`` (eqs. 13–20, :mod:`.score`, :mod:`.planner`). In the
-shadow it holds its previous command (the paper's rule), as long as that stays admissible.
+shadow it holds its previous command (the paper's rule), as long as that stays admissible and (ours,
+``max_hold_steps`` > 0) at most that many steps in a row. The filters start on the first measured
+bearing (``Config.init = "first_bearing"``, ours) or from an isotropic prior (``"prior"``).
 
 Filters (``Config.filters``): ``"imm"`` — the paper's 3-mode IMM-EKF, which the planner
 uses; ``"ekf"`` — a single EKF that assumes line of sight (ours: what the IMM buys). The
