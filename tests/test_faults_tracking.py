@@ -150,7 +150,7 @@ def _within(k, n, p):
 def test_measured_rates_are_the_params():
     """Over a sweep's runs, the fraction of link-steps lost, of agent-steps with a dropout and
     of agents lost by the end match the Params (binomial intervals); losses stop at min_alive."""
-    seeds, steps, n, ring = 40, 40, 6, 6  # ren2017: six UUVs on a ring, its six links always in range
+    seeds, steps, n, ring = 60, STEPS, 6, 6  # ren2017: six UUVs on a ring, its six links always in range
     df = _sweep("ren2017", {"link_loss": [0.25, 0.0, 0.0], "sensor_dropout": [0.2, 0.0, 0.0],
                             "agent_loss_rate": [0.0, 0.02, 0.2], "min_alive": [1, 0, 3]}, seeds=seeds, steps=steps)
     runs = [df[(df.point_id == p) & (df["filter"] == "imm")] for p in range(3)]
@@ -190,7 +190,7 @@ seeds = 6
 chunk_size = 4
 [config]
 faults = "on"
-n_steps = 20
+n_steps = 25
 [params]
 link_burst = 3.0
 agent_loss_rate = 0.03
