@@ -15,6 +15,9 @@ bursts), lost agents, sensor dropouts — as ordinary Params (:data:`PARAMS`, al
   happen (of the agents drawn in one step, those with the smallest draws go first).
 * **Sensor dropout.** Each agent's sensor returns nothing in a step with probability
   ``sensor_dropout`` (independently per agent and step).
+* **Late messages.** With the Config field ``message_delay = k`` (:data:`DELAY_SETTINGS`, for
+  a scenario whose filters take late messages) the consensus messages in flight are kept in a
+  :class:`Mailbox` (:func:`mailbox`, :func:`late`, :func:`post`) and arrive k steps late.
 
 The model is compiled in only with ``Config.faults = "on"`` (:data:`SETTINGS`): with
 ``"off"`` (the default) the program has no fault draws and is bit for bit the program without
