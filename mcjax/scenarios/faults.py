@@ -97,7 +97,7 @@ def check(cfg, values: dict, Params) -> list[tuple[str, str]]:
         return np.asarray(values.get(name, Params.TABLE[name].default_value(cfg)), np.float64)
 
     if cfg.faults == "off":
-        return [(k, f"{_num(p.default)} unless config.faults = \"on\" (the fault model is compiled in only "
+        return [(k, f"{p.default!r} unless config.faults = \"on\" (the fault model is compiled in only "
                     "when asked for)") for k, p in PARAMS.items() if np.any(value(k) != p.default)][:1]
     bad = []
     for loss, burst in np.broadcast(value("link_loss"), value("link_burst")):
@@ -108,10 +108,6 @@ def check(cfg, values: dict, Params) -> list[tuple[str, str]]:
     if np.any(value("min_alive") > cfg.n_agents):
         bad.append(("min_alive", f"an integer in [0, n_agents = {cfg.n_agents}]"))
     return bad
-
-
-def _num(v) -> str:
-    return f"{v:g}" if isinstance(v, float) else str(v)
 
 
 def on(cfg) -> bool:
