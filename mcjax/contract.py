@@ -12,7 +12,7 @@ class); the layers above use a scenario only through it and name no scenario, fi
   (:class:`Reduce`) to the :class:`Output` fields ``outputs(cfg)`` declares, ``(F,)`` per
   filter, ``()`` per run — or both from one ``summary`` declaring each output once, next to
   its value (:func:`declare`); optionally ``timeseries`` / ``timeseries_outputs`` (or one
-  ``series``), ``check_params``, ``surrogate`` and ``compiler_options`` (:data:`FAST_COMPILE`).
+  ``series``), ``check_params``, ``smooth`` (:class:`mcjax.smoothing.Smooth`) and ``compiler_options`` (:data:`FAST_COMPILE`).
 
 Validation reads values as a spec (TOML) writes them: kinds are exact (:meth:`Param.problem`
 with ``exact=True``) and integer Config fields without an upper bound get :func:`ceiling`.
@@ -351,18 +351,6 @@ def params_type(name: str, table: Mapping[str, Param], module: str) -> type:
     return cls
 
 
-class Surrogate(NamedTuple):
-    """A scenario's smooth stand-in for training by gradient (``mcjax tune``): its hard switches
-    (a sensing gate, the comm graph's links) made smooth. ``step(cfg, params, state, key,
-    smoothing) -> (State, errors (F, n))`` with ``Scenario.step``'s random draws; ``weights(cfg,
-    params) -> (n,)`` each agent's weight in the loss; ``Smoothing`` a NamedTuple of the
-    temperatures with defaults (the keys of a tune spec's ``[tune.smoothing]``)."""
-
-    step: Callable
-    weights: Callable
-    Smoothing: type
-
-
 #: XLA's older CPU fusion code generator: the closed loop of Sun et al. 2011 compiled with ~35–45 %
 #: less CPU time, running as fast; Ren & Lv 2017's IMM-UKF ran ~10 % slower (docs/benchmarks.md).
 FAST_COMPILE: Mapping[str, Any] = MappingProxyType({"xla_cpu_use_fusion_emitters": False})
@@ -374,8 +362,10 @@ class Init(Protocol):
 
 
 class Step(Protocol):
-    """``step(cfg, params, state, key) -> (State, Record)``: one time step (pure, jittable)."""
-    def __call__(self, cfg: Any, params: Any, state: Any, key: Any) -> tuple[Any, Any]: ...
+    """``step(cfg, params, state, key) -> (State, Record)``: one time step (pure, jittable); a
+    scenario with a smoothing switch (:class:`mcjax.smoothing.Smooth`) also takes ``smoothing``
+    (None: exact)."""
+    def __call__(self, cfg: Any, params: Any, state: Any, key: Any, smoothing: Any = None) -> tuple[Any, Any]: ...
 
 
 class Reduce(Protocol):
@@ -445,7 +435,7 @@ class Scenario:
     timeseries: Reduce | None = None
     timeseries_outputs: Callable[[Any], Mapping[str, Output]] | None = None
     check_params: Callable[[Any, dict], list] | None = None
-    surrogate: Surrogate | None = None   # smooth stand-in for ``mcjax tune`` (optional)
+    smooth: Any = None                   # its smoothing switch, a mcjax.smoothing.Smooth (optional)
     compiler_options: Mapping[str, Any] | None = None  # XLA options of its programs (optional)
     summary: Summary | None = None       # reduce and outputs in one
     series: Summary | None = None        # timeseries and timeseries_outputs in one

@@ -28,6 +28,7 @@ from click.testing import CliRunner
 
 from mcjax import tune
 from mcjax.cli import main
+from mcjax.smoothing import Smooth
 from mcjax.study import SpecError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -276,23 +277,20 @@ class _ToyParams(NamedTuple):
 def _toy_scenario():
     """x ← 1.7·x + θ + noise per step (unstable, like the closed loop): errors x (1 filter, 1 agent)."""
 
-    class Sur(NamedTuple):
-        step: object
-        weights: object
-
     def init(cfg, params, key):
         return _ToyState(jnp.asarray(0, jnp.int32), jnp.asarray(30.0))
 
-    def step(cfg, params, state, key, smoothing):
+    def step(cfg, params, state, key, smoothing=None):
         x = jnp.where(jnp.isnan(params.pinned[state.t]), state.x, params.pinned[state.t])
         x = 1.7 * x + params.theta + 40.0 * jax.random.normal(key, ())
         return _ToyState(state.t + 1, x), jnp.reshape(x, (1, 1))
 
     class Scen(NamedTuple):
         init: object
-        surrogate: object
+        step: object
+        smooth: object
 
-    return Scen(init, Sur(step, lambda cfg, params: jnp.ones(1)))
+    return Scen(init, step, Smooth(None, lambda cfg, params, record: record, lambda cfg, params: jnp.ones(1)))
 
 
 class _ToyConfig(NamedTuple):
@@ -322,7 +320,7 @@ def test_gradient_window_is_the_derivative_with_the_state_held_at_each_window_st
     @jax.jit
     def states(theta):  # the unperturbed state entering each step
         def body(st, t):
-            return scen.surrogate.step(cfg, _ToyParams(theta, free), st, jax.random.fold_in(key, t), None)[0], st.x
+            return scen.step(cfg, _ToyParams(theta, free), st, jax.random.fold_in(key, t), None)[0], st.x
         return jax.lax.scan(body, scen.init(cfg, None, key), jnp.arange(T))[1]
 
     pinned = jnp.where((jnp.arange(T) % K == 0) & (jnp.arange(T) > 0), states(theta), jnp.nan)

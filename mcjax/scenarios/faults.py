@@ -359,6 +359,9 @@ def series_items(cfg, r: Record | None, static_alive):
 
 
 #: The names of the fault outputs (summary and series), e.g. to leave them out of a comparison.
+#: The fault Params, for a scenario's smoothing switch (:class:`mcjax.contract.Smooth`): rates of
+#: random draws have no smooth path (the draws are thresholds of uniform numbers).
+ROUGH = tuple(PARAMS)
 SUMMARY_OUTPUTS = tuple(summary_items(None, None, None))
 SERIES_OUTPUTS = tuple(series_items(None, None, None))
 

@@ -1,5 +1,5 @@
 """A tune's training loss and its gradient: one run's loss through the engine's time-loop
-driver on the scenario's smooth surrogate (:func:`run_loss`), the jitted batch function
+driver with the scenario's smoothing switch on (:func:`run_loss`), the jitted batch function
 (:func:`batch_function`) and the :class:`Evaluator` that spreads the training batch over the
 devices (see :mod:`mcjax.tune` for the loss)."""
 
@@ -25,8 +25,8 @@ def params_at(bounds, base, x):
 
 def run_loss(scenario, cfg, loss: Loss, smoothing, block: int, params, key, window: int = 0, remat: bool = True):
     """The training loss of one run (module docstring) with its parts:
-    ``(loss, (soft RMSE, soft divergence))``. The closed loop runs the scenario's surrogate
-    step through the engine's time-loop driver (:func:`mcjax.engine.time_loop`: the exact
+    ``(loss, (soft RMSE, soft divergence))``. The closed loop runs the scenario's step with its
+    smoothing switch on (``step(..., smoothing)``, :class:`mcjax.contract.Smooth`) through the engine's time-loop driver (:func:`mcjax.engine.time_loop`: the exact
     simulation's keys) over ``ceil(T / block)`` blocks of ``block`` steps, each block under
     ``jax.checkpoint`` when ``remat`` (reverse mode; forward mode stores no intermediates and
     skips it); the loss is computed from the stacked errors (T, n) of the loss's filter.
@@ -41,9 +41,9 @@ def run_loss(scenario, cfg, loss: Loss, smoothing, block: int, params, key, wind
 
     from mcjax import engine
 
-    sur = scenario.surrogate
+    sm = scenario.smooth
     f = cfg.filters.index(loss.filter)
-    weights = sur.weights(cfg, params)
+    weights = sm.weights(cfg, params)
     state = scenario.init(cfg, params, engine.init_key(key))
     T = cfg.n_steps
     c, tm = loss.error_scale, loss.max_temperature
@@ -54,8 +54,8 @@ def run_loss(scenario, cfg, loss: Loss, smoothing, block: int, params, key, wind
         if window > 0:  # a new window: the state's derivative is dropped (the value is kept)
             cut = (t % window == 0) & (t > 0)
             state = jax.tree.map(lambda a: jnp.where(cut, jax.lax.stop_gradient(a), a), state)
-        state, errors = sur.step(cfg, params, state, key_t, smoothing)
-        return state, errors[f]
+        state, record = scenario.step(cfg, params, state, key_t, smoothing)
+        return state, sm.errors(cfg, params, record)[f]
 
     _, e = engine.time_loop(advance, state, key, T, block=block, remat=remat)  # (T, n)
     e = jnp.where(jnp.isfinite(e), e, NONFINITE_ERROR * c)

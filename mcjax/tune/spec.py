@@ -15,6 +15,8 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from mcjax import scenarios
+from mcjax.smoothing import problem as smooth_problem
+from mcjax.smoothing import smooth_params
 from mcjax.study import MAX_BASE_SEED, MAX_SEEDS, SpecError, Study, build_spec, is_config_file
 from mcjax.study.checks import check_keys, count, is_number, read_toml, show, suggest
 
@@ -139,17 +141,11 @@ def _tune_table(where: str, table: dict, key: str) -> dict:
 
 def _bound(scenario, cfg, base_params, name: str, table) -> Bound:
     where = f"tune.params.{name}"
-    if name not in scenario.params_table:
-        if name in scenario.settings:
-            raise SpecError(f"{where}: {name} is a Config field (fixed in the compiled program), not a Param; only "
-                            f"continuous Params can be tuned")
-        raise SpecError(f"{where}: unknown Param{suggest(name, list(scenario.params_table))}; allowed: continuous "
-                        f"scalar Params of {scenario.name} ({', '.join(continuous_params(scenario, cfg))})")
+    problem = smooth_problem(scenario, cfg, name)
+    if problem is not None:
+        raise SpecError(f"{where}: {problem}")
     p = scenario.params_table[name]
-    if p.integer or p.choices is not None:
-        raise SpecError(f"{where}: {name} is not continuous (it takes {p.allowed()}); only continuous Params can be "
-                        f"tuned ({', '.join(continuous_params(scenario, cfg))})")
-    if np.ndim(getattr(base_params, name)) != 0 or p.shape is not None or (not p.per_agent and not p.scalar(cfg)):
+    if np.ndim(getattr(base_params, name)) != 0:
         raise SpecError(f"{where}: {name} is an array here; only Params with one number can be tuned")
     if not isinstance(table, dict):
         raise SpecError(f"{where}: must be a table {{low = ..., high = ..., scale = \"linear\"|\"log\"}}; "
@@ -182,9 +178,8 @@ def _bound(scenario, cfg, base_params, name: str, table) -> Bound:
 
 
 def continuous_params(scenario, cfg) -> list[str]:
-    """The Params a tune spec may name: continuous (not integer, no choices) and scalar."""
-    return [k for k, p in scenario.params_table.items() if not p.integer and p.choices is None and p.shape is None
-            and (p.per_agent or p.scalar(cfg)) and np.ndim(p.default_value(cfg)) == 0]
+    """The Params a tune spec may name (:func:`mcjax.smoothing.smooth_params`)."""
+    return smooth_params(scenario, cfg)
 
 
 def build_tune_spec(data: dict, base_dir: str | Path) -> TuneSpec:
@@ -200,10 +195,10 @@ def build_tune_spec(data: dict, base_dir: str | Path) -> TuneSpec:
     shared = {k: v for k, v in data.items() if k != "tune"}
     spec = build_spec(shared, base_dir, seeds=1)
     scenario, cfg = spec.scenario, spec.config
-    if scenario.surrogate is None:
-        raise SpecError(f"scenario: {scenario.name} has no smooth surrogate (Scenario.surrogate), which "
+    if scenario.smooth is None:
+        raise SpecError(f"scenario: {scenario.name} has no smoothing switch (Scenario.smooth), which "
                         f"mcjax tune needs; tunable built-in scenarios: "
-                        f"{', '.join(n for n, s in scenarios.BUILTIN.items() if s.surrogate is not None)}")
+                        f"{', '.join(n for n, s in scenarios.BUILTIN.items() if s.smooth is not None)}")
     optimizer = tune.get("optimizer", "adam")
     if optimizer not in OPTIMIZERS:
         raise SpecError(f"tune.optimizer: must be one of {', '.join(OPTIMIZERS)}; got {show(optimizer)}"
@@ -239,7 +234,7 @@ def build_tune_spec(data: dict, base_dir: str | Path) -> TuneSpec:
                 _number("tune.loss.divergence_temperature", lt.get("divergence_temperature", D / 5), positive=True),
                 _number("tune.loss.max_temperature", lt.get("max_temperature", D / 50), positive=True),
                 D, int(cfg.warmup_steps))
-    Smoothing = scenario.surrogate.Smoothing
+    Smoothing = scenario.smooth.Smoothing
     st = _tune_table("tune.", tune, "smoothing")
     check_keys("tune.smoothing.", st, list(Smoothing._fields))
     smoothing = Smoothing(**{k: _number(f"tune.smoothing.{k}", v, positive=True) for k, v in st.items()})

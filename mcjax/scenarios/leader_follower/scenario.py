@@ -27,7 +27,7 @@ import numpy as np
 
 from mcjax import graph, metrics
 from mcjax.contract import (
-    FAST_COMPILE, Output, Param, Scenario, Setting, Surrogate, config_type, declare, params_type,
+    FAST_COMPILE, Output, Param, Scenario, Setting, config_type, declare, params_type,
 )
 from mcjax.filters.consensus import (
     CONTRIBUTION_KINDS,
@@ -49,7 +49,8 @@ from mcjax.models.sensors import range_bearing
 from mcjax.scenarios import faults, kit
 from mcjax.scenarios.leader_follower.objectives import ROBUSTNESS_PENALTIES
 from mcjax.scenarios.leader_follower.planner import plan_if_due, planner_options
-from mcjax.scenarios.leader_follower.surrogate import (
+from mcjax.smoothing import Smooth
+from mcjax.scenarios.leader_follower.smoothing import (
     Smoothing, smooth_adjacency, smooth_component_sizes, smooth_measurements,
 )
 
@@ -242,6 +243,11 @@ def _mailbox(cfg, params, x0):
     return None if box is None else faults.Mailbox(*kit.per_run(params.dt, *box))
 
 
+#: Params with no smooth path (:class:`mcjax.contract.Smooth`): the fault rates, the planning
+#: horizon and re-plan interval (step counts).
+ROUGH = (*faults.ROUGH, "horizon", "replan_every")
+
+
 class _Step(NamedTuple):
     """What one step computed, for :func:`step`'s record."""
 
@@ -255,9 +261,9 @@ class _Step(NamedTuple):
 
 
 def _advance(cfg, params, state: State, key, smoothing):
-    """The physics and filters of one step (shared by :func:`step` and :func:`smooth_step`):
-    ``(new State, _Step)``. ``smoothing`` None is the exact simulation; a :class:`Smoothing`
-    swaps the sensing gate and the comm graph for their smooth surrogates (:func:`smooth_step`).
+    """The physics and filters of one step (:func:`step`): ``(new State, _Step)``. ``smoothing``
+    None is the exact simulation; a :class:`Smoothing` swaps the sensing gate and the comm graph
+    for their smooth versions.
 
     Faults (:mod:`mcjax.scenarios.faults`): a lost UAV stops where it is, senses and sends
     nothing, and its filter states stay as they were; if the leader is lost, the
@@ -330,17 +336,24 @@ def _advance(cfg, params, state: State, key, smoothing):
             _Step(target, sensors, z, adj, carried, fault, filters))
 
 
-def step(cfg, params, state: State, key) -> tuple[State, Record]:
+def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> tuple[State, Record]:
     """One 1-s step: move target (eq. 1) and UAVs (eqs. 3–4, exact heading), measure (range-gated),
     build the comm graph (eq. 13), run every filter, record errors and graph metrics.
 
     Step 0 is the first measurement time: nothing moves and the filters update their prior
     without predicting (docs/equations.md). The graph statistics are those of the links
     that carried a message (the comm graph less the links lost to faults).
+
+    ``smoothing`` (the smoothing switch, :class:`Smoothing`; None: the exact simulation) swaps
+    the sensing gate and the comm graph for their smooth versions (:func:`smooth_measurements`,
+    :func:`smooth_adjacency`, :func:`smooth_component_sizes`) for training by gradient and for
+    sensitivities; dynamics (eqs. 1, 3–4), filters (eqs. 8–12) and the planner (eq. 16, whose
+    gradient planner descends its own smooth cost) are the same, with the same random draws.
+    The graph statistics are then those of the soft links' weights.
     """
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
     params = kit.cast(params, dtype)
-    new, s = _advance(cfg, params, state, key, None)
+    new, s = _advance(cfg, params, state, key, smoothing)
     comm = kit.agents(params.comm_radius, n, dtype)
     post = [per_agent(k, f, n) for k, f in zip(cfg.filters, s.filters)]
     err = jnp.stack([metrics.position_error(g.x, s.target) for g in post])
@@ -362,22 +375,15 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
     return new, rec
 
 
-def smooth_step(cfg, params, state: State, key, smoothing: Smoothing) -> tuple[State, jax.Array]:
-    """:func:`step` with the smooth surrogates of the sensing gate (:func:`smooth_measurements`)
-    and the comm graph (:func:`smooth_adjacency`, :func:`smooth_component_sizes`), for training
-    by gradient (``mcjax tune``). Dynamics (eqs. 1, 3–4), filters (eqs. 8–12) and the planner
-    (eq. 16) are the exact simulation's, with the same random draws. Returns the new state and
-    the position errors (F, n) of every filter and agent."""
-    n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
-    params = kit.cast(params, dtype)
-    new, s = _advance(cfg, params, state, key, smoothing)
-    post = [per_agent(k, f, n) for k, f in zip(cfg.filters, s.filters)]
-    return new, jnp.stack([metrics.position_error(g.x, s.target) for g in post])
+def training_errors(cfg, params, record: Record):
+    """What the training loss of ``mcjax tune`` reads from a step's record: the position errors
+    (F, n) of every filter and agent."""
+    return record.error
 
 
 def training_weights(cfg, params):
     """What the training loss of ``mcjax tune`` reads: the alive weights (n,) of the errors
-    :func:`smooth_step` returns."""
+    :func:`training_errors` returns."""
     return metrics.alive_weights(params.alive, cfg.n_agents, jnp.dtype(cfg.dtype))
 
 
@@ -429,7 +435,7 @@ SCENARIO = Scenario(
     name=NAME, title="Sun, Zhou, Zou & Ding 2011: leader-follower UAVs, consensus information filters, "
     "receding-horizon planning", Config=Config, Params=Params, init=init, step=step, summary=summary,
     series=series, check_params=check_params,
-    surrogate=Surrogate(smooth_step, training_weights, Smoothing),
+    smooth=Smooth(Smoothing, training_errors, training_weights, ROUGH),
     compiler_options=FAST_COMPILE)
 default_params = SCENARIO.default_params
 #: The record's derived functions (from :func:`summary` and :func:`series`), by their usual names.

@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax.contract import (
-    FAST_COMPILE, Output, Param, Scenario, Setting, Surrogate, config_type, declare, params_type,
+    FAST_COMPILE, Output, Param, Scenario, Setting, config_type, declare, params_type,
 )
 from mcjax.filters.imm import IMMState, combine
 from mcjax.models.platforms import fixed_wing_step
@@ -40,6 +40,7 @@ from mcjax.scenarios.urban_bearing import environment as env
 from mcjax.scenarios.urban_bearing import score as urban
 from mcjax.scenarios.urban_bearing.mode_filters import GATE_FLOOR, filter_bank, gated_mode_filter, mode_filter, mode_models
 from mcjax.scenarios.urban_bearing.planner import limits_of, plan_command, smooth_plan_command
+from mcjax.smoothing import Smooth
 
 NAME = "urban_bearing"
 
@@ -284,10 +285,13 @@ def _violation(cfg, params, previous, command, uav):
             | (uav[2] < lim.h_min - tol) | (uav[2] > lim.h_max + tol))
 
 
-def step(cfg, params, state: State, key) -> tuple[State, Record]:
+def step(cfg, params, state: State, key, smoothing=None) -> tuple[State, Record]:
     """One step of Chen & Hao 2022, Alg. 1: plan (or hold the command after a step in the
     shadow), fly one step (eq. 1), measure the azimuth (eqs. 5–6 with the LOS or NLOS noise),
     run every filter (IMM-EKF, eqs. 11–12) and accumulate the IMM modes' FIM (eq. 13)."""
+    if smoothing is not None:
+        new, errors = smooth_step(cfg, params, state, key, smoothing)
+        return new, Record(errors, *(None,) * (len(Record._fields) - 1))
     dtype = jnp.dtype(cfg.dtype)
     p = kit.cast(params, dtype)
     b = buildings_of(p)
@@ -442,7 +446,8 @@ SCENARIO = Scenario(
     name=NAME, title="Chen & Hao 2022: one UAV localises an emitter among buildings by azimuth (IMM-EKF, FIM "
     "planning)", Config=Config, Params=Params, init=init, step=step, summary=summary, series=series,
     check_params=check_params,
-    surrogate=Surrogate(smooth_step, training_weights, Smoothing), compiler_options=FAST_COMPILE)
+    smooth=Smooth(Smoothing, lambda cfg, params, record: record.error, training_weights, ("max_hold_steps",)),
+    compiler_options=FAST_COMPILE)
 default_params = SCENARIO.default_params
 #: The record's derived functions (from :func:`summary` and :func:`series`), by their usual names.
 reduce, outputs = SCENARIO.reduce, SCENARIO.outputs

@@ -1,5 +1,6 @@
-"""Smooth surrogates of the sensing gate and the comm graph of Sun et al. 2011, for training by
-gradient through the closed loop (``mcjax tune``; the scenario's ``smooth_step``)."""
+"""The smoothing switch of Sun et al. 2011: smooth versions of the sensing gate and the comm
+graph, which the scenario's ``step`` uses when given a :class:`Smoothing` (training by gradient
+through the closed loop, ``mcjax tune``; sensitivities of a sweep)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from mcjax.scenarios import kit
 
 
 class Smoothing(NamedTuple):
-    """Temperatures (m) of the smooth surrogates a training loop runs (:func:`smooth_step`)."""
+    """Temperatures (m) of the smoothing switch (the scenario's ``step`` with ``smoothing``)."""
 
     sensing: float = 1e3   # of the sensing gate sigmoid((R_s − r)/T)
     comm: float = 1e3      # of the comm links sigmoid((min(R_i, R_j) − l_ij)/T)
