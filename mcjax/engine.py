@@ -130,25 +130,34 @@ def time_loop(step: Callable, state, key, n_steps: int, *, block: int | None = N
     return state, jax.tree.map(lambda a: a.reshape((n_blocks * block,) + a.shape[2:])[:n_steps], outs)
 
 
-def _run(scenario, cfg, params, key):
+def run_records(scenario, cfg, params, key, smoothing=None):
+    """One run's records stacked over time: the exact simulation (``smoothing`` None) or, for a
+    scenario with a smoothing switch (:class:`mcjax.smoothing.Smooth`), the smooth one at the
+    temperatures ``smoothing`` — the same keys either way."""
     state = scenario.init(cfg, params, init_key(key))
-    _, records = time_loop(lambda s, k, t: scenario.step(cfg, params, s, k), state, key, cfg.n_steps)
+    if smoothing is None:
+        step = lambda s, k, t: scenario.step(cfg, params, s, k)  # noqa: E731
+    else:
+        step = lambda s, k, t: scenario.step(cfg, params, s, k, smoothing)  # noqa: E731
+    _, records = time_loop(step, state, key, cfg.n_steps)
     return records
 
 
-def simulate(scenario: Scenario, cfg, params, keys, *, records: bool = False, timeseries: bool = False):
+def simulate(scenario: Scenario, cfg, params, keys, *, records: bool = False, timeseries: bool = False,
+             smoothing=None):
     """Run a batch: ``params`` and ``keys`` carry a leading run axis.
 
     Returns each run's reduced outputs (``scenario.reduce``: a dict of (runs, …) arrays) or,
     with ``records=True``, the records stacked over time (run, time, …) — the caller chooses
     what is kept, so a large sweep need not keep every trajectory. ``timeseries=True``
-    returns ``(outputs, scenario.timeseries(...))`` from one simulation. Not jitted: see
+    returns ``(outputs, scenario.timeseries(...))`` from one simulation. ``smoothing``: run the
+    scenario's smooth system at these temperatures (:func:`run_records`). Not jitted: see
     :func:`compiled`.
     """
     runtime.configure()
 
     def one(p, k):
-        recs = _run(scenario, cfg, p, k)
+        recs = run_records(scenario, cfg, p, k, smoothing)
         if records:
             return recs
         if timeseries:
