@@ -1,7 +1,7 @@
 """One UAV localises a static radio emitter among buildings by its azimuth, Chen & Hao 2022 —
 the scenario ``urban_bearing`` and everything only it uses:
 
-* :mod:`.scenario` — Config, Params, the step (Alg. 1), the training surrogate, the outputs,
+* :mod:`.scenario` — Config, Params, the step (Alg. 1; exact, or smooth for ``mcjax tune``), the outputs,
   ``SCENARIO``;
 * :mod:`.environment` — buildings: occupancy, line of sight and shadow, one-bounce
   reflections, the measured azimuth (eqs. 3, 5–10);
@@ -16,11 +16,11 @@ from mcjax.scenarios.urban_bearing.planner import limits_of, plan_command, plann
 from mcjax.scenarios.urban_bearing.scenario import (
     DEFAULT_BUILDINGS, DEG, FILTER_KINDS, INITS, LOS, NAME, NLOS_MINUS, NLOS_PLUS, PLANNERS, SCENARIO, Config, Params,
     Record, Smoothing, State, buildings_np, buildings_of, check_params, default_params, first_bearing_prior, init, inv2,
-    measure, outputs, reduce, series, smooth_step, step, summary, timeseries, timeseries_outputs, training_weights,
+    measure, outputs, reduce, series, step, summary, timeseries, timeseries_outputs, training_weights,
 )
 
 __all__ = ["Config", "DEFAULT_BUILDINGS", "DEG", "FILTER_KINDS", "INITS", "LOS", "NAME", "NLOS_MINUS", "NLOS_PLUS", "PLANNERS",
            "Params", "Record", "SCENARIO", "Smoothing", "State", "buildings_np", "buildings_of", "check_params",
            "default_params", "filter_bank", "first_bearing_prior", "gated_mode_filter", "init", "inv2", "measure", "limits_of", "mode_filter", "mode_models",
-           "outputs", "plan_command", "planner_options", "reduce", "series", "smooth_plan_command", "smooth_step",
+           "outputs", "plan_command", "planner_options", "reduce", "series", "smooth_plan_command",
            "step", "summary", "timeseries", "timeseries_outputs", "training_weights"]

@@ -86,7 +86,8 @@ def smooth_plan_command(cfg, params, b: env.Buildings, uav, previous, belief: ur
     smooth eq. 20 score (:func:`.score.surrogate_score_terms`), the choice a
     soft argmax weighed by smooth admissibility (:func:`.score.soft_argmax_command`).
     No fallback and no warm-start switch: the command is a smooth function of the weights,
-    the state and the belief. Used for either ``Config.planner`` (docs/tune.md)."""
+    the state and the belief. Used for every ``Config.planner`` (docs/tune.md). Returns
+    ``(command (2,), the soft argmax's mean surrogate score)``."""
     lim = limits_of(cfg, params)
     w = urban.Weights(params.c1, params.c2, params.c3)
     T = smoothing.geometry
@@ -101,5 +102,5 @@ def smooth_plan_command(cfg, params, b: env.Buildings, uav, previous, belief: ur
         return j, ok
 
     scores, log_ok = jax.vmap(score)(commands)
-    command, _ = urban.soft_argmax_command(commands, scores, log_ok, smoothing.plan)
-    return command
+    command, weights = urban.soft_argmax_command(commands, scores, log_ok, smoothing.plan)
+    return command, weights @ scores

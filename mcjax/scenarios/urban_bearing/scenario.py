@@ -285,23 +285,19 @@ def _violation(cfg, params, previous, command, uav):
             | (uav[2] < lim.h_min - tol) | (uav[2] > lim.h_max + tol))
 
 
-def step(cfg, params, state: State, key, smoothing=None) -> tuple[State, Record]:
-    """One step of Chen & Hao 2022, Alg. 1: plan (or hold the command after a step in the
-    shadow), fly one step (eq. 1), measure the azimuth (eqs. 5–6 with the LOS or NLOS noise),
-    run every filter (IMM-EKF, eqs. 11–12) and accumulate the IMM modes' FIM (eq. 13)."""
-    if smoothing is not None:
-        new, errors = smooth_step(cfg, params, state, key, smoothing)
-        return new, Record(errors, *(None,) * (len(Record._fields) - 1))
-    dtype = jnp.dtype(cfg.dtype)
-    p = kit.cast(params, dtype)
-    b = buildings_of(p)
-    k_plan, k_noise = jax.random.split(key)
+class Smoothing(NamedTuple):
+    """Temperatures of the smooth system (:func:`step` with ``smoothing``; ``[tune.smoothing]``
+    of a tune spec, ``[sensitivity.smoothing]`` of a sweep). Ours: the paper has no smooth model."""
 
-    imm = state.filters[cfg.filters.index("imm")]
-    xy, _ = combine(imm)
-    _, sig = mode_models(p, "imm")
-    belief = urban.Belief(xy, imm.x, imm.mu, state.fim, sig, p.emitter[2])
-    planned, score, _ = plan_command(cfg, p, b, state.uav, state.command, belief, k_plan)
+    geometry: float = 20.0   # m: every building test (LOS, shadow, reflections, occupancy, altitude band)
+    plan: float = 0.1        # the soft argmax over the grid: τ in units of the candidates' score spread
+    command: float = 1e-3    # rad, rad/s: the soft max/min of the command box's limits
+
+
+def _plan_or_hold(cfg, p, b, state: State, belief, key):
+    """The exact command (Alg. 1): the planner's, or the previous one held after a step in the
+    shadow. Returns ``(held, command, exact score of the planned command)``."""
+    planned, score, _ = plan_command(cfg, p, b, state.uav, state.command, belief, key)
     # in the shadow the paper holds the previous command; ours: only while it stays admissible
     lim = limits_of(cfg, p)
     hold_track = urban.predicted_track(state.uav, state.command, p.speed, cfg.dt, cfg.horizon)
@@ -310,96 +306,108 @@ def step(cfg, params, state: State, key, smoothing=None) -> tuple[State, Record]
     # ours: at most max_hold_steps in a row (0: no limit, the paper's rule); then the planner flies
     within_limit = (p.max_hold_steps <= 0) | (state.held_for < p.max_hold_steps)
     held = ~state.measured & hold_ok & within_limit
-    command = jnp.where(held, state.command, planned)
-    uav = fixed_wing_step(state.uav, command[0], command[1], p.speed, cfg.dt)
-
-    # the measurement (eqs. 2, 5–6): no line of sight -> none; a reflection -> NLOS noise
-    pos = uav[:3]
-    los, reflected, clean = _measurement_geometry(p, b, pos)
-    sigma = jnp.where(reflected, p.sigma_nlos, p.sigma_los)
-    z = jnp.where(los, wrap_angle(clean + sigma * jax.random.normal(k_noise, (), dtype)), jnp.nan)
-
-    new_filters, errors = filter_bank(cfg, p, state, mode_filter, z, uav)
-    imm_new = new_filters[cfg.filters.index("imm")]
-    gained = jax.vmap(lambda x, s: urban.bearing_information(x, uav, s))(imm_new.x, sig)
-    fim = state.fim + jnp.where(los, gained, 0.0)
-
-    rec = Record(
-        error=jnp.stack(errors), uav=uav, command=command, held=held, shadow=~los, nlos=los & reflected,
-        in_building=env.inside(b, pos), violation=_violation(cfg, p, state.command, command, uav),
-        mu=imm_new.mu, score=jnp.where(held, jnp.nan, score))
-    held_for = jnp.where(held, state.held_for + 1, 0)
-    return State(state.t + 1, uav, command, los, tuple(new_filters), fim, held_for), rec
+    return held, jnp.where(held, state.command, planned), score
 
 
-class Smoothing(NamedTuple):
-    """Temperatures of the training surrogate (:func:`smooth_step`; ``[tune.smoothing]`` of a
-    tune spec). Ours: the paper has no smooth model."""
-
-    geometry: float = 20.0   # m: every building test (LOS, shadow, reflections, occupancy, altitude band)
-    plan: float = 0.1        # the soft argmax over the grid: τ in units of the candidates' score spread
-    command: float = 1e-3    # rad, rad/s: the soft max/min of the command box's limits
-
-
-def smooth_step(cfg, params, state: State, key, smoothing: Smoothing) -> tuple[State, jax.Array]:
-    """:func:`step` (Chen & Hao 2022, Alg. 1) with every hard switch smooth, for training by
-    gradient (``mcjax tune``); the same random draws. Replaced switches (docs/tune.md):
-
-    * the planner's grid argmax (and, for the gradient planner, its clip to the command box,
-      fallback and warm-start switch) -> :func:`.planner.smooth_plan_command`;
-    * the shadow hold (``held = no LOS at the last step & the held command admissible``) ->
-      the blend ``h·previous + (1 − h)·planned`` with ``h = (1 − los_prev)·p_adm(previous)``,
-      ``los_prev`` the smooth line of sight at the UAV's position (where the last measurement
-      was taken; 1 at step 0, as the exact ``measured`` starts True);
-    * the measurement gate (no LOS -> no measurement) -> a measurement of weight
-      ``g = los`` (:func:`.mode_filters.gated_mode_filter`), its bearing from the smooth field
-      (:func:`.score.soft_measured_bearing`), its noise σ blended between LOS
-      and NLOS by the smooth "a reflection arrives";
-    * the FIM accumulation (eq. 13: only with LOS) -> weighted by ``los``.
-
-    The hold has no step limit here (``max_hold_steps`` is not modelled: the paper's rule).
-
-    Returns the new state and the position errors (F, 1) of every filter."""
-    dtype = jnp.dtype(cfg.dtype)
-    p = kit.cast(params, dtype)
-    b = buildings_of(p)
+def _soft_plan_or_hold(cfg, p, b, state: State, belief, smoothing: Smoothing):
+    """The smooth command: the soft grid choice (:func:`.planner.smooth_plan_command`, for any
+    ``Config.planner``) blended with the previous command by the soft hold
+    ``h = (1 − los_prev)·p_adm(previous)``, ``los_prev`` the soft line of sight where the last
+    measurement was taken (1 at step 0, as the exact ``measured`` starts True). No step limit
+    (``max_hold_steps`` has no smooth path). Returns ``(h, command, soft score of the plan)``."""
     T = smoothing.geometry
-    k_plan, k_noise = jax.random.split(key)
-    del k_plan
-
-    imm = state.filters[cfg.filters.index("imm")]
-    xy, _ = combine(imm)
-    _, sig = mode_models(p, "imm")
-    belief = urban.Belief(xy, imm.x, imm.mu, state.fim, sig, p.emitter[2])
-    planned = smooth_plan_command(cfg, p, b, state.uav, state.command, belief, smoothing)
+    planned, score = smooth_plan_command(cfg, p, b, state.uav, state.command, belief, smoothing)
     lim = limits_of(cfg, p)
     hold_track = urban.predicted_track(state.uav, state.command, p.speed, cfg.dt, cfg.horizon)
     hold_ok = jnp.exp(urban.soft_admissible_log(b, state.uav, state.command, hold_track, lim, p.speed, cfg.dt,
                                                 cfg.theta_rate_max * cfg.dt, T))
     los_prev = jnp.where(state.t == 0, 1.0, urban.soft_line_of_sight(b, p.emitter, state.uav[:3], T))
     held = (1.0 - los_prev) * hold_ok
-    command = held * state.command + (1.0 - held) * planned
+    return held, held * state.command + (1.0 - held) * planned, score
+
+
+def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> tuple[State, Record]:
+    """One step of Chen & Hao 2022, Alg. 1: plan (or hold the command after a step in the
+    shadow), fly one step (eq. 1), measure the azimuth (eqs. 5–6 with the LOS or NLOS noise),
+    run every filter (IMM-EKF, eqs. 11–12) and accumulate the IMM modes' FIM (eq. 13).
+
+    ``smoothing`` None: the exact simulation. A :class:`Smoothing`: the same step, with the same
+    random draws, with every switch smooth (docs/tune.md), for ``mcjax tune`` and sensitivities:
+
+    * the planner's grid argmax (and, for the gradient or sequence planner, its clip, fallback
+      and warm start) -> the soft argmax over the grid (:func:`.planner.smooth_plan_command`);
+    * the shadow hold -> the blend ``h·previous + (1 − h)·planned`` (:func:`_soft_plan_or_hold`);
+    * the measurement gate (no LOS -> no measurement) -> a measurement of weight ``g = los``
+      (:func:`.mode_filters.gated_mode_filter`), its bearing from the smooth field
+      (:func:`.score.soft_measured_bearing`), its noise σ blended between LOS and NLOS by the
+      smooth "a reflection arrives";
+    * the FIM accumulation (eq. 13: only with LOS) -> weighted by ``los``.
+
+    The smooth Record has the exact one's fields: ``held``, ``shadow`` (1 − los), ``nlos``
+    (los · reflected) and ``in_building`` (soft occupancy) are floats in [0, 1];
+    ``violation`` is the exact test of the smooth command as 0/1; ``score`` is the soft
+    argmax's mean surrogate score of the plan (not NaN when held)."""
+    dtype = jnp.dtype(cfg.dtype)
+    p = kit.cast(params, dtype)
+    b = buildings_of(p)
+    k_plan, k_noise = jax.random.split(key)
+
+    imm = state.filters[cfg.filters.index("imm")]
+    xy, _ = combine(imm)
+    _, sig = mode_models(p, "imm")
+    belief = urban.Belief(xy, imm.x, imm.mu, state.fim, sig, p.emitter[2])
+    if smoothing is None:
+        held, command, score = _plan_or_hold(cfg, p, b, state, belief, k_plan)
+    else:
+        held, command, score = _soft_plan_or_hold(cfg, p, b, state, belief, smoothing)
     uav = fixed_wing_step(state.uav, command[0], command[1], p.speed, cfg.dt)
 
+    # the measurement (eqs. 2, 5–6): no line of sight -> none; a reflection -> NLOS noise
     pos = uav[:3]
-    clean, los, reflected = urban.soft_measured_bearing(b, p.emitter, pos, p.R2, p.power, p.directivity, T)
-    reflected = jnp.where(p.R2 > 0, reflected, 0.0)
-    sigma = p.sigma_los + reflected * (p.sigma_nlos - p.sigma_los)
-    z = wrap_angle(clean + sigma * jax.random.normal(k_noise, (), dtype))
-    gate = GATE_FLOOR + (1.0 - GATE_FLOOR) * los
-
-    new_filters, errors = filter_bank(cfg, p, state, gated_mode_filter, z, uav, gate)
+    if smoothing is None:
+        los, reflected, clean = _measurement_geometry(p, b, pos)
+        sigma = jnp.where(reflected, p.sigma_nlos, p.sigma_los)
+        z = jnp.where(los, wrap_angle(clean + sigma * jax.random.normal(k_noise, (), dtype)), jnp.nan)
+        new_filters, errors = filter_bank(cfg, p, state, mode_filter, z, uav)
+    else:
+        T = smoothing.geometry
+        clean, los, reflected = urban.soft_measured_bearing(b, p.emitter, pos, p.R2, p.power, p.directivity, T)
+        reflected = jnp.where(p.R2 > 0, reflected, 0.0)
+        sigma = p.sigma_los + reflected * (p.sigma_nlos - p.sigma_los)
+        z = wrap_angle(clean + sigma * jax.random.normal(k_noise, (), dtype))
+        gate = GATE_FLOOR + (1.0 - GATE_FLOOR) * los
+        new_filters, errors = filter_bank(cfg, p, state, gated_mode_filter, z, uav, gate)
     imm_new = new_filters[cfg.filters.index("imm")]
     gained = jax.vmap(lambda x, s: urban.bearing_information(x, uav, s))(imm_new.x, sig)
+
+    if smoothing is None:
+        fim = state.fim + jnp.where(los, gained, 0.0)
+        rec = Record(
+            error=jnp.stack(errors), uav=uav, command=command, held=held, shadow=~los, nlos=los & reflected,
+            in_building=env.inside(b, pos), violation=_violation(cfg, p, state.command, command, uav),
+            mu=imm_new.mu, score=jnp.where(held, jnp.nan, score))
+        held_for = jnp.where(held, state.held_for + 1, 0)
+        return State(state.t + 1, uav, command, los, tuple(new_filters), fim, held_for), rec
     fim = state.fim + los * gained
-    return (State(state.t + 1, uav, command, los > 0.5, tuple(new_filters), fim, state.held_for),
-            jnp.stack(errors))
+    rec = Record(
+        error=jnp.stack(errors), uav=uav, command=command, held=held, shadow=1.0 - los, nlos=los * reflected,
+        in_building=urban.soft_occupied(b, pos, T),
+        violation=_violation(cfg, p, state.command, command, uav).astype(dtype), mu=imm_new.mu, score=score)
+    return State(state.t + 1, uav, command, los > 0.5, tuple(new_filters), fim, state.held_for), rec
 
 
 def training_weights(cfg, params):
-    """What the training loss of ``mcjax tune`` reads: one UAV, weight 1 (the errors
-    :func:`smooth_step` returns are (F, 1))."""
+    """What the training loss of ``mcjax tune`` reads: one UAV, weight 1 (the errors of
+    :class:`Record` are (F, 1))."""
     return jnp.ones(1, jnp.dtype(cfg.dtype))
+
+
+def _nlos_mean(nlos, value):
+    """The mean of ``value`` over the NLOS steps: ``nlos`` a 0/1 indicator (the exact record) or
+    a weight in [0, 1] (the smooth one)."""
+    if nlos.dtype == jnp.bool_:
+        return jnp.sum(jnp.where(nlos, value, 0.0)) / jnp.sum(nlos)
+    return jnp.sum(nlos * value) / jnp.sum(nlos)
 
 
 def summary(cfg, records: Record | None, params) -> dict:
@@ -423,7 +431,7 @@ def summary(cfg, records: Record | None, params) -> dict:
         min_altitude=(Output("m", "lowest altitude flown", False), lambda: jnp.min(r.uav[:, 2])),
         mu_nlos_when_nlos=(Output("", "the IMM's mean NLOS probability on steps with a reflected measurement "
                                   "(NaN if there were none)", False),
-                           lambda: jnp.sum(jnp.where(r.nlos, nlos_mu(), 0.0)) / jnp.sum(r.nlos)),
+                           lambda: _nlos_mean(r.nlos, nlos_mu())),
     )
 
 
@@ -446,7 +454,10 @@ SCENARIO = Scenario(
     name=NAME, title="Chen & Hao 2022: one UAV localises an emitter among buildings by azimuth (IMM-EKF, FIM "
     "planning)", Config=Config, Params=Params, init=init, step=step, summary=summary, series=series,
     check_params=check_params,
-    smooth=Smooth(Smoothing, lambda cfg, params, record: record.error, training_weights, ("max_hold_steps",)),
+    # rough: max_hold_steps (a step count; the soft hold has no limit), plan_temperature (only the exact
+    # gradient planner's smooth objective reads it; the smooth system's soft grid does not)
+    smooth=Smooth(Smoothing, lambda cfg, params, record: record.error, training_weights,
+                  ("max_hold_steps", "plan_temperature")),
     compiler_options=FAST_COMPILE)
 default_params = SCENARIO.default_params
 #: The record's derived functions (from :func:`summary` and :func:`series`), by their usual names.

@@ -231,7 +231,7 @@ def _soft_reflection(buildings, emitter, uav, T):
 # --------------------------------------------------------------------------- surrogate for training
 #
 # Smooth stand-ins used only by the training surrogate of mcjax tune
-# (:func:`mcjax.scenarios.urban_bearing.scenario.smooth_step`): every hard geometric test of the
+# (:func:`mcjax.scenarios.urban_bearing.scenario.step` with smoothing): every hard geometric test of the
 # measurement model and of the grid planner becomes a smooth function of the positions, so
 # the closed loop's outcome is a smooth function of the weights c1, c2, c3. The exact
 # simulation never calls them.
