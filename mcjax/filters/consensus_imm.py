@@ -34,11 +34,20 @@ LIKELIHOODS = ("fused", "local")
 
 def consensus_imm_ukf_step(state: IMMState, transition, F_modes, Q_modes, z, sensors, h: Callable, R,
                            adjacency, *, steps: int, weights: str = "metropolis",
-                           likelihood: str = "fused", ut: Unscented = Unscented(), angle_mask=None):
+                           likelihood: str = "fused", ut: Unscented = Unscented(), angle_mask=None,
+                           gates=None, sizes=None):
     """One step of every node (Ren & Lv 2017, docs/equations.md). ``state``: IMMState with a node
     axis first (μ (n, M), x (n, M, d), P (n, M, d, d)); ``F_modes``/``Q_modes`` (M, d, d);
     ``z`` (n, m) (NaN: no measurement); ``sensors`` (n, ·); ``h(x, sensor)``; ``R`` (m, m);
-    ``steps`` = L; ``weights`` "metropolis" or "max_degree" (the iteration of Ren & Lv 2017 eq. 8).
+    ``adjacency`` (n, n) 0/1 links, or link weights in [0, 1] (a smooth comm graph: the
+    consensus weights are built from them the same way); ``steps`` = L; ``weights``
+    "metropolis" or "max_degree" (the iteration of Ren & Lv 2017 eq. 8).
+
+    The smooth inputs (a scenario's smoothing switch; None: the exact filter): ``gates`` (n,)
+    in [0, 1] weighs node i's measurement — its information pair and its mode log-likelihoods
+    are multiplied by ``g_i``, i.e. the tempered likelihood ``p(z_i | x)^g_i`` (the noise
+    ``R/g_i`` in the information form): the full update at 1, none at 0; ``sizes`` (n,)
+    replaces the connected-component sizes ``N_i`` of ``adjacency``.
     Returns ``(new state, (x, P) combined per node)``."""
     if likelihood not in LIKELIHOODS:
         raise ValueError(f"likelihood must be one of {', '.join(LIKELIHOODS)}; got {likelihood!r}")
@@ -57,9 +66,11 @@ def consensus_imm_ukf_step(state: IMMState, transition, F_modes, Q_modes, z, sen
         return i, I, ll
 
     i, I, ll = jax.vmap(jax.vmap(local, in_axes=(0, 0, None, None)))(xb, Pb, z, sensors)
+    if gates is not None:
+        i, I, ll = gates[:, None, None] * i, gates[:, None, None, None] * I, gates[:, None] * ll
     Yb = symmetrize(spd_inverse(Pb))
     yb = jnp.einsum("nmab,nmb->nma", Yb, xb)
-    size = graph.component_sizes(adjacency)
+    size = graph.component_sizes(adjacency) if sizes is None else sizes
     W = graph.consensus_weights(adjacency, weights)
 
     def run(v):

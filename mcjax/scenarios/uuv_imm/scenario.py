@@ -43,6 +43,10 @@ from mcjax.models.motion import ct_matrix, cv_matrices, cv_process_noise
 from mcjax.models.sensors import range_bearing
 from mcjax.numerics import matvec, spd_inverse
 from mcjax.scenarios import faults, kit
+from mcjax.scenarios.uuv_imm.smoothing import (
+    Smoothing, mode_hits, smooth_adjacency, smooth_component_sizes, smooth_measurements,
+)
+from mcjax.smoothing import Smooth
 
 NAME = "uuv_imm"
 
@@ -156,8 +160,9 @@ class Record(NamedTuple):
     nees: jax.Array     # (F, n) full-state NEES of the combined estimate
     mode: jax.Array     # () true mode during the step's transition (0 = CV, 1 = CT)
     mu_ct: jax.Array    # (n,) the IMM's CT probability per UUV (NaN without "imm")
+    mode_hit: jax.Array  # (n,) 1.0 where the IMM's likelier mode is the true one (soft when smoothed)
     lambda2: jax.Array  # ()
-    n_seeing: jax.Array  # () UUVs with a measurement
+    n_seeing: jax.Array  # () UUVs with a measurement (the sum of the soft gates when smoothed)
     target: jax.Array   # (4,)
     measurements: jax.Array  # (n, 2) range–bearing, NaN where none
     faults: faults.Record | None  # the step's faults (None: off)
@@ -192,13 +197,21 @@ def _true_mode(cfg, params, state: State, key):
     return jax.random.categorical(key, logp).astype(jnp.int32)
 
 
-def step(cfg, params, state: State, key) -> tuple[State, Record]:
+def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> tuple[State, Record]:
     """One step: move the target (CV or CT, docs/equations.md), measure range and bearing at
     every UUV, build the comm graph, run every filter's consensus IMM-UKF step (Ren & Lv 2017,
     docs/equations.md), record errors.
 
     Step 0 is the first measurement time: nothing moves and the filters update their prior
-    without predicting or mixing (docs/equations.md)."""
+    without predicting or mixing (docs/equations.md).
+
+    ``smoothing`` (the smoothing switch, :class:`Smoothing`; None: the exact simulation) swaps
+    the sonar's range gate, the comm links (and so the Metropolis weights of Ren & Lv 2017's
+    consensus, eq. 8, built from them), the component sizes of the information weighting and
+    the IMM's "likelier mode" indicator for their smooth versions (:func:`smooth_measurements`,
+    :func:`smooth_adjacency`, :func:`smooth_component_sizes`, :func:`mode_hits`), with the same
+    random draws. The target's mode jumps stay exact (rough). The graph statistics are then
+    those of the soft links' weights and ``n_seeing`` is the sum of the soft gates."""
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
     params = kit.cast(params, dtype)
     first = state.t == 0
@@ -214,9 +227,17 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
     sensors = jnp.asarray(params.uuv_positions, dtype)
     alive = kit.agents(params.alive, n, dtype) > 0.5
     fault_state, fault = faults.advance(key, state.faults, params, alive)
-    z = faults.measurements(kit.team_measurements(k_meas, target, sensors, params.sigma_range, params.sigma_bearing,
-                                                  kit.agents(params.sensing_radius, n, dtype), alive), fault)
-    comm_graph = graph.adjacency(sensors, kit.agents(params.comm_radius, n, dtype), alive)
+    sensing, comm = kit.agents(params.sensing_radius, n, dtype), kit.agents(params.comm_radius, n, dtype)
+    if smoothing is None:
+        z = faults.measurements(kit.team_measurements(k_meas, target, sensors, params.sigma_range,
+                                                      params.sigma_bearing, sensing, alive), fault)
+        comm_graph = graph.adjacency(sensors, comm, alive)
+        gates = sizes = None
+    else:  # (the smooth component sizes see lost UUVs, not lost links)
+        z, gates = smooth_measurements(k_meas, target, sensors, params, sensing, alive, smoothing.sensing)
+        z = faults.measurements(z, fault)
+        comm_graph = smooth_adjacency(sensors, comm, alive, smoothing.comm)
+        sizes = smooth_component_sizes(sensors, comm, alive & faults.alive(fault, n), smoothing.comm)
     adj = faults.messages(comm_graph, fault)
 
     Q = cv_process_noise(dt, params.sigma_accel, dtype)
@@ -236,7 +257,7 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
         fnew, (x, P) = consensus_imm_ukf_step(
             faults.shield(fault, fstate), transition, F_model[modes], Q_model[modes], z, sensors, range_bearing, R, adj,
             steps=cfg.consensus_steps, weights=cfg.consensus_weights, likelihood=cfg.likelihood,
-            ut=unscented(cfg), angle_mask=angle_mask)
+            ut=unscented(cfg), angle_mask=angle_mask, gates=gates, sizes=sizes)
         if fault is not None:  # a lost UUV's filter holds its state (and its combined estimate)
             fnew = faults.hold(fault, fnew, fstate)
             x, P = jax.vmap(combine)(fnew)
@@ -245,13 +266,15 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
         ne.append(metrics.nees(x, spd_inverse(P), target))
         if name == "imm":
             mu_ct = fnew.mu[:, CT]
+    seeing = jnp.all(jnp.isfinite(z), axis=-1)
     rec = Record(
         error=jnp.stack(err),
         nees=jnp.stack(ne),
         mode=mode,
         mu_ct=mu_ct,
+        mode_hit=mode_hits(mu_ct, mode == CT, None if smoothing is None else smoothing.mode),
         lambda2=graph.algebraic_connectivity(adj),
-        n_seeing=jnp.sum(jnp.all(jnp.isfinite(z), axis=-1)),
+        n_seeing=jnp.sum(seeing) if gates is None else jnp.sum(jnp.where(seeing, gates, 0.0)),
         target=target,
         measurements=z,
         faults=faults.record(comm_graph, adj, fault, alive),
@@ -313,8 +336,7 @@ def summary(cfg, records: Record | None, params) -> dict:
         mode_accuracy=(Output("", "fraction of (UUV, step) after warm-up where the IMM's likelier mode is the true "
                               "one", False),
                        lambda: jnp.where(jnp.any(jnp.isnan(r.mu_ct)), jnp.nan,
-                                         _masked_mean(((r.mu_ct > 0.5) == in_ct()[:, None]).astype(r.error.dtype),
-                                                      after()[:, None] * alive()))),
+                                         _masked_mean(r.mode_hit, after()[:, None] * alive()))),
         mu_ct_during_ct=(Output("", "the IMM's mean CT probability while the target turns", False),
                          lambda: _masked_mean(faults.masked(r.mu_ct, alive()), (after() & in_ct())[:, None] * alive())),
         **faults.summary_items(cfg, r and r.faults, switched_on),
@@ -337,10 +359,26 @@ def series(cfg, records: Record | None, params) -> dict:
     )
 
 
+def training_errors(cfg, params, record: Record):
+    """What the training loss of ``mcjax tune`` reads from a step's record: the position errors
+    (F, n) of every filter and UUV (the paper's error E)."""
+    return record.error
+
+
+def training_weights(cfg, params):
+    """Each UUV's weight (n,) in the training loss: 1 if switched on (``alive``), else 0."""
+    return metrics.alive_weights(params.alive, cfg.n_agents, jnp.dtype(cfg.dtype))
+
+
+#: Params with no smooth path (:class:`mcjax.smoothing.Smooth`): the fault rates; the fixed
+#: schedule's switch steps (step counts: the mode jumps at a threshold of t); the true mode
+#: chain (each jump a threshold of a uniform draw).
+ROUGH = (*faults.ROUGH, "ct_start", "ct_stop", "target_transition")
+
 SCENARIO = Scenario(
     name=NAME, title="Ren & Lv 2017: six UUVs track a manoeuvring target by consensus IMM-UKF",
     Config=Config, Params=Params, init=init, step=step, summary=summary, series=series,
-    check_params=check_params)
+    check_params=check_params, smooth=Smooth(Smoothing, training_errors, training_weights, ROUGH))
 default_params = SCENARIO.default_params
 #: The record's derived functions (from :func:`summary` and :func:`series`), by their usual names.
 reduce, outputs = SCENARIO.reduce, SCENARIO.outputs
