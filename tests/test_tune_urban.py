@@ -2,7 +2,7 @@
 
 The exact closed loop is piecewise constant in the weights (the grid planner's argmax) with
 jumps (the shadow hold, the measurement gate, reflections that appear and vanish), so
-training runs the scenario's smooth surrogate (``urban_bearing.smooth_step``, docs/tune.md).
+training runs the scenario's smooth system (``urban_bearing.step`` with ``smoothing``, docs/tune.md).
 Every test shares ONE small gradient program: 8 steps, a 3-step planning horizon, the IMM
 only, 2 training runs, on the first building layout (configs/chen2022_wide_prior.toml), the UAV
 started 100 m south of the reflection region of the tall building's east wall, flying north into it, so that J_FIM, J_T and J_NLOS (eq. 20) all
@@ -145,8 +145,112 @@ def test_smooth_measurement_pieces_have_finite_derivatives_straight_above():
     assert np.all(np.isfinite(np.asarray(values))) and np.all(np.isfinite(np.asarray(jac)))
 
 
-def test_exact_step_is_not_the_surrogate():
-    """The exact simulation (what mcjax sweep runs) is untouched: Scenario.step is the exact
-    step, the surrogate a separate function."""
-    assert ub.SCENARIO.step is ub.step and ub.SCENARIO.surrogate.step is ub.smooth_step
-    assert ub.SCENARIO.surrogate.Smoothing is ub.Smoothing
+#: Three parameter points drawn once inside the bounds (numpy seed 34): the fraction of each
+#: Param's (log-)range uniform in [0.1, 0.9], so no point sits on a bound.
+_POINTS = np.random.default_rng(34).uniform(0.1, 0.9, size=(3, 3))
+
+
+@pytest.mark.xdist_group("tune_urban")  # one worker builds the module fixture once
+@pytest.mark.parametrize("point", range(len(_POINTS)))
+def test_gradient_matches_central_differences_at_random_points(spec, evaluator, point):
+    """d loss / d z (forward mode, as mcjax tune) vs central differences of the same loss (the
+    same seeds, float64) to a relative 1e-4 of each derivative, at three random points
+    ((c1, c2, c3) = (0.017, 1.42, −0.62), (0.27, 0.21, 0.69), (0.71, 1.63, 0.05)).
+
+    h = 1e-4 in z, from a scan of h = 1e-2 … 1e-6 at these points: the largest relative
+    difference was 4.5e-3, 4.4e-5, 1.9e-5, 1.6e-4, 1.3e-3. Above 1e-4 the quotient's O(h²)
+    error shows (it falls 100-fold per 10-fold h), below it rounding (the loss ≈ 1.3 is known
+    to ~1e-16, so the quotient's rounding error ~1e-16/h grows 10-fold per 10-fold h, and the
+    smallest derivative is ~1e-6)."""
+    z = np.log(_POINTS[point]) - np.log1p(-_POINTS[point])
+    ev = evaluator(z)
+    assert ev.dropped == 0 and np.all(np.isfinite(ev.grad)), ev
+    h = 1e-4
+    fd = np.array([(evaluator(z + h * e).loss - evaluator(z - h * e).loss) / (2 * h) for e in np.eye(len(z))])
+    assert np.all(np.abs(ev.grad) > 1e-3 * np.linalg.norm(ev.grad))  # every Param carries gradient
+    for name, g, f in zip(spec.names, ev.grad, fd):
+        assert abs(g - f) <= 1e-4 * abs(g), (name, g, f)
+
+
+#: Starts for the exact-vs-smooth checks: open (line of sight, 2.8 km SW of the emitter, flying
+#: east into the reflection region) and hidden (the shadow run of the degenerate case above).
+_HIDDEN_BEARING = np.deg2rad(152.0)
+_STARTS = {"open": [3000.0, 3000.0, 200.0, 0.0],
+           "hidden": [EMITTER[0] + 2000 * np.cos(_HIDDEN_BEARING), EMITTER[1] + 2000 * np.sin(_HIDDEN_BEARING),
+                      200.0, _HIDDEN_BEARING - np.pi]}
+#: Temperatures 1000 times below the defaults (m; τ; rad, rad/s).
+_SHARP = ub.Smoothing(0.02, 1e-4, 1e-6)
+
+
+@pytest.fixture(scope="module")
+def paths(spec):
+    """Records (start, level) of the small program (8 steps, horizon 3, 2 runs): the exact
+    simulation (level None) and the smooth one at the default and at the sharp temperatures,
+    the temperatures passed as arguments (one compiled smooth program)."""
+    from mcjax import engine
+
+    cfg, base = spec.study.config, spec.study.base_params
+    keys = jax.vmap(lambda i: engine.run_key(0, i))(jnp.arange(2, dtype=jnp.uint32))
+    exact = jax.jit(jax.vmap(lambda p, k: engine.run_records(ub.SCENARIO, cfg, p, k), in_axes=(None, 0)))
+    smooth = jax.jit(jax.vmap(lambda p, k, s: engine.run_records(ub.SCENARIO, cfg, p, k, s), in_axes=(None, 0, None)))
+    out = {}
+    for name, start in _STARTS.items():
+        p = base._replace(uav0=np.asarray(start))
+        out[name, None] = exact(p, keys)
+        for level in (ub.Smoothing(), _SHARP):
+            out[name, level] = smooth(p, keys, ub.Smoothing(*(jnp.asarray(v, jnp.float64) for v in level)))
+    return cfg, base, out
+
+
+@pytest.mark.xdist_group("tune_urban")
+def test_one_step_exact_and_smooth_paths(paths):
+    """One ``step``, no near-twin: the Scenario's step is ``urban_bearing.step`` with its smoothing
+    switch declared (temperatures, Params with no smooth path). Its exact path (smoothing None)
+    keeps 0/1 indicators and a NaN score exactly when the command was held (the golden rows
+    check it bit for bit). Its smooth path returns a Record of the same structure, its soft
+    indicators floats in [0, 1]; and it is the smooth version of the exact step: with every
+    temperature 1000 times below the defaults it flies the exact step's horizontal track and
+    reports the exact indicators and errors, to within the residue of the soft gate's floor
+    (a shadowed measurement keeps weight 1e-9), while at the defaults it differs by far more."""
+    import mcjax.smoothing as smoothing
+
+    assert ub.SCENARIO.step is ub.step and not hasattr(ub, "smooth_step")
+    assert ub.SCENARIO.smooth.Smoothing is ub.Smoothing
+    assert {"max_hold_steps", "plan_temperature"} <= set(ub.SCENARIO.smooth.rough)
+    assert {"c1", "c2", "c3"} <= set(smoothing.smooth_params(ub.SCENARIO, paths[0]))
+    _, _, out = paths
+    for name in _STARTS:
+        ex, sm, sharp = out[name, None], out[name, ub.Smoothing()], out[name, _SHARP]
+        assert jax.tree.structure(ex) == jax.tree.structure(sm)
+        for f in ("held", "shadow", "nlos", "in_building", "violation"):
+            assert getattr(ex, f).dtype == jnp.bool_ and getattr(sm, f).dtype == jnp.float64, f
+            v = np.asarray(getattr(sm, f))
+            assert np.all((v >= 0) & (v <= 1)), (name, f)
+            assert jnp.shape(getattr(ex, f)) == jnp.shape(getattr(sm, f))
+        assert np.array_equal(np.isnan(np.asarray(ex.score)), np.asarray(ex.held))
+        for f in ("held", "shadow", "nlos", "in_building"):
+            assert np.max(np.abs(np.asarray(getattr(sharp, f)) - np.asarray(getattr(ex, f)))) < 1e-2, (name, f)
+        assert np.max(np.abs(np.asarray(sharp.uav[..., :2] - ex.uav[..., :2]))) < 1.0, name
+        gap_sharp = np.max(np.abs(np.asarray(sharp.error - ex.error)))
+        gap_default = np.max(np.abs(np.asarray(sm.error - ex.error)))
+        assert gap_sharp < 0.5 and gap_sharp < 1e-2 * gap_default, (name, gap_sharp, gap_default)
+    assert np.all(np.asarray(out["hidden", None].shadow)) and not np.any(np.asarray(out["open", None].shadow))
+
+
+@pytest.mark.xdist_group("tune_urban")
+def test_summary_reduces_the_smooth_record(paths):
+    """``summary`` reduces the smooth Record: every output the exact run has finite is finite on
+    the smooth run (default temperatures), the step counts are sums of soft indicators within
+    [0, n_steps], and the shadow count of the hidden run is near its exact 8."""
+    cfg, base, out = paths
+    for name in _STARTS:
+        exact = jax.vmap(lambda r: ub.reduce(cfg, r, base))(out[name, None])
+        smooth = jax.vmap(lambda r: ub.reduce(cfg, r, base))(out[name, ub.Smoothing()])
+        assert set(exact) == set(smooth)
+        for k in exact:
+            e, s = np.asarray(exact[k], float), np.asarray(smooth[k], float)
+            assert e.shape == s.shape and np.all(np.isfinite(s[np.isfinite(e)])), (name, k)
+        for k in ("shadow_steps", "nlos_steps", "held_steps", "building_steps", "limit_violations"):
+            assert np.all((np.asarray(smooth[k]) >= 0) & (np.asarray(smooth[k]) <= cfg.n_steps)), (name, k)
+    hidden = jax.vmap(lambda r: ub.reduce(cfg, r, base))(out["hidden", ub.Smoothing()])
+    assert np.all(np.abs(np.asarray(hidden["shadow_steps"]) - 8) < 0.5)

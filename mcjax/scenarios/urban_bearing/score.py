@@ -284,14 +284,17 @@ def soft_reflection_region(buildings, emitter, uav, T):
     ``check_legs=False``): the product of sigmoids of its signed conditions (emitter and UAV
     on the wall's outward side, the crossing point of the image–UAV segment within the wall's
     extent and height). The crossing fraction ``d_e/(d_e + d_u)`` uses soft-plus positive
-    distances so that it is smooth everywhere. Returns ``(p (B, 4), crossing point (B, 4, 3),
+    distances so that it is smooth everywhere; where both soft-plus distances underflow to 0
+    (both points farther than ~745 T behind the wall's plane), the fraction is ½ (every
+    sigmoid of the product is then 0, so the weight is 0 whatever the fraction). Returns ``(p (B, 4), crossing point (B, 4, 3),
     mirror image (B, 4, 3))``."""
     c, t_lo, t_hi, hh = env.wall_frame(buildings)
     sign = jnp.asarray(env.WALL_SIGN, dtype=c.dtype)
     d_e = sign * (env.per_wall(emitter, env.WALL_AXIS)[0] - c)
     d_u = sign * (env.per_wall(uav, env.WALL_AXIS)[0] - c)
     pe, pu = _soft_positive(d_e, T), _soft_positive(d_u, T)
-    frac = pe / (pe + pu)
+    ok = pe + pu > 0
+    frac = jnp.where(ok, pe / jnp.where(ok, pe + pu, 1.0), 0.5)
     e_t, u_t = env.per_wall(emitter, env.WALL_TANGENT)[0], env.per_wall(uav, env.WALL_TANGENT)[0]
     q_t = e_t + frac * (u_t - e_t)
     q_z = emitter[2] + frac * (uav[2] - emitter[2])
