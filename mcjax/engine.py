@@ -15,10 +15,8 @@ B-run batch program is compiled once, with the scenario's ``compiler_options``, 
 on every device (an XLA program is bound to its device; the copies run the same machine
 code: :func:`mcjax.jaxcompat.deserialise`), and the batches of a
 chunk go to the devices in turn, each device called from its own thread so they compute side
-by side (from one thread the CPU devices ran mostly one after the other).
-Every device runs the same program on B-aligned slices, so the numbers do not depend on the
-device count either. (A ``shard_map`` over the devices was tried: one program, but its bits
-differ from the one-device program's in the last place.)
+by side. Every device runs the same program on B-aligned slices, so the numbers do not depend
+on the device count either (a ``shard_map`` over the devices gave other bits in the last place).
 
 The entry points (:func:`simulate`, :func:`compiled`, :func:`run_chunks`,
 :func:`program_futures`, :func:`devices`) first call :func:`mcjax.configure` (64-bit mode, the
@@ -45,6 +43,7 @@ import numpy as np
 
 from mcjax import jaxcompat, runtime
 from mcjax.contract import Scenario
+from mcjax.smoothing import column
 
 
 def run_key(base_seed: int, seed_index) -> jax.Array:
@@ -131,56 +130,66 @@ def time_loop(step: Callable, state, key, n_steps: int, *, block: int | None = N
 
 
 def run_records(scenario, cfg, params, key, smoothing=None):
-    """One run's records stacked over time: the exact simulation (``smoothing`` None) or, for a
-    scenario with a smoothing switch (:class:`mcjax.smoothing.Smooth`), the smooth one at the
-    temperatures ``smoothing`` — the same keys either way."""
+    """One run's records stacked over time: the exact simulation (``smoothing`` None) or the
+    smooth one at those temperatures (:class:`mcjax.smoothing.Smooth`), with the same keys."""
     state = scenario.init(cfg, params, init_key(key))
-    if smoothing is None:
-        step = lambda s, k, t: scenario.step(cfg, params, s, k)  # noqa: E731
-    else:
-        step = lambda s, k, t: scenario.step(cfg, params, s, k, smoothing)  # noqa: E731
-    _, records = time_loop(step, state, key, cfg.n_steps)
-    return records
+    smooth = () if smoothing is None else (smoothing,)
+    return time_loop(lambda s, k, t: scenario.step(cfg, params, s, k, *smooth), state, key, cfg.n_steps)[1]
+
+
+def derivatives(scenario, cfg, params, key, sensitivity) -> dict:
+    """One run's d output / d Param of the smooth system (a sweep's ``[sensitivity]``), forward
+    mode (a per-agent Param moves every agent's value together), by :func:`mcjax.smoothing.column`."""
+    names, outputs, smoothing = sensitivity
+
+    def outputs_at(shift):
+        q = params._replace(**{n: getattr(params, n) + shift[i] for i, n in enumerate(names)})
+        reduced = scenario.reduce(cfg, run_records(scenario, cfg, q, key, smoothing), q)
+        return {o: reduced[o] for o in outputs}
+
+    jac = jax.jacfwd(outputs_at)(jnp.zeros(len(names), jnp.result_type(float)))
+    return {column(o, n): jac[o][..., i] for o in outputs for i, n in enumerate(names)}
 
 
 def simulate(scenario: Scenario, cfg, params, keys, *, records: bool = False, timeseries: bool = False,
-             smoothing=None):
-    """Run a batch: ``params`` and ``keys`` carry a leading run axis.
-
-    Returns each run's reduced outputs (``scenario.reduce``: a dict of (runs, …) arrays) or,
-    with ``records=True``, the records stacked over time (run, time, …) — the caller chooses
-    what is kept, so a large sweep need not keep every trajectory. ``timeseries=True``
-    returns ``(outputs, scenario.timeseries(...))`` from one simulation. ``smoothing``: run the
-    scenario's smooth system at these temperatures (:func:`run_records`). Not jitted: see
-    :func:`compiled`.
-    """
+             smoothing=None, sensitivity=None):
+    """Run a batch: ``params`` and ``keys`` carry a leading run axis. Returns each run's reduced
+    outputs (``scenario.reduce``: a dict of (runs, …) arrays) or, with ``records=True``, the
+    records stacked over time (run, time, …): the caller chooses what is kept. ``timeseries``:
+    ``(outputs, scenario.timeseries(...))`` from one simulation. ``smoothing``: the smooth
+    system (:func:`run_records`); ``sensitivity`` (a sweep's ``[sensitivity]``): the outputs
+    also hold each run's :func:`derivatives`. Not jitted: see :func:`compiled`."""
     runtime.configure()
 
     def one(p, k):
         recs = run_records(scenario, cfg, p, k, smoothing)
         if records:
             return recs
+        out = scenario.reduce(cfg, recs, p)
+        if sensitivity is not None:
+            out = {**out, **derivatives(scenario, cfg, p, k, sensitivity)}
         if timeseries:
-            return scenario.reduce(cfg, recs, p), scenario.timeseries(cfg, recs, p)
-        return scenario.reduce(cfg, recs, p)
+            return out, scenario.timeseries(cfg, recs, p)
+        return out
 
     return jax.vmap(one)(params, keys)
 
 
-def compiled(scenario: Scenario, cfg, records: bool = False, timeseries: bool = False) -> Callable:
+def compiled(scenario: Scenario, cfg, records: bool = False, timeseries: bool = False,
+             sensitivity=None) -> Callable:
     """The jitted :func:`simulate` for one scenario and config (defined once per process,
     however the flags are spelled: positionally, by keyword or left at their defaults),
-    compiled with the scenario's :func:`compiler_options` when called (or lowered) on arrays.
-    Called inside a transformation of your own (``jit``, ``make_jaxpr``, ``grad``), where JAX
-    does not allow compiler options, it is the same function without them."""
+    compiled with the scenario's :func:`compiler_options` when called (or lowered) on arrays;
+    inside a transformation of your own (``jit``, ``grad``) it is the same without them."""
     runtime.configure()
     records, timeseries = bool(records), bool(timeseries)
-    return cached(("jit", scenario, cfg, records, timeseries), lambda: _compiled(scenario, cfg, records, timeseries))
+    return cached(("jit", scenario, cfg, records, timeseries, sensitivity),
+                  lambda: _compiled(scenario, cfg, records, timeseries, sensitivity))
 
 
-def _compiled(scenario: Scenario, cfg, records: bool, timeseries: bool) -> Callable:
+def _compiled(scenario: Scenario, cfg, records: bool, timeseries: bool, sensitivity) -> Callable:
     def run(params, keys):
-        return simulate(scenario, cfg, params, keys, records=records, timeseries=timeseries)
+        return simulate(scenario, cfg, params, keys, records=records, timeseries=timeseries, sensitivity=sensitivity)
 
     options = compiler_options(scenario)
     top = jax.jit(run, compiler_options=options)
@@ -243,8 +252,7 @@ def cached(key: Hashable, make: Callable):
 
 
 def forget(kind: str | None = None) -> None:
-    """Drop what :func:`cached` keeps: everything, or the entries of one kind (``"jit"``,
-    ``"programs"``, …)."""
+    """Drop what :func:`cached` keeps: everything, or the entries of one kind (``"jit"``, …)."""
     with _CACHE_LOCK:
         for key in [k for k in _CACHE if kind is None or k[0] == kind]:
             del _CACHE[key]
@@ -344,17 +352,18 @@ def _or_else(future: Future, make: Callable) -> Future:
     return out
 
 
-def _label(scenario: Scenario, cfg, records: bool, timeseries: bool) -> str | None:
+def _label(scenario: Scenario, cfg, records: bool, timeseries: bool, sensitivity=None) -> str | None:
     """What names a batch program in the program store (:func:`mcjax.runtime.load_executable`,
     whose key adds mcjax's own source, JAX's version, the CPU and ``XLA_FLAGS``): the scenario,
-    its Config, the flags, the compiler options, and — for a scenario defined outside mcjax (a
+    its Config, the flags, the sensitivities, the compiler options, and — for a scenario defined outside mcjax (a
     file or a plugin) — the content of its source files (:func:`_source_digest`). None (not
     stored) when those files cannot be read."""
     module = getattr(scenario.init, "__module__", "") or ""
     where = module if module.startswith("mcjax.") else _source_digest(scenario)
     if where is None:
         return None
-    return f"{scenario.name}|{where}|{cfg!r}|{bool(records)}|{bool(timeseries)}|{compiler_options(scenario)}"
+    label = f"{scenario.name}|{where}|{cfg!r}|{bool(records)}|{bool(timeseries)}|{compiler_options(scenario)}"
+    return label if sensitivity is None else f"{label}|{sensitivity!r}"
 
 
 def _user_module(scenario: Scenario):
@@ -439,16 +448,16 @@ def chunk_inputs(point_params, n_seeds: int, base_seed: int, start: int, stop: i
 
 def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed: int = 0,
                chunk_size: int = 1000, chunks: list[int] | None = None,
-               records: bool = False, timeseries: bool = False) -> Iterator[tuple[int, int, int, dict]]:
+               records: bool = False, timeseries: bool = False,
+               sensitivity=None) -> Iterator[tuple[int, int, int, dict]]:
     """Run a sweep chunk by chunk; yields ``(chunk_index, start, stop, outputs)`` with the
     outputs trimmed to the chunk's real runs and converted to numpy.
 
     ``point_params``: Params with a leading point axis. ``chunks`` restricts the run to those
-    chunk indices (for resuming). ``timeseries=True`` yields ``(outputs, series)`` as the
-    outputs (see :func:`simulate`). Each chunk is computed as consecutive calls of one
-    compiled :data:`BATCH_SIZE`-run program (the last call padded by repeating the chunk's
-    last run), sent to the devices in turn (one calling thread per device), so memory is
-    bounded by the chunk and the numbers depend neither on it nor on the device count.
+    chunk indices (for resuming); ``timeseries`` and ``sensitivity`` as in :func:`simulate`.
+    Each chunk is consecutive calls of one compiled :data:`BATCH_SIZE`-run program (the last
+    padded by repeating the chunk's last run), sent to the devices in turn (one calling thread
+    per device): memory is bounded by the chunk, the numbers depend on neither it nor the devices.
     """
     runtime.configure()
     n_points = int(jax.tree.leaves(point_params)[0].shape[0])
@@ -457,7 +466,7 @@ def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed
     plan = chunk_plan(n_runs, chunk_size)
     # as many devices as the largest chunk has batches (a one-batch sweep compiles once)
     devs = devices()[:max(1, min(len(devices()), max(-(-(e - s) // b) for s, e in plan)))]
-    fn = compiled(scenario, cfg, records, timeseries)
+    fn = compiled(scenario, cfg, records, timeseries, sensitivity)
     programs = None
     # One dispatching thread per device: calls from a single thread kept the CPU devices
     # mostly one after the other (measured: CPU/wall 1.05 with two devices and 2-batch chunks).
@@ -477,7 +486,8 @@ def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed
                 e = min(s + b, stop)
                 params, keys = chunk_inputs(point_params, n_seeds, base_seed, s, e, b)
                 if programs is None:
-                    programs = program_futures(fn, (params, keys), devs, _label(scenario, cfg, records, timeseries),
+                    label = _label(scenario, cfg, records, timeseries, sensitivity)
+                    programs = program_futures(fn, (params, keys), devs, label,
                                                _user_module(scenario))
                 d = k % len(devs)
                 parts.append((e - s, lanes[d].submit(call, programs[d], devs[d], params, keys)))

@@ -67,3 +67,8 @@ def problem(scenario, cfg, name: str) -> str | None:
     if name not in smooth_params(scenario, cfg):
         return f"{name} is an array here; only Params with one number can be differentiated ({allowed})"
     return None
+
+
+def column(output: str, param: str) -> str:
+    """The name of the column holding d ``output`` / d ``param`` (a sweep's ``[sensitivity]``)."""
+    return f"d_{output}_d_{param}"

@@ -15,6 +15,7 @@ import pandas as pd
 from mcjax import results
 from mcjax.study.plan import Study
 from mcjax.study.rows import chunk_keys, part_metadata, run_rows, timeseries_rows
+from mcjax.study.sensitivity import declarations
 
 
 class ChunkRows(NamedTuple):
@@ -43,11 +44,12 @@ def chunk_rows(study: Study, chunks: list[int] | None = None) -> Iterator[ChunkR
     for idx, start, stop, out in engine.run_chunks(study.scenario, study.config, study.params, study.seeds,
                                                    base_seed=study.base_seed, chunk_size=study.chunk_size,
                                                    chunks=None if chunks is None else set(chunks),
-                                                   timeseries=study.timeseries):
+                                                   timeseries=study.timeseries, sensitivity=study.sensitivity):
         series = None
         if study.timeseries:
             out, series = out
-        rows = run_rows(study.scenario, study.config, out, chunk_keys(study, start, stop - start))
+        rows = run_rows(study.scenario, study.config, out, chunk_keys(study, start, stop - start),
+                        declarations(study.scenario, study.config, study.sensitivity))
         yield ChunkRows(idx, start, stop, rows, None if series is None else timeseries_rows(study, start, series))
 
 

@@ -60,6 +60,7 @@ class Study:
     timeseries: bool = False
     overrides: dict = field(default_factory=dict)   # the --set values, as given
     out_dir: Path | None = None
+    sensitivity: Any = None    # a mcjax.study.sensitivity.Sensitivity ([sensitivity]), or None
 
     @property
     def axes(self) -> list[str]:
@@ -229,7 +230,8 @@ def check_memory(study: Study, chunk_where: str = "chunk_size") -> None:
     chunk = min(-(-study.chunk_size // b) * b, -(-study.n_runs // b) * b)
     cfg = study.config
     F, T = len(cfg.filters), cfg.n_steps
-    per_run = F * (len(study.scenario.outputs(cfg)) + 4 + len(study.axes)) * 8 * ROW_COPIES
+    n_sens = 0 if study.sensitivity is None else len(study.sensitivity.params) * len(study.sensitivity.outputs)
+    per_run = F * (len(study.scenario.outputs(cfg)) + n_sens + 4 + len(study.axes)) * 8 * ROW_COPIES
     if study.timeseries:
         per_run += F * T * (len(study.scenario.timeseries_outputs(cfg)) + 4) * 8 * ROW_COPIES
     if chunk * per_run > budget:

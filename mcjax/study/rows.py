@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from mcjax.contract import Scenario
+from mcjax.study.sensitivity import declarations
 from mcjax.study.plan import Study
 
 
@@ -31,13 +32,15 @@ def _check_declared(got, declared, scenario: Scenario, what: str) -> None:
                          f"declared but missing: {missing}")
 
 
-def run_rows(scenario: Scenario, cfg, outputs: Mapping[str, Any], keys: Mapping[str, Any]) -> pd.DataFrame:
+def run_rows(scenario: Scenario, cfg, outputs: Mapping[str, Any], keys: Mapping[str, Any],
+             extra: Mapping[str, Any] | None = None) -> pd.DataFrame:
     """Tidy rows, one per run and filter, of a batch's reduced ``outputs`` (each (runs, F) or
     (runs,), as declared by ``scenario.outputs(cfg)``). ``keys``: per-run key columns (e.g.
     ``point_id``, ``seed_index``, swept values, a benchmark's case) — arrays of length runs or
     scalars. Columns: ``scenario``, the keys, ``filter``, then the outputs in declaration
-    order. Sorted by point, seed and filter."""
-    declared = scenario.outputs(cfg)
+    order, then ``extra`` (declarations of outputs the study adds: sensitivity columns).
+    Sorted by point, seed and filter."""
+    declared = {**scenario.outputs(cfg), **(extra or {})}
     _check_declared(outputs, declared, scenario, "reduce")
     n = len(np.asarray(next(iter(outputs.values()))))
     frames = []
@@ -97,7 +100,10 @@ def part_metadata(study: Study, chunk_size: int) -> dict:
     order), the spec, config, seeds and provenance — everything ``mcjax report`` needs."""
     from mcjax import results
 
-    return {**study.scenario.metadata(study.config), "spec": study.source, "config": dataclasses.asdict(study.config),
+    meta = study.scenario.metadata(study.config)
+    extra = declarations(study.scenario, study.config, study.sensitivity)
+    meta["outputs"] = {**meta["outputs"], **{k: o.as_json() for k, o in extra.items()}}
+    return {**meta, "spec": study.source, "config": dataclasses.asdict(study.config),
             "seeds": study.seeds, "base_seed": study.base_seed, "chunk_size": chunk_size,
             "n_points": study.n_points, "n_runs": study.n_runs, **results.environment_metadata()}
 

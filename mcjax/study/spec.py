@@ -9,6 +9,8 @@ spec (``sweeps/*.toml``) names a base config file and adds overrides and axes::
     base_seed = 0
     chunk_size = 1000
     timeseries = false  # true: also write OUT/timeseries/ (one row per run, step and filter)
+    [sensitivity] # derivatives of outputs by Params on the smooth system (mcjax.study.sensitivity)
+    params = ["comm_radius"]
     [config]      # Config overrides (recompile)
     [params]      # Params overrides
     [grid]        # axes combined as a cartesian product
@@ -38,9 +40,10 @@ from mcjax.contract import Scenario, setting_problem
 from mcjax.study.checks import (SpecError, check_keys, check_text, count, is_int, is_number, key_text, one_line, read_toml,
                                 show, subtable)
 from mcjax.study.plan import DEFAULT_SEEDS, Study, check_memory
+from mcjax.study.sensitivity import read_sensitivity
 
 SPEC_KEYS = ("scenario", "base", "seeds", "base_seed", "chunk_size", "config", "params", "grid", "zip",
-             "description", "timeseries")
+             "description", "timeseries", "sensitivity")
 CONFIG_FILE_KEYS = ("scenario", "config", "params", "description", "seeds")
 RANGE_KINDS = ("linspace", "logspace")
 
@@ -327,8 +330,9 @@ def build_spec(data: dict, base_dir: str | Path, *, seeds: int | None = None, ch
         raise SpecError(f"timeseries: must be true or false; got {show(timeseries)}")
     if timeseries and scenario.timeseries is None:
         raise SpecError(f"timeseries: must be false: scenario {scenario.name!r} has no per-step series")
+    sensitivity = read_sensitivity(scenario, cfg, data.get("sensitivity"))
     spec = Study(scenario, cfg, base_params, grid, zipped, seeds, base_seed, chunk, data, timeseries,
-                 json.loads(json.dumps(overrides)), None if out_dir is None else Path(out_dir))
+                 json.loads(json.dumps(overrides)), None if out_dir is None else Path(out_dir), sensitivity)
     _check_points(spec, params)
     check_memory(spec, chunk_where)
     return spec
