@@ -60,6 +60,30 @@ def potential_slope(r, R):
     return jnp.where(inside, -2.0 / rs**3 + rs * (2.0 * R - rs) / (R - rs) ** 2, jnp.nan)
 
 
+def faded_potential(r, R, width):
+    """The smoothing switch's version of eq. 12 (ours): ``ψ_w(r) = g((R − r)/w) ψ(r)`` with
+    ``g(u) = 1 − exp(−u⁴)`` for ``u > 0`` and 0 beyond R, so the potential of a link fades out
+    within a few ``w`` of R instead of growing without bound there: ``ψ_w`` is 0 at and beyond R,
+    twice continuously differentiable at R (``ψ_w ≈ R² (R − r)³ / w⁴``), and equal to ψ in
+    floating point wherever ``R − r > 2.5 w`` (``u⁴ > 37``). NaN at ``r ≤ 0``."""
+    inside = (r > 0) & (r < R)
+    rs = jnp.where(inside, r, R / 2)
+    g = -jnp.expm1(-(((R - rs) / width) ** 4))
+    return jnp.where(inside, g * (1.0 / rs**2 + rs**2 / (R - rs)), jnp.where(r > 0, 0.0, jnp.nan))
+
+
+def faded_potential_slope(r, R, width):
+    """``ψ_w′(r) = g ψ′(r) − ψ(r) · 4u³ exp(−u⁴) / w``, ``u = (R − r)/w``: the exact derivative
+    of :func:`faded_potential` (ours); 0 at and beyond R, NaN at ``r ≤ 0``."""
+    inside = (r > 0) & (r < R)
+    rs = jnp.where(inside, r, R / 2)
+    u = (R - rs) / width
+    e = jnp.exp(-(u**4))
+    psi = 1.0 / rs**2 + rs**2 / (R - rs)
+    slope = -jnp.expm1(-(u**4)) * (-2.0 / rs**3 + rs * (2.0 * R - rs) / (R - rs) ** 2) - psi * 4.0 * u**3 * e / width
+    return jnp.where(inside, slope, jnp.where(r > 0, 0.0, jnp.nan))
+
+
 def _pair_vectors(q):
     d = q[:, None, :] - q[None, :, :]                  # q_i − q_j
     n = q.shape[0]
@@ -69,33 +93,43 @@ def _pair_vectors(q):
     return d, jnp.where(eye, 0.0, r), eye
 
 
-def potential_forces(q, adj, R):
+def potential_forces(q, adj, R, barrier=None):
     """``−Σ_{j∈N_i} ∇_{q_i} ψ(‖q_i − q_j‖) = −Σ_j a_ij ψ′(r_ij) (q_i − q_j)/r_ij`` (eqs. 10–12),
-    (N, 2). Non-linked pairs contribute nothing (whatever their distance)."""
+    (N, 2). Non-linked pairs contribute nothing (whatever their distance). ``barrier`` (the
+    smoothing switch, ours; None: exact): the links' weights ``a_ij`` in [0, 1] multiply the
+    faded potential's slope (:func:`faded_potential_slope` of width ``barrier``), so every pair
+    contributes, finitely at any distance."""
     d, r, eye = _pair_vectors(q)
+    if barrier is not None:
+        w = jnp.where(eye, 0.0, adj)
+        rr = jnp.where(eye, R / 2, r)
+        coef = jnp.where(w > 0, w * faded_potential_slope(rr, R, barrier) / rr, 0.0)
+        return -jnp.sum(coef[..., None] * d, axis=1)
     linked = (adj > 0.5) & ~eye
     slope = potential_slope(jnp.where(linked, r, R / 2), R)
     coef = jnp.where(linked, slope / jnp.where(linked, r, 1.0), 0.0)
     return -jnp.sum(coef[..., None] * d, axis=1)
 
 
-def controls(state: FlockState, adj, sensing, ref_q, ref_p, g: Gains):
+def controls(state: FlockState, adj, sensing, ref_q, ref_p, g: Gains, barrier=None):
     """Eq. 13 (eqs. 10 and 11 in one): ``sensing`` (N,) is h_i ∈ {0, 1}; ``ref_q``, ``ref_p``
-    (N, 2) are each type-I node's target position and velocity (its estimate). Returns u (N, 2)."""
+    (N, 2) are each type-I node's target position and velocity (its estimate). Returns u (N, 2).
+    ``barrier``: the smoothing switch's soft links (:func:`potential_forces`)."""
     h = sensing[:, None]
     linked = adj * (1.0 - jnp.eye(adj.shape[0], dtype=adj.dtype))
     dp = state.p[:, None, :] - state.p[None, :, :]
     align = jnp.sum((state.b * linked)[..., None] * dp, axis=1)
     track = g.c1 * (state.q - ref_q) + g.c2 * (state.p - ref_p)
-    return potential_forces(state.q, adj, g.R) - (1.0 - h) * align - h * track
+    return potential_forces(state.q, adj, g.R, barrier) - (1.0 - h) * align - h * track
 
 
-def derivative(state: FlockState, adj, sensing, ref_q, ref_p, g: Gains, moving=None) -> FlockState:
+def derivative(state: FlockState, adj, sensing, ref_q, ref_p, g: Gains, moving=None, barrier=None) -> FlockState:
     """Time derivative of the flock (eqs. 1, 11, 13): ``(p, u, ḃ)`` with
     ``ḃ_ij = k ‖p_i − p_j‖²`` on the links of type-II rows (0 elsewhere). ``moving`` (N,)
     bool, optional: the nodes not in it are frozen (derivative 0, whatever their control; a node
-    lost to faults, which has no link)."""
-    u = controls(state, adj, sensing, ref_q, ref_p, g)
+    lost to faults, which has no link). ``barrier``: the smoothing switch's soft links
+    (:func:`potential_forces`; the weights also scale ḃ and the alignment)."""
+    u = controls(state, adj, sensing, ref_q, ref_p, g, barrier)
     dp = state.p[:, None, :] - state.p[None, :, :]
     linked = adj * (1.0 - jnp.eye(adj.shape[0], dtype=adj.dtype))
     bdot = g.k * jnp.sum(dp * dp, -1) * linked * (1.0 - sensing)[:, None]
@@ -199,17 +233,18 @@ def stable_step(state: FlockState, adj, sensing, g: Gains, safety=1.0):
 
 
 def rk4_adaptive(state: FlockState, adj, sensing, reference, g: Gains, dt, max_substeps: int, safety=1.0,
-                 moving=None):
+                 moving=None, barrier=None):
     """Integrate the flock over ``dt`` at a fixed topology with classical RK4 sub-steps whose
     size is chosen before each sub-step from the current state (:func:`stable_step`), so a
     pair that closes in mid-step gets smaller sub-steps (ours). At most ``max_substeps``: the
     last one allowed takes whatever time is left (and the step is reported as capped).
     ``moving`` (N,) bool, optional: only these nodes move (:func:`derivative`), and the
-    smallest distance is over pairs of them. Returns ``(state, min_link_margin, min_distance,
-    substeps_taken, capped)``."""
+    smallest distance is over pairs of them. ``barrier``: the smoothing switch's soft links
+    (:func:`potential_forces`; the sub-steps are sized and the margins taken over the links of
+    weight > 1/2). Returns ``(state, min_link_margin, min_distance, substeps_taken, capped)``."""
     def f(s, tau):
         rq, rp = reference(tau)
-        return derivative(s, adj, sensing, rq, rp, g, moving)
+        return derivative(s, adj, sensing, rq, rp, g, moving, barrier)
 
     def cond(carry):
         _, tau, k, _, _ = carry
@@ -236,19 +271,27 @@ def rk4_adaptive(state: FlockState, adj, sensing, reference, g: Gains, dt, max_s
     return state, margin, dmin, k, k >= max_substeps
 
 
-def energy(state: FlockState, adj, sensing, target_q, target_p, g: Gains, l, nodes=None):
+def energy(state: FlockState, adj, sensing, target_q, target_p, g: Gains, l, nodes=None, barrier=None):
     """The flocking energy φ of Lou et al. 2013, eq. 15:
     ``½ Σ_i [Σ_{j∈N_i} ψ(‖q_i − q_j‖) + h_i c1 ‖q_i − q_γ‖² + ‖p_i − p_γ‖²
     + Σ_{j∈N_i} (1 − h_i)(b_ij − l)²/(2 k_ij)]`` for the true target ``(q_γ, p_γ)`` (2,) each.
     Eq. 16 takes ``l = c2``. +∞ if a link is at or beyond R. ``nodes`` (N,) bool, optional:
-    the sum over i runs over these nodes only (the flock less the nodes lost to faults)."""
+    the sum over i runs over these nodes only (the flock less the nodes lost to faults).
+    ``barrier`` (the smoothing switch, ours): each pair's terms weighted by its soft link
+    ``a_ij``, with the faded potential (:func:`faded_potential`)."""
     _, r, eye = _pair_vectors(state.q)
-    linked = (adj > 0.5) & ~eye
-    psi = jnp.where(linked, potential(jnp.where(linked, r, g.R / 2), g.R), 0.0)
     h = sensing
+    if barrier is None:
+        linked = (adj > 0.5) & ~eye
+        psi = jnp.where(linked, potential(jnp.where(linked, r, g.R / 2), g.R), 0.0)
+        pair_gains = jnp.where(linked, (state.b - l) ** 2, 0.0)
+    else:
+        w = jnp.where(eye, 0.0, adj)
+        psi = jnp.where(w > 0, w * faded_potential(jnp.where(eye, g.R / 2, r), g.R, barrier), 0.0)
+        pair_gains = w * (state.b - l) ** 2
     U = jnp.sum(psi, axis=1) + h * g.c1 * jnp.sum((state.q - target_q) ** 2, -1)
     kin = jnp.sum((state.p - target_p) ** 2, -1)
-    gains = jnp.sum(jnp.where(linked, (state.b - l) ** 2, 0.0), axis=1) * (1.0 - h) / (2.0 * g.k)
+    gains = jnp.sum(pair_gains, axis=1) * (1.0 - h) / (2.0 * g.k)
     if nodes is None:
         return 0.5 * jnp.sum(U + kin + gains)
     return 0.5 * jnp.sum(jnp.where(nodes, U + kin + gains, 0.0))

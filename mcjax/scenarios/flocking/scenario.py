@@ -68,6 +68,8 @@ from mcjax.models.motion import cv_matrices, cv_process_noise
 from mcjax.numerics import spd_inverse, symmetrize
 from mcjax.scenarios import faults, kit
 from mcjax.scenarios.flocking import dynamics as fl
+from mcjax.scenarios.flocking.smoothing import ROUGH, Smoothing, soft_hysteresis, soft_link_changes
+from mcjax.smoothing import Smooth
 
 NAME = "flocking"
 FILTER_KINDS = ("kcf", "local")
@@ -281,9 +283,16 @@ def _position(x, sensor):
     return jnp.stack([x[0], x[2]])
 
 
-def step(cfg, params, state: State, key) -> tuple[State, Record]:
+def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> tuple[State, Record]:
     """One sampling step (module docstring): measure, filter (Lou et al. 2013 Alg. 1), fly
     (eqs. 1, 10–13), update the hysteresis graph (Section 1.1, rules 2–3).
+
+    ``smoothing`` (the smoothing switch, :class:`~.smoothing.Smoothing`; None: the exact
+    simulation) makes the graph's links weights in [0, 1] with a soft hysteresis
+    (:func:`~.smoothing.soft_hysteresis`) and fades each link's potential out at R
+    (:func:`.dynamics.faded_potential`); the filters, the controllers (eqs. 10–13), the RK4
+    sub-steps and the random draws are the same. The record's graph statistics and link
+    counts are then those of the weights (``last_change_time`` is not meaningful).
 
     Faults (``Config.faults = "on"``, module docstring "Faults"): a dropped-out or lost node
     measures nothing; a lost link drops the step's KCF exchange on it, not the link of the
@@ -340,17 +349,24 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
             return rq, jnp.broadcast_to(x[jnp.array([1, 3])], (n, 2))
 
     moving = None if fault is None else fault.alive
+    barrier = None if smoothing is None else jnp.asarray(smoothing.barrier, dtype)
     flock, margin, dmin, n_sub, capped = fl.rk4_adaptive(state.flock, graph_now, h, reference, gains, p.dt,
-                                                         cfg.max_substeps, p.substep_safety, moving)
+                                                         cfg.max_substeps, p.substep_safety, moving, barrier)
     if fault is not None:  # a lost node has stopped
         flock = flock._replace(p=jnp.where(moving[:, None], flock.p, 0.0))
 
     # 3. the hysteresis graph at the step's end (a lost node forms no link)
-    adj = graph.hysteresis_adjacency(graph_now, flock.q, p.R, p.epsilon)
+    if smoothing is None:
+        adj = graph.hysteresis_adjacency(graph_now, flock.q, p.R, p.epsilon)
+    else:
+        adj = soft_hysteresis(graph_now, flock.q, p.R, p.epsilon, jnp.asarray(smoothing.links, dtype))
     if fault is not None:
         adj = adj * a[:, None] * a[None, :]
-    added = jnp.sum((adj > 0.5) & (graph_now < 0.5)) // 2
-    removed = jnp.sum((adj < 0.5) & (graph_now > 0.5)) // 2
+    if smoothing is None:
+        added = jnp.sum((adj > 0.5) & (graph_now < 0.5)) // 2
+        removed = jnp.sum((adj < 0.5) & (graph_now > 0.5)) // 2
+    else:
+        added, removed = soft_link_changes(graph_now, adj)
     target_end = target_state(cfg, p, t + p.dt)
     tq, tp = target_end[jnp.array([0, 2])], target_end[jnp.array([1, 3])]
     mismatch = jnp.sum((flock.p - tp) ** 2)
@@ -361,12 +377,25 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
     rec = Record(
         error=errors, lambda2=graph.algebraic_connectivity(adj), edges=jnp.sum(adj) / 2, added=added,
         removed=removed, min_distance=dmin, min_link_margin=margin,
-        energy=fl.energy(flock, adj, h, tq, tp, gains, p.c2, moving),
+        energy=fl.energy(flock, adj, h, tq, tp, gains, p.c2, moving, barrier),
         speed_mismatch=mismatch, substeps=n_sub, capped=capped, target=target,
         start_failed=state.start_failed,
         attempts=state.attempts,
         faults=record)
     return State(state.t + 1, flock, adj, filters, state.start_failed, state.attempts, fault_state, mailbox), rec
+
+
+def training_errors(cfg, params, record: Record):
+    """What the training loss of ``mcjax tune`` reads from a step's record: the position errors
+    (F, N) of every filter's estimate at every node (the error output ``rmse``'s)."""
+    return record.error
+
+
+def training_weights(cfg, params):
+    """Each node's weight (N,) in the training loss: 1 for the type-I nodes (those that sense
+    and whose errors the ``rmse`` output averages), 0 for the others."""
+    dtype = jnp.dtype(cfg.dtype)
+    return sensing_mask(cfg, kit.cast(params, dtype), dtype)
 
 
 def summary(cfg, records: Record | None, params) -> dict:
@@ -427,7 +456,7 @@ def series(cfg, records: Record | None, params) -> dict:
 SCENARIO = Scenario(
     name=NAME, title="Lou, Cui & Li 2013: a flocking sensor network tracks a target with the Kalman-consensus "
     "filter", Config=Config, Params=Params, init=init, step=step, summary=summary, series=series,
-    check_params=check_params,
+    check_params=check_params, smooth=Smooth(Smoothing, training_errors, training_weights, ROUGH),
     compiler_options=FAST_COMPILE)
 default_params = SCENARIO.default_params
 #: The record's derived functions (from :func:`summary` and :func:`series`), by their usual names.
