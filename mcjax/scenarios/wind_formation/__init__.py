@@ -3,7 +3,9 @@ path, Chen & Lu 2013 — the scenario ``wind_formation`` and everything only it 
 
 * :mod:`.scenario` — Config, Params, the step, the outputs, ``SCENARIO``;
 * :mod:`.guidance` — the path correction of eqs. 13–16 (forward root, approach rule, capped
-  air step, centre offsets).
+  air step, centre offsets);
+* :mod:`.smoothing` — the smoothing switch (soft comm links, eq. 13's path point, eq. 15's cap) for
+  ``mcjax tune`` and sensitivities.
 """
 
 from mcjax.scenarios.wind_formation.scenario import (
@@ -11,8 +13,12 @@ from mcjax.scenarios.wind_formation.scenario import (
     Params, Record, State, check_params, default_params, formation_term, init, noise_variance, outputs, pairs, reduce,
     reference_distances, series, step, summary, timeseries, timeseries_outputs, wind,
 )
+from mcjax.scenarios.wind_formation.smoothing import (
+    ROUGH, Smoothing, smooth_adjacency, smooth_cap, smooth_next_centre, soft_capped, training_errors, training_weights,
+)
 
 __all__ = ["CAP_TOL", "CLOSURE_TOL", "Config", "FILTER_KINDS", "FORMATION_SIGNS", "NAME", "NOISES", "PAPER_OFFSETS",
-           "PAPER_START", "Params", "Record", "SCENARIO", "State", "check_params", "default_params", "formation_term",
-           "init", "noise_variance", "outputs", "pairs", "reduce", "reference_distances", "series", "step", "summary",
-           "timeseries", "timeseries_outputs", "wind"]
+           "PAPER_START", "Params", "ROUGH", "Record", "SCENARIO", "Smoothing", "State", "check_params",
+           "default_params", "formation_term", "init", "noise_variance", "outputs", "pairs", "reduce",
+           "reference_distances", "series", "smooth_adjacency", "smooth_cap", "smooth_next_centre", "soft_capped",
+           "step", "summary", "timeseries", "timeseries_outputs", "training_errors", "training_weights", "wind"]

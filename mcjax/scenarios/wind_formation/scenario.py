@@ -76,6 +76,10 @@ from mcjax.filters.gaussian import Gaussian, first_step_model
 from mcjax.numerics import spd_inverse, symmetrize
 from mcjax.scenarios import faults, kit
 from mcjax.scenarios.wind_formation import guidance
+from mcjax.scenarios.wind_formation.smoothing import (
+    ROUGH, Smoothing, smooth_adjacency, smooth_cap, smooth_next_centre, soft_capped, training_errors, training_weights,
+)
+from mcjax.smoothing import Smooth
 
 NAME = "wind_formation"
 FILTER_KINDS = ("kcf", "local", "cif")
@@ -184,8 +188,8 @@ class Record(NamedTuple):
     raw_error: jax.Array     # (2,) |measurement - wind| per axis, report agent (NaN: no measurement, faults)
     distances: jax.Array     # (pairs,) pairwise distances after the step
     path_error: jax.Array    # () |Y - psi(X)| of the centroid after the step
-    on_path: jax.Array       # () eq. 13 had a forward root
-    capped: jax.Array        # () some UAV's air step was capped at l
+    on_path: jax.Array       # () eq. 13 had a forward root (smoothing: a weight in [0, 1])
+    capped: jax.Array        # () some UAV's air step was capped at l (smoothing: a weight in [0, 1])
     air_max: jax.Array       # () longest air step
     lambda2: jax.Array       # () algebraic connectivity of the links that carried a message
     positions: jax.Array     # (n, 2) after the step
@@ -256,9 +260,11 @@ def formation_centre(positions, offsets, alive):
     return jnp.sum(a * (positions - offsets), axis=0) / jnp.maximum(jnp.sum(a), 1.0)
 
 
-def step(cfg, params, state: State, key) -> tuple[State, Record]:
+def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> tuple[State, Record]:
     """One step of ``dt`` (module docstring): measure (eq. 2), filter (eqs. 6–12), correct the
-    path (eqs. 13–16), fly through the true wind.
+    path (eqs. 13–16), fly through the true wind. ``smoothing`` (:class:`Smoothing`; None: the
+    exact simulation) makes the comm links, eq. 13's path point and eq. 15's cap smooth with the
+    same draws (:mod:`.smoothing`); ``on_path`` and ``capped`` are then weights in [0, 1].
 
     Faults (``Config.faults = "on"``, module docstring "Faults"): a dropped-out or lost UAV's
     measurement is missing (every filter and the centre filter go without it); a lost link
@@ -281,7 +287,10 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
     z = faults.measurements(w[None, :] + noise, fault)
 
     # 2. the filters over the links that carry a message (step 0 updates the prior without predicting)
-    adj = graph.adjacency(state.positions, p.comm_radius)
+    if smoothing is None:
+        adj = graph.adjacency(state.positions, p.comm_radius)
+    else:
+        adj = smooth_adjacency(state.positions, p.comm_radius, smoothing.comm)
     carried = faults.messages(adj, fault)
     R_inv = jnp.broadcast_to(jnp.eye(2, dtype=dtype) / noise_variance(cfg, p), (n, 2, 2))
     meas = Measurements(z, state.positions, carried, R_inv)
@@ -309,10 +318,16 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
     else:
         here = formation_centre(state.positions, offsets, fault.alive)
     predicted = here + centre.x * p.dt
-    nxt = guidance.next_centre(psi, predicted, p.step_length, cfg.root_grid)
+    if smoothing is None:
+        nxt = guidance.next_centre(psi, predicted, p.step_length, cfg.root_grid)
+    else:
+        nxt = smooth_next_centre(psi, predicted, p.step_length, cfg.root_grid, smoothing.path)
     steer = estimates[cfg.filters.index("kcf") if "kcf" in cfg.filters else 0]
     wanted = guidance.wanted_steps(nxt.point, offsets, state.positions, steer, p.dt)
-    air = guidance.cap_step(wanted, p.step_length)                                   # eq. 15
+    if smoothing is None:
+        air = guidance.cap_step(wanted, p.step_length)                               # eq. 15
+    else:
+        air = smooth_cap(wanted, p.step_length, smoothing.cap)
     positions = state.positions + air + w[None, :] * p.dt
     if fault is None:
         centroid = jnp.mean(positions, axis=0)
@@ -331,7 +346,8 @@ def step(cfg, params, state: State, key) -> tuple[State, Record]:
         distances=jnp.linalg.norm(positions[ij[:, 1]] - positions[ij[:, 0]], axis=-1),
         path_error=jnp.abs(centroid[1] - psi(centroid[0])),
         on_path=nxt.on_path,
-        capped=jnp.any(jnp.linalg.norm(wanted, axis=-1) > p.step_length * (1.0 + CAP_TOL)),
+        capped=(jnp.any(jnp.linalg.norm(wanted, axis=-1) > p.step_length * (1.0 + CAP_TOL)) if smoothing is None
+                else soft_capped(wanted, p.step_length, smoothing.cap, CAP_TOL)),
         air_max=jnp.max(jnp.linalg.norm(air, axis=-1)),
         lambda2=graph.algebraic_connectivity(carried),
         positions=positions,
@@ -383,7 +399,10 @@ def _formation(cfg, records: Record, params) -> dict:
     dev = jnp.max(gap, axis=1)                                                       # (T,)
     inside = dev <= jnp.asarray(params.formation_tolerance, dtype)
     holds = jnp.flip(jnp.cumprod(jnp.flip(inside).astype(jnp.int32))) > 0           # inside from here to the end
-    joined = _first(records.on_path, dtype)
+    if records.on_path.dtype == jnp.bool_:
+        joined = _first(records.on_path, dtype)
+    else:  # the smoothing switch's weights: the steps before the first join, Σ_t Π_{s≤t} (1 − on_path_s)
+        joined = jnp.sum(jnp.cumprod(1.0 - records.on_path))
     after_join = (steps >= jnp.nan_to_num(joined, nan=T)) & jnp.isfinite(joined)
     return dict(dev=dev, holds=holds, settle=_first(holds, dtype), joined=joined, after_join=after_join)
 
@@ -426,7 +445,7 @@ def summary(cfg, records: Record | None, params) -> dict:
         path_error_max=(Output("m", "largest |Y - psi(X)| of the centroid after join_step", False),
                         lambda: metrics.nan_max(jnp.where(fm()["after_join"], pe(), -jnp.inf))),
         approach_steps=(Output("steps", "steps on the approach rule (eq. 13 had no forward root)", False),
-                        lambda: jnp.sum(~r.on_path)),
+                        lambda: jnp.sum(~r.on_path) if r.on_path.dtype == jnp.bool_ else jnp.sum(1.0 - r.on_path)),
         capped_steps=(Output("steps", "steps where some UAV's air step was capped at l (eq. 15)", False),
                       lambda: jnp.sum(r.capped)),
         max_air_step=(Output("m", "longest air step of any UAV (eq. 15: at most step_length)", False),
@@ -463,7 +482,7 @@ def series(cfg, records: Record | None, params) -> dict:
 SCENARIO = Scenario(
     name=NAME, title="Chen & Lu 2013: three UAVs estimate the wind by consensus Kalman filtering and hold a "
     "formation on a sine path", Config=Config, Params=Params, init=init, step=step, summary=summary,
-    series=series, check_params=check_params,
+    series=series, check_params=check_params, smooth=Smooth(Smoothing, training_errors, training_weights, ROUGH),
     compiler_options=FAST_COMPILE)
 default_params = SCENARIO.default_params
 #: The record's derived functions (from :func:`summary` and :func:`series`), by their usual names.
