@@ -157,20 +157,20 @@ def simulate(scenario: Scenario, cfg, params, keys, *, records: bool = False, ti
     outputs (``scenario.reduce``: a dict of (runs, …) arrays) or, with ``records=True``, the
     records stacked over time (run, time, …): the caller chooses what is kept. ``timeseries``:
     ``(outputs, scenario.timeseries(...))`` from one simulation. ``smoothing``: the smooth
-    system (:func:`run_records`); ``sensitivity`` (a sweep's ``[sensitivity]``): the outputs
-    also hold each run's :func:`derivatives`. Not jitted: see :func:`compiled`."""
+    system (:func:`run_records`); ``sensitivity`` (a sweep's ``[sensitivity]``): each run's
+    :func:`derivatives` instead (a program of their own beside the exact one, whose outputs
+    so stay bit for bit those of a sweep without them). Not jitted: see :func:`compiled`."""
     runtime.configure()
 
     def one(p, k):
+        if sensitivity is not None:
+            return derivatives(scenario, cfg, p, k, sensitivity)
         recs = run_records(scenario, cfg, p, k, smoothing)
         if records:
             return recs
-        out = scenario.reduce(cfg, recs, p)
-        if sensitivity is not None:
-            out = {**out, **derivatives(scenario, cfg, p, k, sensitivity)}
         if timeseries:
-            return out, scenario.timeseries(cfg, recs, p)
-        return out
+            return scenario.reduce(cfg, recs, p), scenario.timeseries(cfg, recs, p)
+        return scenario.reduce(cfg, recs, p)
 
     return jax.vmap(one)(params, keys)
 
@@ -266,9 +266,8 @@ def cached_programs(fn) -> list:
 
 
 def programs(fn, args: tuple, devs, label: str | None = None) -> list:
-    """``fn`` (a jitted function) compiled ahead of time for arguments shaped as ``args`` on
-    each device of ``devs``: compiled once, loaded on the other devices
-    (:func:`program_futures`, waiting for every device's)."""
+    """``fn`` (jitted) compiled ahead of time for arguments shaped as ``args`` on each device of
+    ``devs`` (:func:`program_futures`, waiting for every device's)."""
     return [f.result() for f in program_futures(fn, args, devs, label)]
 
 
@@ -453,8 +452,8 @@ def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed
     """Run a sweep chunk by chunk; yields ``(chunk_index, start, stop, outputs)`` with the
     outputs trimmed to the chunk's real runs and converted to numpy.
 
-    ``point_params``: Params with a leading point axis. ``chunks`` restricts the run to those
-    chunk indices (for resuming); ``timeseries`` and ``sensitivity`` as in :func:`simulate`.
+    ``point_params``: Params with a leading point axis; ``chunks``: only those (resuming);
+    ``timeseries`` as in :func:`simulate`; ``sensitivity`` adds the :func:`derivatives`.
     Each chunk is consecutive calls of one compiled :data:`BATCH_SIZE`-run program (the last
     padded by repeating the chunk's last run), sent to the devices in turn (one calling thread
     per device): memory is bounded by the chunk, the numbers depend on neither it nor the devices.
@@ -466,16 +465,18 @@ def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed
     plan = chunk_plan(n_runs, chunk_size)
     # as many devices as the largest chunk has batches (a one-batch sweep compiles once)
     devs = devices()[:max(1, min(len(devices()), max(-(-(e - s) // b) for s, e in plan)))]
-    fn = compiled(scenario, cfg, records, timeseries, sensitivity)
+    fns = [compiled(scenario, cfg, records, timeseries)] + (
+        [] if sensitivity is None else [compiled(scenario, cfg, sensitivity=sensitivity)])
     programs = None
-    # One dispatching thread per device: calls from a single thread kept the CPU devices
-    # mostly one after the other (measured: CPU/wall 1.05 with two devices and 2-batch chunks).
+    # one dispatching thread per device (from one thread: CPU/wall 1.05 with two devices, measured)
     lanes = [ThreadPoolExecutor(1, thread_name_prefix=f"mcjax-device-{i}") for i in range(len(devs))]
 
-    def call(program, dev, params, keys):
-        program = program.result()  # this device's program: it may still be loading
-        out = program(jax.device_put(params, dev), jax.device_put(keys, dev))
-        return jax.tree.map(np.asarray, out)
+    def call(futures, dev, params, keys):  # this device's programs: they may still be loading
+        params, keys = jax.device_put(params, dev), jax.device_put(keys, dev)
+        out, *extra = [jax.tree.map(np.asarray, f.result()(params, keys)) for f in futures]
+        for d in extra:  # the derivatives join the outputs
+            out = (out[0] | d, out[1]) if timeseries else out | d
+        return out
 
     try:
         for idx, (start, stop) in enumerate(plan):
@@ -486,11 +487,11 @@ def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed
                 e = min(s + b, stop)
                 params, keys = chunk_inputs(point_params, n_seeds, base_seed, s, e, b)
                 if programs is None:
-                    label = _label(scenario, cfg, records, timeseries, sensitivity)
-                    programs = program_futures(fn, (params, keys), devs, label,
-                                               _user_module(scenario))
+                    programs = [program_futures(fn, (params, keys), devs, _label(scenario, cfg, *flags),
+                                                _user_module(scenario))
+                                for fn, flags in zip(fns, [(records, timeseries), (False, False, sensitivity)])]
                 d = k % len(devs)
-                parts.append((e - s, lanes[d].submit(call, programs[d], devs[d], params, keys)))
+                parts.append((e - s, lanes[d].submit(call, [p[d] for p in programs], devs[d], params, keys)))
             parts = [(m, f.result()) for m, f in parts]
             out = jax.tree.map(lambda *xs: np.concatenate([x[:m] for (m, _), x in zip(parts, xs)]),
                                *[o for _, o in parts])

@@ -35,6 +35,7 @@ untouched and nothing needs a display.  This package does not import JAX.
 Modules: :mod:`~mcjax.plots.common` (records, constants, axes, colours, drawing helpers),
 :mod:`~mcjax.plots.lines` (statistics and connectivity against one axis),
 :mod:`~mcjax.plots.heatmaps` (two axes), :mod:`~mcjax.plots.bars` (a single point),
+:mod:`~mcjax.plots.sensitivity` (the error and its derivatives by Params against one axis),
 :mod:`~mcjax.plots.catalog` (which figures a table gets; writing them).
 """
 

@@ -23,6 +23,7 @@ from mcjax.plots.common import (MAX_PANELS, PALETTE, PCT, SAME_RTOL, Plot, PlotF
                                 filter_colors, one_row_per_run, with_unit, x_axis)
 from mcjax.plots.heatmaps import heatmap_figure
 from mcjax.plots.lines import connectivity_figure, line_figure
+from mcjax.plots.sensitivity import sensitivity_columns, sensitivity_figure
 from mcjax.tables import Schema, axis_label, display, label, summarize, unit
 
 __all__ = ["plots", "figures", "write_plots", "make_plots"]
@@ -127,7 +128,10 @@ def plots(df: pd.DataFrame, metadata: Mapping[str, Any] | Schema,
     * with graph statistics, ``connectivity_vs_<A>.png``: mean over runs of the per-run
       mean connectivity (95 % t-interval), the minimum over runs of the per-run minimum and
       the mean number of disconnected steps, once per run (the graph does not depend on
-      the filter).
+      the filter);
+    * with sensitivity columns of the error (a sweep's ``[sensitivity]``),
+      ``sensitivity_<err>_vs_<A>.png``: the mean error and, under it, the mean derivative
+      with respect to each differentiated Param (:mod:`mcjax.plots.sensitivity`).
 
     With other plot axes, each figure has one panel per combination of their values (the
     connectivity plot one line per combination), up to :data:`MAX_PANELS`; beyond, the runs
@@ -220,6 +224,13 @@ def plots(df: pd.DataFrame, metadata: Mapping[str, Any] | Schema,
                            f"Fraction of runs with {sch.divergence} true, against {x_text}, one line per "
                            f"filter (shifted sideways a little so equal rates stay apart); bars: its {PCT} "
                            f"Wilson interval.{where} {text}")
+        derivatives = sensitivity_columns(data.columns, sch)
+        if derivatives:
+            spooled = _pooled_note(others, xaxes, "the sensitivity figure draws one line per filter") if others else None
+            fig, text = sensitivity_figure(data, xa, sch, colors, derivatives, spooled)
+            yield Plot(f"sensitivity_{_safe(e)}_vs_{tag}.png", fig,
+                       f"Mean {err_label} against {x_text}, one line per filter. {text}"
+                       + (f" Runs {spooled}." if spooled else ""))
         if sch.connectivity:
             runs = one_row_per_run(data, sch, plot_axes)
             cname = f"connectivity_vs_{tag}.png"

@@ -45,7 +45,7 @@ from mcjax.smoothing import Smooth
 NAME = "urban_bearing"
 
 FILTER_KINDS = ("imm", "ekf")
-PLANNERS = ("grid", "gradient")
+PLANNERS = ("grid", "gradient", "sequence")
 INITS = ("first_bearing", "prior")
 LOS, NLOS_PLUS, NLOS_MINUS = 0, 1, 2
 DEG = float(np.pi / 180.0)
@@ -74,10 +74,14 @@ Config = config_type("Config", dict(
     omega_step=Setting(0.5 * DEG, "grid step of omega (ours: 0.5 deg/s)", "rad/s", low=0, low_open=True),
     horizon=Setting(10, "predicted steps n of a candidate track (ours)", "steps", low=1, integer=True),
     fim_score=Setting("logdet", "J_FIM scores log det FIM (ours) or the paper's raw det", choices=urban.FIM_SCORES),
-    planner=Setting("grid", "grid = the paper's search over (theta, omega); gradient = optax on the smooth "
-                    "surrogate", choices=PLANNERS),
-    plan_iterations=Setting(20, "gradient planner: Adam steps per re-plan", low=1, integer=True),
-    plan_learning_rate=Setting(0.3, "gradient planner: Adam step on the squashed command", low=0, low_open=True),
+    planner=Setting("grid", "grid = the paper's search over constant (theta, omega); gradient = optax on the smooth "
+                    "score of a constant command; sequence = optax on a command per horizon step (ours)",
+                    choices=PLANNERS),
+    plan_iterations=Setting(20, "gradient / sequence planner: Adam steps per re-plan", low=1, integer=True),
+    plan_learning_rate=Setting(0.3, "gradient / sequence planner: Adam step, in units of one step's largest "
+                               "command change", low=0, low_open=True),
+    sequence_grid_stride=Setting(2, "sequence planner: its warm start's grid steps are theta_step and omega_step "
+                                 "times this (ours; 1 = the grid planner's grid)", low=1, integer=True),
     init=Setting("first_bearing", "the filters' start: first_bearing = on the bearing measured at uav0, at a range "
                  "drawn with std prior_sigma (ours: bearings-only practice); prior = a point drawn with std prior_sigma "
                  "per axis about the emitter", choices=INITS),
