@@ -226,9 +226,8 @@ def devices() -> list:
     return jax.local_devices()
 
 
-#: The engine's in-process cache (:func:`cached`): jitted functions under ``("jit", scenario,
-#: cfg, records, timeseries)``, futures of compiled programs under ``("programs", fn, input
-#: signature, devices)``; other layers add their own kinds (e.g. tune's batch functions).
+#: The in-process cache (:func:`cached`): ``("jit", scenario, cfg, flags…)``, ``("programs", fn,
+#: input signature, devices)``; other layers add their own kinds (e.g. tune's batch functions).
 _CACHE: OrderedDict = OrderedDict()
 CACHE_MAX = 96  # the two caches it replaced held 32 jitted functions and 64 programs
 _CACHE_LOCK = threading.Lock()
