@@ -1,0 +1,252 @@
+"""Chen & Hao 2022: does planning a manoeuvre instead of a constant command help? The grid planner
+of Alg. 1 (one constant command (θ, ω) held over the horizon, the best of a grid by the track
+score of eq. 20) against the sequence planner (ours, ``Config.planner = "sequence"``: a command
+per step of the horizon by projected Adam on the smooth score, warm-started from the best
+constant command of a coarser grid, kept only if its exact score beats that command's; the first
+command flies and the UAV re-plans every step, as with the grid). Issue 34, item 3.
+
+What is run, on ``configs/chen2022.toml`` (the default set-up, the paper's weights):
+
+1. Time per plan, before any closed-loop run. Planning states: the grid planner's closed-loop
+   states of seeds 0 … ``--state-seeds``−1 (250 steps each), re-plan steps only (command not
+   held). On a batch of up to 1,000 of them (vmap, jit, after compilation, best of
+   ``--repeats`` calls) the grid planner and the sequence planner at each iteration count of
+   ``--scan`` are timed, interleaved. The rule fixed before the run (configs/chen2022.toml):
+   the sequence planner's count is the largest whose time per plan is at most the grid's;
+   ``--time-only`` stops here and prints it. On the same states: each planner's mean exact
+   score J and how often the sequence beat its warm start (information, not used to choose).
+2. Closed loop (``--runs`` seeds, the SAME seed indices for every planner, 250 steps): the grid
+   planner, the sequence planner at ``--iterations`` (default: :data:`ITERATIONS`, set from
+   step 1's timing before the closed-loop comparison), and the same sequence planner warm-started
+   on the full grid (``sequence_grid_stride = 1``: the grid's own best constant command, refined;
+   more time per plan). Printed per planner: the IMM-EKF's final error (eq. 23, the paper's
+   "RMSE"), steps in the shadow, with an NLOS measurement, holding: mean [95 % t]; then the paired
+   differences sequence − grid (same seeds) with 95 % t intervals; the runs that entered a
+   building or broke a limit (must be 0); time per plan side by side (step 1's batched timing at
+   the count used) and each closed loop's wall time.
+
+How to run::
+
+    python benchmarks/urban_sequence_planner.py --time-only          # step 1 only
+    python benchmarks/urban_sequence_planner.py                      # 1,000 runs per planner
+    python benchmarks/urban_sequence_planner.py --runs 100 --iterations 4 --state-seeds 2
+
+Exit status 0 when it ran; 1 if a closed-loop run entered a building or broke a limit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mcjax import configure, engine
+from mcjax.filters.imm import combine
+from mcjax.scenarios import kit
+from mcjax.scenarios import urban_bearing as ub
+from mcjax.scenarios.urban_bearing import score as urban
+from mcjax.statistics import mean_ci
+from mcjax.study.spec import build_spec
+
+configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
+
+ROOT = Path(__file__).resolve().parent.parent
+CONFIG = ROOT / "configs" / "chen2022.toml"
+#: The sequence planner's Adam steps per plan for the closed loop: the largest count whose time per
+#: plan was at most the grid's in step 1 (``--time-only``), fixed before the closed-loop comparison.
+ITERATIONS = None
+SCAN = (1, 2, 3, 4, 5, 6, 8, 10, 12, 16)
+
+
+def fmt_ci(ci, digits: int = 1) -> str:
+    return f"{ci.mean:.{digits}f} [{ci.low:.{digits}f}, {ci.high:.{digits}f}]"
+
+
+def study(runs: int):
+    """The default set-up as a one-point study of ``runs`` seeds: (scenario, Config, Params)."""
+    s = build_spec({"base": str(CONFIG), "seeds": runs}, ROOT)
+    return s.scenario, s.config, s.base_params
+
+
+def state_scan(sc, cfg):
+    """``(params, run keys) -> (State before every step, Record of every step)`` with the
+    engine's keys (``engine.init_key``, ``fold_in(key, t)``)."""
+    def one(params, key):
+        state = sc.init(cfg, params, engine.init_key(key))
+
+        def body(s, t):
+            s2, rec = sc.step(cfg, params, s, jax.random.fold_in(key, t))
+            return s2, (s, rec)
+
+        return jax.lax.scan(body, state, jnp.arange(cfg.n_steps))[1]
+    return jax.jit(jax.vmap(one, in_axes=(None, 0)))
+
+
+def planner_fn(cfg):
+    """``(params, States, step keys) -> (command, exact score J, admissible)`` per state, the
+    inputs built as ``urban_bearing.step`` builds them; jitted, vmapped over states."""
+    def plan(params, state, key):
+        p = kit.cast(params, jnp.dtype(cfg.dtype))
+        imm = state.filters[cfg.filters.index("imm")]
+        xy, _ = combine(imm)
+        _, sig = ub.mode_models(p, "imm")
+        belief = urban.Belief(xy, imm.x, imm.mu, state.fim, sig, p.emitter[2])
+        k_plan, _ = jax.random.split(key)
+        return ub.plan_command(cfg, p, ub.buildings_of(p), state.uav, state.command, belief, k_plan)
+    return jax.jit(jax.vmap(plan, in_axes=(None, 0, 0)))
+
+
+def planning_states(sc, cfg, params, seeds: int, limit: int = 1000):
+    """Up to ``limit`` re-plan states (command not held) of the grid planner's closed loop,
+    seeds 0 … seeds−1, spread evenly over them, and their step keys."""
+    keys = jax.vmap(lambda s: engine.run_key(0, s))(jnp.arange(seeds, dtype=jnp.uint32))
+    states, recs = state_scan(sc, cfg)(params, keys)
+    T = cfg.n_steps
+    step_keys = jax.vmap(lambda k: jax.vmap(lambda t: jax.random.fold_in(k, t))(jnp.arange(T)))(keys)
+    flat = jax.tree.map(lambda a: np.asarray(a).reshape((-1,) + a.shape[2:]), (states, step_keys))
+    replan = np.flatnonzero(~np.asarray(recs.held).ravel())
+    pick = replan[np.linspace(0, replan.size - 1, min(limit, replan.size)).astype(int)]
+    return jax.tree.map(lambda a: a[pick], flat)
+
+
+def best_time(fn, *args, repeats: int) -> float:
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def time_per_plan(cfg, params, states, keys, counts, repeats: int, stride: int = 2):
+    """Time per plan (s, batched) of the grid and of the sequence planner at every count, each
+    timed in rounds interleaved with the grid (the machine is shared); the exact J of every plan."""
+    m = keys.shape[0]
+    fns = {"grid": planner_fn(dataclasses.replace(cfg, planner="grid"))}
+    for k in counts:
+        fns[k] = planner_fn(dataclasses.replace(cfg, planner="sequence", plan_iterations=k,
+                                                sequence_grid_stride=stride))
+    scores = {}
+    for name, fn in fns.items():   # compile, and keep the scores
+        scores[name] = np.asarray(fn(params, states, keys)[1])
+    best = {name: np.inf for name in fns}
+    for _ in range(repeats):       # rounds: every planner once per round
+        for name, fn in fns.items():
+            best[name] = min(best[name], best_time(fn, params, states, keys, repeats=1) / m)
+    return best, scores
+
+
+def step1(cfg, params, sc, args) -> tuple[str, int]:
+    t0 = time.perf_counter()
+    states, keys = planning_states(sc, cfg, params, args.state_seeds)
+    m = keys.shape[0]
+    best, scores = time_per_plan(cfg, params, states, keys, args.scan, args.repeats)
+    g = scores["grid"]
+    fits = [k for k in args.scan if best[k] <= best["grid"]]
+    chosen = max(fits) if fits else None
+    lines = [f"Step 1: time per plan on {m} re-plan states of the grid's closed loop (seeds 0–{args.state_seeds - 1}), "
+             f"batched (vmap over the {m} states, jit, best of {args.repeats} interleaved rounds), load average "
+             f"{os.getloadavg()[0]:.1f}.", "",
+             "| planner | time per plan, µs | mean exact J [95 % t] | J >= grid's J (%) | J > grid's J + 1e-9 (%) |",
+             "|---|---|---|---|---|",
+             f"| grid (54 constant commands) | {best['grid'] * 1e6:.0f} | {fmt_ci(mean_ci(g), 3)} | | |"]
+    for k in args.scan:
+        s = scores[k]
+        ok = np.isfinite(g) & np.isfinite(s)
+        lines.append(f"| sequence, {k} Adam steps (stride 2: 20 constant commands) | {best[k] * 1e6:.0f} | "
+                     f"{fmt_ci(mean_ci(s), 3)} | {100 * np.mean(s[ok] >= g[ok] - 1e-12):.1f} | "
+                     f"{100 * np.mean(s[ok] > g[ok] + 1e-9):.1f} |")
+    lines += ["", f"Rule (fixed before): the largest count at most the grid's time per plan -> "
+              f"{chosen if chosen is not None else 'none fits'}. Step 1 wall time {time.perf_counter() - t0:.0f} s."]
+    return "\n".join(lines), chosen
+
+
+def closed_loop(sc, cfg, params, runs: int):
+    """Every run's summary (``reduce``), seeds 0 … runs−1, and the wall time (compilation included)."""
+    pp = jax.tree.map(lambda a: np.asarray(a)[None], params)
+    t0 = time.perf_counter()
+    chunks = [o for *_, o in engine.run_chunks(sc, cfg, pp, runs, base_seed=0, chunk_size=runs)]
+    out = {k: np.concatenate([c[k] for c in chunks]) for k in chunks[0]}
+    return out, time.perf_counter() - t0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--runs", type=int, default=1000)
+    ap.add_argument("--iterations", type=int, default=ITERATIONS)
+    ap.add_argument("--time-only", action="store_true")
+    ap.add_argument("--state-seeds", type=int, default=4)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--scan", type=lambda s: tuple(int(x) for x in s.split(",")), default=SCAN)
+    args = ap.parse_args(argv)
+    t_all = time.perf_counter()
+    sc, cfg, params = study(args.runs)
+    print(f"Chen & Hao 2022, configs/chen2022.toml: {cfg.n_steps} steps of {cfg.dt:g} s, horizon {cfg.horizon}, "
+          f"weights ({float(params.c1):g}, {float(params.c2):g}, {float(params.c3):g}); "
+          f"{len(jax.devices())} CPU device(s), load average {os.getloadavg()[0]:.1f}\n")
+    if args.time_only or args.iterations is None:
+        text, chosen = step1(cfg, params, sc, args)
+        print(text + "\n")
+        if args.time_only or chosen is None:
+            print(f"total wall time {time.perf_counter() - t_all:.0f} s")
+            return 0
+        args.iterations = chosen
+    K = args.iterations
+    variants = {"grid": dataclasses.replace(cfg, planner="grid"),
+                "sequence": dataclasses.replace(cfg, planner="sequence", plan_iterations=K, sequence_grid_stride=2),
+                "sequence on the full grid": dataclasses.replace(cfg, planner="sequence", plan_iterations=K,
+                                                                 sequence_grid_stride=1)}
+    # time per plan side by side at the count used (the same states and protocol as step 1)
+    states, keys = planning_states(sc, cfg, params, args.state_seeds)
+    m = keys.shape[0]
+    fns = {name: planner_fn(c) for name, c in variants.items()}
+    for fn in fns.values():
+        jax.block_until_ready(fn(params, states, keys))
+    tpp = {name: np.inf for name in fns}
+    for _ in range(args.repeats):
+        for name, fn in fns.items():
+            tpp[name] = min(tpp[name], best_time(fn, params, states, keys, repeats=1) / m)
+
+    summ, wall = {}, {}
+    for name, c in variants.items():
+        summ[name], wall[name] = closed_loop(sc, c, params, args.runs)
+        print(f"closed loop {name}: {args.runs} runs in {wall[name]:.0f} s (compilation included), "
+              f"load average {os.getloadavg()[0]:.1f}", flush=True)
+    imm = cfg.filters.index("imm")
+    cols = (("final_error", "IMM-EKF final error, m", lambda s: s["final_error"][:, imm]),
+            ("shadow_steps", "steps in the shadow", lambda s: s["shadow_steps"]),
+            ("nlos_steps", "steps with an NLOS measurement", lambda s: s["nlos_steps"]),
+            ("held_steps", "steps holding", lambda s: s["held_steps"]))
+    lines = ["", f"Closed loop: {args.runs} runs per planner, seeds 0–{args.runs - 1} for every planner; sequence "
+             f"planner {K} Adam steps per plan.", "",
+             "| planner | time per plan, µs (batched, " + f"{m} states) | " + " | ".join(f"{c[1]}: mean [95 % t]"
+                                                                                  for c in cols)
+             + " | IMM-EKF final error, median, m | runs in a building / breaking a limit | closed-loop wall, s |",
+             "|---|---|" + "---|" * len(cols) + "---|---|---|"]
+    problems = 0
+    for name in variants:
+        s = summ[name]
+        nb, nv = int(np.sum(s["building_steps"] > 0)), int(np.sum(s["limit_violations"] > 0))
+        problems += nb + nv
+        lines.append(f"| {name} | {tpp[name] * 1e6:.0f} | " + " | ".join(fmt_ci(mean_ci(c[2](s)), 2) for c in cols)
+                     + f" | {np.median(cols[0][2](s)):.2f} | {nb} / {nv} | {wall[name]:.0f} |")
+    lines += ["", "Paired differences (same seeds), planner − grid: mean [95 % t interval]", "",
+              "| planner | " + " | ".join(c[1] for c in cols) + " | runs with a lower / higher final error |",
+              "|---|" + "---|" * len(cols) + "---|"]
+    for name in list(variants)[1:]:
+        d = [c[2](summ[name]) - c[2](summ["grid"]) for c in cols]
+        lines.append(f"| {name} | " + " | ".join(fmt_ci(mean_ci(x), 2) for x in d)
+                     + f" | {int(np.sum(d[0] < 0))} / {int(np.sum(d[0] > 0))} |")
+    print("\n".join(lines))
+    print(f"\ntotal wall time {time.perf_counter() - t_all:.0f} s")
+    return 1 if problems else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
