@@ -65,11 +65,13 @@ def test_tune_loss_gradient_matches_central_differences_at_three_points(tmp_path
     against central differences of the same loss (same seeds) at three points drawn inside the
     bounds (numpy seed 2013, 10–90 % of each bound's sigmoid), to 1e-4 relative (of the entry,
     or of 1 % of the gradient's norm for a near-zero entry). Step h = 1e-3 in z: a scan over
-    h = 1e-1 … 1e-6 at these points gave relative differences falling as h² (6e-3, 6e-5, 6e-7
-    at h = 1e-1, 1e-2, 1e-3: the smooth system's truncation error) down to a round-off floor
-    of ~1e-9 from h = 1e-4, so at 1e-3 the truncation is ~1e-6, a hundred times inside the
-    tolerance. Without the implicit-function derivative of eq. 13's root (the bisection's own
-    derivative) the same check fails by 1e-3 – 2e-2."""
+    h = 1e-1 … 1e-6 at these points (the suite's XLA flags) gave relative differences falling
+    as h², at most 1.0e-2, 1.0e-4, 1.0e-6 at h = 1e-1, 1e-2, 1e-3 (the quotient's own
+    truncation error: the smooth system is smooth there), down to a round-off floor of
+    1e-11 – 2e-8 from h = 1e-4; at 1e-3 the truncation is a hundred times inside the tolerance
+    and the round-off far below it. Checked to fail: with the bisection's own derivative of
+    eq. 13's root (no implicit-function step) the differences are 1.6e-3 – 1.6e-2 at each
+    point; with the exact 0/1 links the comm radius carries no gradient."""
     p = tmp_path / "tune.toml"
     p.write_text(textwrap.dedent(SPEC))
     spec = tune.load_tune_spec(p)
@@ -88,7 +90,7 @@ def test_tune_loss_gradient_matches_central_differences_at_three_points(tmp_path
 
 # ------------------------------------------------------------------ the smooth system against the exact one
 
-CFG = S.Config(n_steps=30, faults="on")   # the fault model compiled in: its rates are Params (0 or not)
+CFG = S.Config(n_steps=30, filters=("kcf", "cif"), faults="on")  # faults compiled in: their rates are Params
 RUNS = 3
 
 
