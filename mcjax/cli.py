@@ -357,7 +357,7 @@ def tune(spec, out_dir, resume, force):
     """Tune the continuous Params named in SPEC's [tune] table by gradient through the closed loop.
 
     The training loss (a softly clipped tracking error plus a soft divergence indicator, on the
-    scenario's smooth surrogates, the same training seeds every step) is minimised with an
+    scenario's smooth system, the same training seeds every step) is minimised with an
     optax optimiser; every step's loss, Params, gradient norm and wall time go to
     OUT/trace.parquet and OUT/trace.png, and the optimiser's state is saved atomically after
     every step, so a killed tune resumes (--resume) from its last completed step. Then the
@@ -441,7 +441,12 @@ def _tune(spec_path, out_dir, resume, force, state, stop, hint):
     if stop.is_set():
         click.echo(hint(), err=True)
         exit_now(130)
-    _print_summary(results.read_table(out_dir, "runs"), ev)
+    runs = results.read_table(out_dir, "runs")
+    _print_summary(runs, ev)
+    roles = {o.role: k for k, o in ev.scenario.outputs(ev.config).items()}
+    paired = tuning.paired_differences(runs, [roles[r] for r in ("error", "divergence") if r in roles])
+    if len(paired):
+        click.echo("tuned - initial, paired by seed (mean and 95 % t-interval):\n" + paired.to_string(index=False))
     click.echo(f"point 0 = initial, point 1 = tuned Params; report: mcjax report {shlex.quote(str(out_dir))}")
     finish(stop)
 

@@ -145,7 +145,7 @@ def derivatives(scenario, cfg, params, key, sensitivity) -> dict:
     def outputs_at(shift):
         q = params._replace(**{n: getattr(params, n) + shift[i] for i, n in enumerate(names)})
         reduced = scenario.reduce(cfg, run_records(scenario, cfg, q, key, smoothing), q)
-        return {o: reduced[o] for o in outputs}
+        return {o: jnp.asarray(reduced[o]).astype(jnp.result_type(float)) for o in outputs}  # a flag's: 0
 
     jac = jax.jacfwd(outputs_at)(jnp.zeros(len(names), jnp.result_type(float)))
     return {column(o, n): jac[o][..., i] for o in outputs for i, n in enumerate(names)}

@@ -26,7 +26,7 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from mcjax import tune
+from mcjax import scenarios, tune
 from mcjax.cli import main
 from mcjax.smoothing import Smooth
 from mcjax.study import SpecError
@@ -202,13 +202,20 @@ def test_spec_without_tune_table_or_with_grid(tmp_path):
             tune.build_tune_spec(__import__("tomllib").loads(text), tmp_path)
 
 
-def test_scenario_without_surrogate_names_the_tunable_ones(tmp_path):
-    text = f'base = "{(ROOT / "configs" / "ren2017.toml").as_posix()}"\n[tune]\nsteps = 2\n[tune.params.sigma_r]\nlow = 1.0\nhigh = 9.0\n'
+def test_scenario_without_smoothing_switch_names_the_tunable_ones(tmp_path):
+    """A scenario of one's own without a smoothing switch (Scenario.smooth) cannot be tuned:
+    one line naming it and the built-in scenarios that can."""
+    (tmp_path / "plain.py").write_text("import dataclasses\nfrom mcjax.scenarios.uuv_imm import SCENARIO as S\n"
+                                       "SCENARIO = dataclasses.replace(S, name='plain', smooth=None)\n")
+    (tmp_path / "plain.toml").write_text('scenario = "plain.py:SCENARIO"\n')
+    text = 'base = "plain.toml"\n[tune]\nsteps = 2\n[tune.params.sigma_r]\nlow = 1.0\nhigh = 9.0\n'
     with pytest.raises(SpecError) as exc:
         tune.build_tune_spec(__import__("tomllib").loads(text), tmp_path)
     message = str(exc.value)
-    assert message.startswith("scenario: uuv_imm has no smooth surrogate") and "\n" not in message
-    assert message.endswith("tunable built-in scenarios: leader_follower, urban_bearing")
+    assert message.startswith("scenario: plain has no smoothing switch (Scenario.smooth)") and "\n" not in message
+    tunable = [n for n, s in scenarios.BUILTIN.items() if s.smooth is not None]
+    assert {"leader_follower", "urban_bearing"} <= set(tunable)
+    assert message.endswith(f"tunable built-in scenarios: {', '.join(tunable)}")
 
 
 def test_example_spec_reads():

@@ -13,7 +13,9 @@ For every run and point the sweep then also runs the scenario's smooth system
 each chosen output of that system with respect to each chosen Param, pushed forward with the run
 (forward mode, one tangent per Param): the column ``d_<output>_d_<param>``
 (:func:`mcjax.smoothing.column`), per filter when the output is. A per-agent Param moves every
-agent's value together. The exact outputs are computed as without the table.
+agent's value together. A flag's or a count's derivative is 0 (a step function of the Params:
+differentiate a smooth output instead). The exact outputs are computed in a program of their
+own, bit for bit as without the table.
 """
 
 from __future__ import annotations

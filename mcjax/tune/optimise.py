@@ -162,6 +162,27 @@ def evaluation_spec(spec: TuneSpec, final) -> Study:
     return build_spec(data, Path(spec.base_dir))
 
 
+def paired_differences(runs: pd.DataFrame, columns: list[str]) -> pd.DataFrame:
+    """The held-out comparison, paired: per filter and column, the mean over seeds of tuned
+    (point 1) − initial (point 0) with its 95 % Student-t interval (a flag's difference is
+    one of rates). Empty if the evaluation has one point (nothing changed)."""
+    from mcjax.statistics import mean_ci
+
+    rows = []
+    if runs["point_id"].nunique() < 2:
+        return pd.DataFrame(rows)
+    for f, g in runs.groupby("filter", sort=False):
+        a = g[g["point_id"] == 0].set_index("seed_index")
+        b = g[g["point_id"] == 1].set_index("seed_index")
+        for c in columns:
+            d = (b[c].astype(float) - a[c].astype(float)).dropna()
+            m = mean_ci(d.to_numpy())
+            rows.append({"filter": f, "output": c, "initial": float(a[c].astype(float).mean()),
+                         "tuned": float(b[c].astype(float).mean()), "paired_difference": m.mean,
+                         "ci_low": m.low, "ci_high": m.high, "n": len(d)})
+    return pd.DataFrame(rows)
+
+
 def plot_trace(spec: TuneSpec, trace: pd.DataFrame, path: Path) -> Path:
     """The optimisation trace as a PNG: the loss (and its two parts) per step, and each tuned
     Param per step (log axis for a log-scaled one)."""
