@@ -365,3 +365,31 @@ def smooth_connectivity_robustness(positions, radius, temperature, info_neighbou
     x = jnp.where(any_valid[..., None], x, jnp.zeros((), rho.dtype))
     r = 0.5 * softmin(x, temperature, axis=-1)
     return jnp.where(any_valid, r, jnp.inf)
+
+
+def soft_adjacency(positions, radius, temperature, alive=None) -> jax.Array:
+    """The comm graph of :func:`adjacency` (Sun et al. 2011 eq. 13) made smooth, for a
+    scenario's smoothing switch: each link a weight ``a_ij = sigmoid(m_ij / T)`` in (0, 1), m
+    the link margin of :func:`link_margins`, instead of the 0/1 test ``m_ij ≥ 0``. Zero
+    diagonal; agents not ``alive`` (optional bool (..., n)) unlinked; finite gradients for
+    coincident agents (the safe norm). (..., n, d) -> (..., n, n)."""
+    n = positions.shape[-2]
+    keep = ~jnp.eye(n, dtype=bool)
+    if alive is not None:
+        keep = keep & alive[..., :, None] & alive[..., None, :]
+    return jnp.where(keep, jax.nn.sigmoid(link_margins(positions, radius) / temperature), 0.0)
+
+
+def soft_component_sizes(positions, radius, temperature, alive=None) -> jax.Array:
+    """Smooth size of each agent's connected component: ``1 + Σ_{j≠i} sigmoid(ρ_ij/T)`` with ρ
+    the smooth multi-hop pair robustness (Sun et al. 2011 eq. 14, :func:`smooth_pair_robustness`):
+    j is in i's component iff ρ_ij ≥ 0, and sigmoid(ρ/T) is the widest path of the links of
+    :func:`soft_adjacency` (sigmoid is monotone). Agents not ``alive`` count for none, but
+    paths through them are not excluded. (n, d) -> (n,)."""
+    n = positions.shape[-2]
+    rho = smooth_pair_robustness(positions, radius, temperature)
+    keep = ~jnp.eye(n, dtype=bool)
+    if alive is not None:
+        keep = keep & alive[:, None] & alive[None, :]
+    reach = jnp.where(keep, jax.nn.sigmoid(jnp.where(keep, rho, 0.0) / temperature), 0.0)
+    return 1.0 + jnp.sum(reach, axis=-1)

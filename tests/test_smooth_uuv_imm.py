@@ -12,7 +12,7 @@ from mcjax.filters.consensus_imm import consensus_imm_ukf_step
 from mcjax.filters.gaussian import Unscented
 from mcjax.filters.imm import IMMState
 from mcjax.models.sensors import range_bearing
-from mcjax.scenarios.uuv_imm import SCENARIO, Config, Smoothing, mode_hits, smooth_adjacency
+from mcjax.scenarios.uuv_imm import SCENARIO, Config, Smoothing, mode_hits
 from mcjax.smoothing import smooth_params
 from mcjax.tune import Loss, run_loss
 
@@ -197,7 +197,7 @@ def test_soft_links_are_the_exact_links_up_to_the_sigmoid_of_their_margin():
     margin = 450.0 - d
     off = ~np.eye(6, dtype=bool)
     for T in (100.0, 10.0):
-        soft = np.asarray(smooth_adjacency(jnp.asarray(pos), jnp.full(6, 450.0), jnp.ones(6, bool), T))
+        soft = np.asarray(graph.soft_adjacency(jnp.asarray(pos), jnp.full(6, 450.0), T, jnp.ones(6, bool)))
         exact = (margin >= 0) & off
         np.testing.assert_allclose(np.abs(soft - exact)[off], 1.0 / (1.0 + np.exp(np.abs(margin[off]) / T)),
                                    rtol=1e-9, atol=1e-300)

@@ -29,7 +29,7 @@ import numpy as np
 
 from mcjax import metrics
 from mcjax.contract import Output, Setting, declare
-from mcjax.models.sensors import measure_range_bearing
+from mcjax.models.sensors import measure_range_bearing, range_bearing
 from mcjax.scenarios import faults
 
 DTYPES = ("float64", "float32")
@@ -100,6 +100,17 @@ def team_measurements(key, target, sensors, sigma_range, sigma_bearing, sensing_
     keys = jax.random.split(key, sensors.shape[0])
     return jax.vmap(measure_range_bearing, in_axes=(0, None, 0, None, None, 0, 0))(
         keys, target, sensors, sigma_range, sigma_bearing, sensing_radius, alive)
+
+
+def soft_team_measurements(key, target, sensors, sigma_range, sigma_bearing, sensing_radius, alive, temperature):
+    """:func:`team_measurements` (the same noise draws) with the range gate ``r ≤ R_s`` replaced
+    by a soft gate ``g_i = sigmoid((R_s − r_i)/T)``, for a scenario's smoothing switch: returns
+    ``(z (n, 2), g (n,))``, every alive agent's measurement and its weight (the caller weighs
+    agent i's measurement information by ``g_i``). Dead agents: NaN, ``g = 0``."""
+    z = team_measurements(key, target, sensors, sigma_range, sigma_bearing,
+                          jnp.full(sensors.shape[0], jnp.inf, sensors.dtype), alive)
+    r = jax.vmap(range_bearing, in_axes=(None, 0))(target, sensors)[:, 0]
+    return z, jnp.where(alive, jax.nn.sigmoid((sensing_radius - r) / temperature), 0.0)
 
 
 def declarations(items) -> dict[str, Output]:

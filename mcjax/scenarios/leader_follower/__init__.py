@@ -8,20 +8,15 @@
   :func:`~.horizon.horizon_plan_cost`, the eq. 16 horizon cost as a ``PlanCost`` for the
   generic planners of :mod:`mcjax.planning.solvers`;
 * :mod:`.planner` — the leader's re-planning in the closed loop (§4.2);
-* :mod:`.smoothing` — the smoothing switch's sensing gate and comm graph (``mcjax tune``, sensitivities).
 """
 
 from mcjax.filters.consensus import per_agent
 from mcjax.scenarios.leader_follower.planner import planner_options
 from mcjax.scenarios.leader_follower.scenario import (
-    NAME, PLANNERS, SCENARIO, Config, Params, Record, State, check_params, default_params, filter_options, init,
-    outputs, reduce, series, step, summary, timeseries, timeseries_outputs, training_errors, training_weights,
-)
-from mcjax.scenarios.leader_follower.smoothing import (
-    Smoothing, smooth_adjacency, smooth_component_sizes, smooth_measurements,
+    NAME, PLANNERS, SCENARIO, Config, Params, Record, Smoothing, State, check_params, default_params, filter_options,
+    init, outputs, reduce, series, step, summary, timeseries, timeseries_outputs, training_errors, training_weights,
 )
 
 __all__ = ["Config", "NAME", "PLANNERS", "Params", "Record", "SCENARIO", "Smoothing", "State", "check_params",
            "default_params", "filter_options", "init", "outputs", "per_agent", "planner_options", "reduce", "series",
-           "smooth_adjacency", "smooth_component_sizes", "smooth_measurements", "step", "summary",
-           "timeseries", "timeseries_outputs", "training_errors", "training_weights"]
+           "step", "summary", "timeseries", "timeseries_outputs", "training_errors", "training_weights"]

@@ -50,9 +50,6 @@ from mcjax.scenarios import faults, kit
 from mcjax.scenarios.leader_follower.objectives import ROBUSTNESS_PENALTIES
 from mcjax.scenarios.leader_follower.planner import plan_if_due, planner_options
 from mcjax.smoothing import Smooth
-from mcjax.scenarios.leader_follower.smoothing import (
-    Smoothing, smooth_adjacency, smooth_component_sizes, smooth_measurements,
-)
 
 NAME = "leader_follower"
 
@@ -243,6 +240,16 @@ def _mailbox(cfg, params, x0):
     return None if box is None else faults.Mailbox(*kit.per_run(params.dt, *box))
 
 
+class Smoothing(NamedTuple):
+    """Temperatures (m) of the smoothing switch (:func:`step` with ``smoothing``): the sensing
+    gate ``sigmoid((R_s − r)/T)`` and the comm links ``sigmoid((min(R_i, R_j) − l_ij)/T)``
+    (:func:`mcjax.scenarios.kit.soft_team_measurements`, :func:`mcjax.graph.soft_adjacency`,
+    :func:`mcjax.graph.soft_component_sizes`); ours."""
+
+    sensing: float = 1e3
+    comm: float = 1e3
+
+
 #: Params with no smooth path (:class:`mcjax.contract.Smooth`): the fault rates, the planning
 #: horizon and re-plan interval (step counts).
 ROUGH = (*faults.ROUGH, "horizon", "replan_every")
@@ -304,12 +311,13 @@ def _advance(cfg, params, state: State, key, smoothing):
         carried = faults.messages(adj, fault)
         meas = Measurements(z, sensors, carried, R_inv)
     else:  # (the smooth component sizes see lost agents, not lost links)
-        z, gates = smooth_measurements(k_meas, target, sensors, params, sensing, alive, smoothing.sensing)
+        z, gates = kit.soft_team_measurements(k_meas, target, sensors, params.sigma_range, params.sigma_bearing,
+                                              sensing, alive, smoothing.sensing)
         z = faults.measurements(z, fault)
-        adj = smooth_adjacency(sensors, comm, alive, smoothing.comm)
+        adj = graph.soft_adjacency(sensors, comm, smoothing.comm, alive)
         carried = faults.messages(adj, fault)
         meas = Measurements(z, sensors, carried, R_inv * gates[:, None, None],
-                            smooth_component_sizes(sensors, comm, alive & faults.alive(fault, n), smoothing.comm))
+                            graph.soft_component_sizes(sensors, comm, smoothing.comm, alive & faults.alive(fault, n)))
 
     F, Q = first_step_model(first, cv_matrices(dt, dtype)[0], cv_process_noise(dt, params.sigma_accel, dtype))
     angle_mask = jnp.array([False, True])
@@ -345,8 +353,8 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
     that carried a message (the comm graph less the links lost to faults).
 
     ``smoothing`` (the smoothing switch, :class:`Smoothing`; None: the exact simulation) swaps
-    the sensing gate and the comm graph for their smooth versions (:func:`smooth_measurements`,
-    :func:`smooth_adjacency`, :func:`smooth_component_sizes`) for training by gradient and for
+    the sensing gate and the comm graph for their smooth versions (:func:`kit.soft_team_measurements`,
+    :func:`graph.soft_adjacency`, :func:`graph.soft_component_sizes`) for training by gradient and for
     sensitivities; dynamics (eqs. 1, 3–4), filters (eqs. 8–12) and the planner (eq. 16, whose
     gradient planner descends its own smooth cost) are the same, with the same random draws.
     The graph statistics are then those of the soft links' weights.

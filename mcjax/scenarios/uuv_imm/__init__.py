@@ -9,12 +9,9 @@ from mcjax.scenarios.uuv_imm.scenario import (
     check_params, default_params, default_positions, init, outputs, reduce, series, step, summary, timeseries,
     timeseries_outputs, training_errors, training_weights, unscented,
 )
-from mcjax.scenarios.uuv_imm.smoothing import (
-    Smoothing, mode_hits, smooth_adjacency, smooth_component_sizes, smooth_measurements,
-)
+from mcjax.scenarios.uuv_imm.smoothing import Smoothing, mode_hits
 
 __all__ = ["CT", "CV", "Config", "FILTER_KINDS", "FILTER_MODES", "NAME", "Params", "Record", "SCENARIO", "SCHEDULES",
            "Smoothing", "State", "WEIGHT_KINDS", "check_params", "default_params", "default_positions", "init",
-           "mode_hits", "outputs", "reduce", "series", "smooth_adjacency", "smooth_component_sizes",
-           "smooth_measurements", "step", "summary", "timeseries", "timeseries_outputs", "training_errors",
-           "training_weights", "unscented"]
+           "mode_hits", "outputs", "reduce", "series", "step", "summary", "timeseries", "timeseries_outputs",
+           "training_errors", "training_weights", "unscented"]

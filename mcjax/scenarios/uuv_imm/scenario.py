@@ -44,7 +44,7 @@ from mcjax.models.sensors import range_bearing
 from mcjax.numerics import matvec, spd_inverse
 from mcjax.scenarios import faults, kit
 from mcjax.scenarios.uuv_imm.smoothing import (
-    Smoothing, mode_hits, smooth_adjacency, smooth_component_sizes, smooth_measurements,
+    Smoothing, mode_hits,
 )
 from mcjax.smoothing import Smooth
 
@@ -208,8 +208,8 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
     ``smoothing`` (the smoothing switch, :class:`Smoothing`; None: the exact simulation) swaps
     the sonar's range gate, the comm links (and so the Metropolis weights of Ren & Lv 2017's
     consensus, eq. 8, built from them), the component sizes of the information weighting and
-    the IMM's "likelier mode" indicator for their smooth versions (:func:`smooth_measurements`,
-    :func:`smooth_adjacency`, :func:`smooth_component_sizes`, :func:`mode_hits`), with the same
+    the IMM's "likelier mode" indicator for their smooth versions (:func:`kit.soft_team_measurements`,
+    :func:`graph.soft_adjacency`, :func:`graph.soft_component_sizes`, :func:`mode_hits`), with the same
     random draws. The target's mode jumps stay exact (rough). The graph statistics are then
     those of the soft links' weights and ``n_seeing`` is the sum of the soft gates."""
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
@@ -234,10 +234,11 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
         comm_graph = graph.adjacency(sensors, comm, alive)
         gates = sizes = None
     else:  # (the smooth component sizes see lost UUVs, not lost links)
-        z, gates = smooth_measurements(k_meas, target, sensors, params, sensing, alive, smoothing.sensing)
+        z, gates = kit.soft_team_measurements(k_meas, target, sensors, params.sigma_range, params.sigma_bearing,
+                                              sensing, alive, smoothing.sensing)
         z = faults.measurements(z, fault)
-        comm_graph = smooth_adjacency(sensors, comm, alive, smoothing.comm)
-        sizes = smooth_component_sizes(sensors, comm, alive & faults.alive(fault, n), smoothing.comm)
+        comm_graph = graph.soft_adjacency(sensors, comm, smoothing.comm, alive)
+        sizes = graph.soft_component_sizes(sensors, comm, smoothing.comm, alive & faults.alive(fault, n))
     adj = faults.messages(comm_graph, fault)
 
     Q = cv_process_noise(dt, params.sigma_accel, dtype)

@@ -14,11 +14,11 @@ from mcjax.scenarios.wind_formation.scenario import (
     reference_distances, series, step, summary, timeseries, timeseries_outputs, wind,
 )
 from mcjax.scenarios.wind_formation.smoothing import (
-    ROUGH, Smoothing, smooth_adjacency, smooth_cap, smooth_next_centre, soft_capped, training_errors, training_weights,
+    ROUGH, Smoothing, smooth_cap, smooth_next_centre, soft_capped, training_errors, training_weights,
 )
 
 __all__ = ["CAP_TOL", "CLOSURE_TOL", "Config", "FILTER_KINDS", "FORMATION_SIGNS", "NAME", "NOISES", "PAPER_OFFSETS",
            "PAPER_START", "Params", "ROUGH", "Record", "SCENARIO", "Smoothing", "State", "check_params",
            "default_params", "formation_term", "init", "noise_variance", "outputs", "pairs", "reduce",
-           "reference_distances", "series", "smooth_adjacency", "smooth_cap", "smooth_next_centre", "soft_capped",
+           "reference_distances", "series", "smooth_cap", "smooth_next_centre", "soft_capped",
            "step", "summary", "timeseries", "timeseries_outputs", "training_errors", "training_weights", "wind"]

@@ -77,7 +77,7 @@ from mcjax.numerics import spd_inverse, symmetrize
 from mcjax.scenarios import faults, kit
 from mcjax.scenarios.wind_formation import guidance
 from mcjax.scenarios.wind_formation.smoothing import (
-    ROUGH, Smoothing, smooth_adjacency, smooth_cap, smooth_next_centre, soft_capped, training_errors, training_weights,
+    ROUGH, Smoothing, smooth_cap, smooth_next_centre, soft_capped, training_errors, training_weights,
 )
 from mcjax.smoothing import Smooth
 
@@ -290,7 +290,7 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
     if smoothing is None:
         adj = graph.adjacency(state.positions, p.comm_radius)
     else:
-        adj = smooth_adjacency(state.positions, p.comm_radius, smoothing.comm)
+        adj = graph.soft_adjacency(state.positions, p.comm_radius, smoothing.comm)
     carried = faults.messages(adj, fault)
     R_inv = jnp.broadcast_to(jnp.eye(2, dtype=dtype) / noise_variance(cfg, p), (n, 2, 2))
     meas = Measurements(z, state.positions, carried, R_inv)

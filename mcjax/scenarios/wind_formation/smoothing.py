@@ -5,7 +5,7 @@ closed loop, ``mcjax tune``; sensitivities of a sweep). The random draws are the
 The switches of one step and what replaces each (docs/tune.md, "Chen & Lu 2013"):
 
 * **comm links** (a link iff ``l_ij ≤ R``): weights ``sigmoid((R − l_ij)/T_comm)``
-  (:func:`smooth_adjacency`). The max-degree weights of eq. 7 and the neighbourhood sums of
+  (:func:`mcjax.graph.soft_adjacency`). The max-degree weights of eq. 7 and the neighbourhood sums of
   eq. 8 are continuous in the links, so they follow.
 * **eq. 13's path point**: whether the circle of radius l about the predicted centre meets the
   path (the grid's test), whether its largest root lies ahead, and the choice between that root
@@ -27,7 +27,6 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from mcjax import graph
 from mcjax.numerics import safe_norm, softmin
 from mcjax.scenarios import faults
 from mcjax.scenarios.wind_formation import guidance
@@ -59,13 +58,6 @@ def training_weights(cfg, params):
     return jnp.ones(cfg.n_agents, jnp.dtype(cfg.dtype))
 
 
-def smooth_adjacency(positions, comm_radius, temperature):
-    """The comm graph with each link a weight ``a_ij = sigmoid((R − l_ij)/T)`` in (0, 1) instead of
-    the 0/1 test ``l_ij ≤ R`` (:func:`mcjax.graph.adjacency`); zero diagonal. Finite gradients
-    for coincident UAVs (the safe norm of :func:`mcjax.graph.link_margins`)."""
-    n = positions.shape[-2]
-    a = jax.nn.sigmoid(graph.link_margins(positions, comm_radius) / temperature)
-    return jnp.where(jnp.eye(n, dtype=bool), 0.0, a)
 
 
 def smooth_cap(step, l, temperature):
