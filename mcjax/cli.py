@@ -357,7 +357,8 @@ def tune(spec, out_dir, resume, force):
     """Tune the continuous Params named in SPEC's [tune] table by gradient through the closed loop.
 
     The training loss (a softly clipped tracking error plus a soft divergence indicator, on the
-    scenario's smooth system, the same training seeds every step) is minimised with an
+    scenario's smooth system: its step with the smoothing switch on, the same training seeds every
+    step) is minimised with an
     optax optimiser; every step's loss, Params, gradient norm and wall time go to
     OUT/trace.parquet and OUT/trace.png, and the optimiser's state is saved atomically after
     every step, so a killed tune resumes (--resume) from its last completed step. Then the
