@@ -149,6 +149,7 @@ BAD = [
     ("[tune.params.alive]\nlow = 0.0\nhigh = 1.0", "tune.params.alive: alive is not continuous"),
     ("[tune.params.plan_iterations]\nlow = 1.0\nhigh = 5.0", "tune.params.plan_iterations: plan_iterations is a Config field"),
     ("[tune.params.initial_positions]\nlow = 1.0\nhigh = 5.0", "tune.params.initial_positions: initial_positions is an array"),
+    ("[tune.params.link_loss]\nlow = 0.1\nhigh = 0.5", "tune.params.link_loss: link_loss has no smooth path"),
     ("[tune.params.alpha_I]\nlow = 100.0\nhigh = 10.0", "tune.params.alpha_I: bounds reversed"),
     ("[tune.params.alpha_I]\nlow = 2000.0\nhigh = 3000.0", "tune.params.alpha_I: the initial value"),
     ("[tune.params.alpha_I]\nlow = 10.0\nhigh = 3000.0\ninitial = 5.0", "tune.params.alpha_I.initial: must lie"),
