@@ -112,7 +112,7 @@ def test_readme_is_short_and_names_papers_not_seeds():
         assert "../shared" not in body and "shared/" not in body, doc.name
     for paper in ("Sun", "Ren & Lv 2017", "Chen & Hao 2022", "Lou", "Chen & Lu 2013"):
         assert paper in text
-    for heading in ("## Past one machine", "## Tuning planner weights by gradient", "## Dependencies and why"):
+    for heading in ("## Past one machine", "## Tuning by gradient, and sensitivities", "## Dependencies and why"):
         assert heading in text
     section = text.split("## Dependencies and why", 1)[1].split("\n## ", 1)[0]
     for dep in ("click", "tqdm", "matplotlib", "scipy"):
@@ -173,7 +173,7 @@ def test_help_lists_every_command_on_one_line():
 
 
 def _fake_run_chunks(scenario, cfg, point_params, n_seeds, *, base_seed=0, chunk_size=1000, chunks=None,
-                     timeseries=False):
+                     timeseries=False, sensitivity=None):
     """engine.run_chunks with random outputs of the declared shapes instead of a simulation."""
     n_points = np.asarray(getattr(point_params, point_params._fields[0])).shape[0]
     plan = engine.chunk_plan(n_points * n_seeds, chunk_size)

@@ -295,16 +295,16 @@ def test_the_engines_one_cache_keeps_jitted_functions_and_programs_by_key(monkey
     monkeypatch.setattr(engine, "CACHE_MAX", 3)
     fn = engine.compiled(lf.SCENARIO, CFG)
     assert engine.compiled(lf.SCENARIO, CFG, records=False, timeseries=0) is fn
-    assert engine.cached(("jit", lf.SCENARIO, CFG, False, False), lambda: None) is fn
+    assert engine.cached(("jit", lf.SCENARIO, CFG, False, False, None), lambda: None) is fn
     made = []
     assert engine.cached(("test", 1), lambda: made.append(1) or "one") == "one"
     assert engine.cached(("test", 1), lambda: made.append(1) or "again") == "one" and made == [1]
     engine.cached(("test", 2), lambda: 2)
-    engine.cached(("jit", lf.SCENARIO, CFG, False, False), lambda: None)  # used: now the most recent
+    engine.cached(("jit", lf.SCENARIO, CFG, False, False, None), lambda: None)  # used: now the most recent
     engine.cached(("test", 3), lambda: 3)
-    assert list(engine._CACHE) == [("test", 2), ("jit", lf.SCENARIO, CFG, False, False), ("test", 3)]
+    assert list(engine._CACHE) == [("test", 2), ("jit", lf.SCENARIO, CFG, False, False, None), ("test", 3)]
     engine.forget("test")
-    assert list(engine._CACHE) == [("jit", lf.SCENARIO, CFG, False, False)]
+    assert list(engine._CACHE) == [("jit", lf.SCENARIO, CFG, False, False, None)]
     engine.forget()
     assert not engine._CACHE
 
