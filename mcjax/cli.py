@@ -55,6 +55,12 @@ def _read_kind(path: Path) -> dict | None:
         return None
 
 
+def _summary_columns(spec) -> list[str]:
+    """The columns the summary table reads (keys, axes, outputs with a role): what a big sweep loads back."""
+    return ["point_id", "seed_index", "filter", *spec.axes,
+            *(k for k, o in spec.scenario.outputs(spec.config).items() if o.role is not None)]
+
+
 def _print_summary(df, spec) -> None:
     """The report's table of a sweep's rows (per point and filter), from the declarations."""
     from mcjax.report import summary_text
@@ -250,7 +256,7 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
 
         with tqdm(total=len(plan) if todo is None else len(todo), unit="chunk", desc="sweep", disable=None) as bar:
             try:
-                run_sweep(s, chunks=todo, progress=progress, should_stop=stop.is_set, executor=executor)
+                run_sweep(s, chunks=todo, progress=progress, should_stop=stop.is_set, executor=executor, keep=False)
             except ChunkError as exc:
                 failure = exc
     if failure is not None:
@@ -263,7 +269,7 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
         click.echo(hint(), err=True)
         exit_now(130)
     elapsed = time.perf_counter() - t0
-    df = results.read_table(out_dir, "runs")
+    df = results.read_table(out_dir, "runs", _summary_columns(s))
     click.echo(f"{len(df)} rows in {out_dir / 'runs'}; {remaining} runs in {elapsed:.1f} s "
                f"({remaining / max(elapsed, 1e-9):.1f} runs/s incl. compilation)")
     _print_summary(df, s)
@@ -357,9 +363,8 @@ def tune(spec, out_dir, resume, force):
     """Tune the continuous Params named in SPEC's [tune] table by gradient through the closed loop.
 
     The training loss (a softly clipped tracking error plus a soft divergence indicator, on the
-    scenario's smooth system: its step with the smoothing switch on, the same training seeds every
-    step) is minimised with an
-    optax optimiser; every step's loss, Params, gradient norm and wall time go to
+    scenario's step with its smoothing switch on, the same training seeds every step) is
+    minimised with an optax optimiser; every step's loss, Params, gradient norm and wall time go to
     OUT/trace.parquet and OUT/trace.png, and the optimiser's state is saved atomically after
     every step, so a killed tune resumes (--resume) from its last completed step. Then the
     initial and the final Params are run on the held-out seeds with the exact simulation,
@@ -438,14 +443,14 @@ def _tune(spec_path, out_dir, resume, force, state, stop, hint):
     click.echo(f"held-out evaluation (exact simulation): {ev.n_points} point(s) x {ev.seeds} seed(s) = "
                f"{ev.n_runs} runs" + ("" if todo is None else f", {remaining} still to run"))
     with tqdm(total=remaining, unit="run", desc="evaluate", disable=None) as bar:
-        run_sweep(ev, out_dir, chunks=todo, progress=bar.update, should_stop=stop.is_set)
+        run_sweep(ev, out_dir, chunks=todo, progress=bar.update, should_stop=stop.is_set, keep=False)
     if stop.is_set():
         click.echo(hint(), err=True)
         exit_now(130)
     runs = results.read_table(out_dir, "runs")
     _print_summary(runs, ev)
-    roles = {o.role: k for k, o in ev.scenario.outputs(ev.config).items()}
-    paired = tuning.paired_differences(runs, [roles[r] for r in ("error", "divergence") if r in roles])
+    paired = tuning.paired_differences(runs, [k for k, o in ev.scenario.outputs(ev.config).items()
+                                              if o.role in ("error", "divergence")])
     if len(paired):
         click.echo("tuned - initial, paired by seed (mean and 95 % t-interval):\n" + paired.to_string(index=False))
     click.echo(f"point 0 = initial, point 1 = tuned Params; report: mcjax report {shlex.quote(str(out_dir))}")

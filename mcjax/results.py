@@ -289,12 +289,14 @@ def _dataset(out: Path, table_name: str, files: list[Path]) -> ds.Dataset:
     return factory.finish(factory.inspect(promote_options="permissive"))
 
 
-def _arrow_table(out: Path, table_name: str, files: list[Path]) -> pa.Table:
-    """The rows of :func:`_dataset`, partition keys first (integers as int64); a part that
-    cannot be read is a :class:`DamagedPartError` naming it."""
+def _arrow_table(out: Path, table_name: str, files: list[Path], columns=None) -> pa.Table:
+    """The rows of :func:`_dataset` (only ``columns``, those that exist, if given), partition
+    keys first (integers as int64); a part that cannot be read is a :class:`DamagedPartError`
+    naming it."""
     try:
         dataset = _dataset(out, table_name, files)
-        table = dataset.to_table()
+        table = dataset.to_table(columns=None if columns is None else
+                                 [c for c in dict.fromkeys(columns) if c in dataset.schema.names])
     except _READ_ERRORS:
         for f in files:  # which part is damaged?
             try:
@@ -303,7 +305,7 @@ def _arrow_table(out: Path, table_name: str, files: list[Path]) -> pa.Table:
                 raise _damaged(out, f, part_exc) from None
         raise
     found = {k for f in dataset.get_fragments() for k in ds.get_partition_keys(f.partition_expression)}
-    keys = [name for name in dataset.schema.names if name in found]  # in the folders' order
+    keys = [n for n in dataset.schema.names if n in found and n in table.column_names]  # the folders' order
     for key in keys:
         i = table.schema.get_field_index(key)
         if pa.types.is_integer(table.schema.field(i).type):  # discovery infers int32
@@ -311,8 +313,9 @@ def _arrow_table(out: Path, table_name: str, files: list[Path]) -> pa.Table:
     return table.select([*keys, *(n for n in table.column_names if n not in keys)])
 
 
-def read_table(out_dir: str | os.PathLike, table_name: str = "runs") -> pd.DataFrame:
-    """Read every part of ``OUT/<table_name>/`` into one pandas DataFrame.
+def read_table(out_dir: str | os.PathLike, table_name: str = "runs", columns=None) -> pd.DataFrame:
+    """Read every part of ``OUT/<table_name>/`` into one pandas DataFrame (only ``columns``,
+    those of them that exist, if given: a million-run dataset's summary needs a few).
 
     Uses :mod:`pyarrow.dataset` with hive partitioning over the files listed by
     :func:`existing_parts` (so the staging folder and stray files are never read).  Part
@@ -325,7 +328,7 @@ def read_table(out_dir: str | os.PathLike, table_name: str = "runs") -> pd.DataF
     files = _part_files(out, table_name)
     if not files:
         return pd.DataFrame()
-    frame = _arrow_table(out, table_name, files).to_pandas()
+    frame = _arrow_table(out, table_name, files, columns).to_pandas()
     keys = [c for c in SORT_COLUMNS if c in frame.columns]
     if keys:
         frame = frame.sort_values(keys, kind="stable")

@@ -90,11 +90,14 @@ def publish_chunk(out_dir: str | Path, rows: ChunkRows, metadata: dict) -> None:
 
 def run_sweep(study: Study, out_dir: str | Path | None = None, *, chunks: list[int] | None = None,
               progress: Callable[[int], None] | None = None,
-              should_stop: Callable[[], bool] | None = None, executor: Executor | None = None) -> pd.DataFrame:
+              should_stop: Callable[[], bool] | None = None, executor: Executor | None = None,
+              keep: bool = True) -> pd.DataFrame:
     """Run every chunk (or only ``chunks``) of a sweep with ``executor`` (default: this
     process, :class:`LocalExecutor`); write each chunk as its part files as soon as it
     completes, into ``out_dir`` (default: the study's own ``out_dir``; None for both: nothing
-    is written) — this process writes every file, whoever computed the rows; return the rows of the chunks run, in chunk order. ``progress(runs)`` is told
+    is written) — this process writes every file, whoever computed the rows; return the rows of the chunks run, in chunk order
+    (``keep=False``: none are kept, an empty frame is returned — a million-run sweep's rows stay
+    on disk only). ``progress(runs)`` is told
     after each chunk is written. ``should_stop()`` is asked before the first chunk and after
     each one: True stops the sweep there (the chunks done stay written). No empty staging
     folder is left behind."""
@@ -111,7 +114,8 @@ def run_sweep(study: Study, out_dir: str | Path | None = None, *, chunks: list[i
                 if metadata is None:
                     metadata = part_metadata(study, study.chunk_runs)
                 publish_chunk(out_dir, rows, metadata)
-            done[rows.index] = rows.runs
+            if keep:
+                done[rows.index] = rows.runs
             if progress is not None:
                 progress(rows.stop - rows.start)
             if stop():
