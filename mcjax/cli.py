@@ -57,7 +57,7 @@ def _read_kind(path: Path) -> dict | None:
 
 def _summary_columns(spec) -> list[str]:
     """The columns the summary table reads (keys, axes, outputs with a role): what a big sweep loads back."""
-    return ["point_id", "seed_index", "filter", *spec.axes,
+    return ["point_id", "filter", *spec.axes,
             *(k for k, o in spec.scenario.outputs(spec.config).items() if o.role is not None)]
 
 
