@@ -332,3 +332,65 @@ def test_native_kernels_keep_the_guards_of_range_bearing(kind, monkeypatch):
     np.testing.assert_allclose(Pn, Pj, rtol=1e-12, atol=1e-9)
     if kind == "local":
         np.testing.assert_array_equal(xn[0, 0], x0)  # the sensor on the prior: no update
+
+
+def test_range_bearing_linearisation_matches_the_sensor_model():
+    """The batch-last kernels' range–bearing (mcjax/filters/batched.py: written on separate
+    arrays, H's velocity columns left out as structural zeros) against the generic path,
+    ``jax.jvp`` of mcjax.models.sensors.range_bearing: the same h and H to round-off, and the
+    same guards where a target sits on its sensor (range 0, bearing 0, finite zero H)."""
+    import jax.numpy as jnp
+
+    from mcjax.filters import batched
+    from mcjax.models.sensors import range_bearing
+
+    rng = np.random.default_rng(5)
+    x = [jnp.asarray(rng.normal(0, 1e5, (3, 7))) for _ in range(4)]
+    sensor = [jnp.asarray(rng.normal(0, 1e5, (3, 7))) for _ in range(2)]
+    x[0], x[2] = x[0].at[0, :2].set(sensor[0][0, :2]), x[2].at[0, :2].set(sensor[1][0, :2])
+    h1, H1 = batched.linearise_range_bearing(tuple(x), tuple(sensor))
+    h2, H2 = batched.linearise(range_bearing, tuple(x), tuple(sensor))
+    for a in range(2):
+        np.testing.assert_allclose(h1[a], h2[a], rtol=1e-14, atol=1e-18)
+        for k in range(4):
+            if H1[a][k] is None:
+                assert k in (1, 3) and np.all(np.asarray(H2[a][k]) == 0)
+            else:
+                np.testing.assert_allclose(H1[a][k], H2[a][k], rtol=1e-13, atol=1e-18)
+                assert np.all(np.asarray(H1[a][k])[0, :2] == 0)
+    assert np.all(np.asarray(h1[0])[0, :2] == 0) and np.all(np.asarray(h1[1])[0, :2] == 0)
+
+
+@pytest.mark.parametrize("steps", [0, 2])
+def test_materialising_the_information_pair_changes_no_number(steps):
+    """The modified ICF's kernel writes the weighted information pair to memory before the
+    consensus (batched.materialise: a division by a traced 1.0, so XLA does not recompute it in
+    every agent's mix). The same update without it gives the same numbers."""
+    import jax
+    import jax.numpy as jnp
+
+    from mcjax.filters import batched
+    from mcjax.filters.consensus import FilterOptions
+    from mcjax.models.sensors import range_bearing
+
+    batch, rest = _sparse_batch(T=3)
+    B, n = 3, 5
+    z = jnp.moveaxis(jnp.asarray(batch["measurements"][:, 2]), 0, -1)  # (n, 2, B)
+    s = jnp.moveaxis(jnp.asarray(batch["sensor_positions"][:, 2]), 0, -1)
+    a = jnp.moveaxis(jnp.asarray(batch["adjacency"][:, 2]), 0, -1)
+    rng = np.random.default_rng(2)
+    xb = tuple(jnp.asarray(rest["x0"][k] + rng.normal(0, 100.0, (n, B))) for k in range(4))
+    Pb = tuple(jnp.full((n, B), rest["P0"][i, j] * (1.5 if i == j else 1.0)) for i, j in batched.UPPER)
+    R_inv = jnp.asarray(np.linalg.inv(rest["R"]))
+    opts = FilterOptions(steps, "eq11", "component", "contributions", "gamma_M")
+
+    @jax.jit
+    def both(xb, Pb, one):
+        args = (range_bearing, (False, True), opts, xb, Pb, tuple(z[:, m] for m in range(2)),
+                tuple(s[:, m] for m in range(2)), a, R_inv)
+        return batched.modified_icf_update(*args, one), batched.modified_icf_update(*args)
+
+    kept, plain = both(xb, Pb, jnp.asarray(1.0))
+    assert np.isnan(np.asarray(z)).any()  # missed measurements among the agents
+    for u, v in zip(jax.tree.leaves(kept), jax.tree.leaves(plain)):
+        np.testing.assert_array_equal(np.asarray(u), np.asarray(v))

@@ -18,8 +18,12 @@ loops per step.
 
 Symmetric matrices keep their upper triangle only, so they are exactly symmetric and need no
 ``symmetrize``. ``H = ∂h/∂x`` comes from ``jax.jvp`` of the measurement function (one
-directional derivative per state component), never from a hand-typed formula. Everything is
-pure JAX and differentiable.
+directional derivative per state component), never from a hand-typed formula; for the
+range–bearing sensor, from two ``jvp`` of the same function written on the position arrays,
+its velocity columns left out as structural zeros (:func:`linearise_range_bearing`). The
+modified ICF writes its weighted information pair to memory before the consensus
+(:func:`materialise`): without it XLA recomputed the pair inside every agent's mix, and the
+kernel ran 1.5–1.8x slower (docs/filter_speed.md). Everything is pure JAX and differentiable.
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ import jax
 import jax.numpy as jnp
 
 from mcjax import graph, numerics, runtime
+from mcjax.models.sensors import range_bearing
 from mcjax.numerics import wrap_angle
 
 D = 4  # state dimension [x, ẋ, y, ẏ]
@@ -65,9 +70,12 @@ def predict(x, P, F, Q):
 
 
 def _dot(a, b):
-    out = a[0] * b[0]
-    for k in range(1, len(a)):
-        out = out + a[k] * b[k]
+    """``Σ_k a_k b_k``; a term whose factor is ``None`` (a structural zero) is left out."""
+    out = None
+    for ak, bk in zip(a, b):
+        if ak is None or bk is None:
+            continue
+        out = ak * bk if out is None else out + ak * bk
     return out
 
 
@@ -105,6 +113,30 @@ def linearise(h, x, sensor):
     return hx, H
 
 
+def _range_bearing_positions(px, py, sx, sy):
+    """Range–bearing of a target at ``(px, py)`` from a sensor at ``(sx, sy)`` (Sun et al. 2011
+    §1.3), the operations of :func:`mcjax.models.sensors.range_bearing` (safe norm, bearing 0 at
+    the sensor) written on separate arrays: no stack, no reduction over a size-2 axis."""
+    dx, dy = px - sx, py - sy
+    on_sensor = (dx == 0.0) & (dy == 0.0)
+    bearing = jnp.where(on_sensor, 0.0, jnp.arctan2(dy, jnp.where(on_sensor, 1.0, dx)))
+    sq = dx * dx + dy * dy
+    positive = ~(sq <= 1e-30)
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, sq, 1.0)), 0.0), bearing
+
+
+def linearise_range_bearing(x, sensor):
+    """:func:`linearise` for the range–bearing sensor: ``h`` depends on the target's position
+    ``(x[0], x[2])`` only, so ``H``'s velocity columns are structural zeros (``None``) and
+    ``H``'s position columns come from two ``jax.jvp`` of :func:`_range_bearing_positions`."""
+    f = partial(_range_bearing_positions, sx=sensor[0], sy=sensor[1])
+    one, zero = jnp.ones_like(x[0]), jnp.zeros_like(x[0])
+    hx, col0 = jax.jvp(f, (x[0], x[2]), (one, zero))
+    _, col2 = jax.jvp(f, (x[0], x[2]), (zero, one))
+    H = [[col0[a], None, col2[a], None] for a in range(M)]
+    return hx, H
+
+
 def _innovation(z, hx, angle_mask):
     nu = [z[a] - hx[a] for a in range(M)]
     return tuple(wrap_angle(v) if angle_mask[a] else v for a, v in enumerate(nu))
@@ -132,19 +164,34 @@ def _measured(h, angle_mask, xb, z, sensor):
     for a in range(1, M):
         valid = valid & jnp.isfinite(z[a])
     z = tuple(jnp.where(valid, za, 0.0) for za in z)
-    hx, H = linearise(h, xb, sensor)
+    hx, H = linearise_range_bearing(xb, sensor) if h is range_bearing else linearise(h, xb, sensor)
     return valid, H, _innovation(z, hx, angle_mask)
 
 
 def contribution(h, angle_mask, xb, z, sensor, R_inv):
     """Information contribution ``i = Hᵀ R⁻¹ (ν + H x̄)``, ``I = Hᵀ R⁻¹ H`` (upper triangle),
-    zero where a component of ``z`` is missing (docs/equations.md §5.1)."""
+    zero where a component of ``z`` is missing (docs/equations.md §5.1). An entry that is zero
+    whatever the data (``H``'s structural zeros) is ``None``."""
     valid, H, nu = _measured(h, angle_mask, xb, z, sensor)
     pseudo = [nu[a] + _dot(H[a], xb) for a in range(M)]
     G = [[_dot([H[a][i] for a in range(M)], [R_inv[a, c] for a in range(M)]) for c in range(M)] for i in range(D)]
-    i_c = tuple(jnp.where(valid, _dot(G[i], pseudo), 0.0) for i in range(D))
-    I_c = tuple(jnp.where(valid, _dot(G[i], [H[c][j] for c in range(M)]), 0.0) for i, j in UPPER)
+    i_c = tuple(_where(valid, _dot(G[i], pseudo), 0.0) for i in range(D))
+    I_c = tuple(_where(valid, _dot(G[i], [H[c][j] for c in range(M)]), 0.0) for i, j in UPPER)
     return i_c, I_c
+
+
+def _where(valid, value, otherwise):
+    """``jnp.where`` that keeps a structural zero (``None``) as ``None``."""
+    return None if value is None else jnp.where(valid, value, otherwise)
+
+
+def materialise(values, one):
+    """``values`` (a tuple of arrays) divided by ``one``, a traced 1.0: the same numbers bit for
+    bit (``v / 1 = v`` in IEEE arithmetic), but written to memory once. XLA's CPU fusion copies
+    a chain of multiply–adds into every loop that reads its result and stops only at an
+    "expensive" operation such as a division; so a value read by many later loops is
+    recomputed in each of them unless a division ends its chain here (docs/filter_speed.md)."""
+    return tuple(v / one for v in values)
 
 
 def agent_mix(W, values):
@@ -168,14 +215,17 @@ def _graph_terms(opts, adjacency):
     return W, s
 
 
-def modified_icf_update(h, angle_mask, opts, xb, Pb, z, sensor, adjacency, R_inv):
+def modified_icf_update(h, angle_mask, opts, xb, Pb, z, sensor, adjacency, R_inv, one=None):
     """Modified ICF (Sun et al. 2011 eqs. 8–12) after the prediction; returns ``(x, P)``."""
     Yb = spd_inverse(Pb)
     yb = sym_matvec(Yb, xb)
     i_c, I_c = contribution(h, angle_mask, xb, z, sensor, R_inv)
     W, s = _graph_terms(opts, adjacency)
-    y = tuple(yb[k] + s * i_c[k] for k in range(D))
-    Y = tuple(Yb[k] + s * I_c[k] for k in range(len(UPPER)))
+    y = tuple(yb[k] if i_c[k] is None else yb[k] + s * i_c[k] for k in range(D))
+    Y = tuple(Yb[k] if I_c[k] is None else Yb[k] + s * I_c[k] for k in range(len(UPPER)))
+    if one is not None:  # every agent's consensus mix reads each agent's pair: write it once
+        y_Y = materialise(y + Y, one)
+        y, Y = y_Y[:D], y_Y[D:]
     if opts.consensus_steps:
         def body(_, yY):
             return tuple(agent_mix(W, v) for v in yY)
@@ -228,6 +278,7 @@ def _run_batch(kind, opts, h, angle_mask, z, sensors, adjacency, x0, P0, F, Q, R
     else:
         at = jnp.moveaxis(jnp.asarray(adjacency, dtype), 0, -1)  # (T, n, n, B)
     R_inv = jnp.linalg.inv(R)
+    one = P0[0, 0] / P0[0, 0]  # exactly 1.0 (P0 is positive definite), unknown to the compiler
     P0 = 0.5 * (P0 + P0.T)
     x = tuple(jnp.broadcast_to(x0[k], (n, B)) for k in range(D))
     P = tuple(jnp.broadcast_to(P0[i, j], (n, B)) for i, j in UPPER)
@@ -243,7 +294,7 @@ def _run_batch(kind, opts, h, angle_mask, z, sensors, adjacency, x0, P0, F, Q, R
         if kind == "local":
             x, P = local_update(h, angle_mask, xb, Pb, zs, sn, R)
         else:
-            x, P = modified_icf_update(h, angle_mask, opts, xb, Pb, zs, sn, aa, R_inv)
+            x, P = modified_icf_update(h, angle_mask, opts, xb, Pb, zs, sn, aa, R_inv, one)
         dense = jnp.stack([jnp.stack([sym(P, i, j) for j in range(D)], 1) for i in range(D)], 1)
         return (x, P), (jnp.stack(x, 1), dense)  # (n, D, B), (n, D, D, B)
 
