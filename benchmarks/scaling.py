@@ -6,7 +6,9 @@ Four curves, each a list of Configs/Params run through the engine as a sweep wou
 
 * **runs** — open loop, 5 UAVs: wall time per run for 1, 10, 100, 1,000, 10,000 (and with
   ``--max-runs 100000``, 100,000) runs: it should be flat from one batch (100 runs) up;
-* **agents** — 5, 10, 20, 50 UAVs, open loop and closed loop (gradient planner);
+* **agents** — 5, 10, 20, 50, 100 UAVs, open loop and closed loop (gradient planner; above 10 UAVs
+  the planner's connectivity robustness runs on a maximum spanning tree, ``Config.robustness_paths``
+  = "auto"; ``--robustness-paths all_pairs`` measures the O(n³) all-pairs form instead);
 * **horizon** — the planner's horizon t_r = 1, 2, 5, 10, 20 (closed loop, τ_r = min(3, t_r),
   ``max_horizon = t_r``: one program per t_r);
 * **consensus steps** — L = 1, 2, 5, 10 consensus iterations per step (open loop);
@@ -18,6 +20,7 @@ How to run (≈ 20–30 min on the 2-core VM at the default sizes)::
 
     python benchmarks/scaling.py                       # all four curves, PNG + markdown table
     python benchmarks/scaling.py --curves runs agents --steps 50
+    python benchmarks/scaling.py --curves agents --steps 50 --filters modified_icf   # the swarm curve, one filter
     MCJAX_CPU_DEVICES=1 python benchmarks/scaling.py   # one core
 
 Writes ``--out`` (default ``results/scaling``): ``scaling.csv``, ``scaling.png`` and the
@@ -150,8 +153,12 @@ def main(argv=None) -> int:
     ap.add_argument("--closed-runs", type=int, default=100,
                     help="runs per closed-loop point (agents and horizon curves)")
     ap.add_argument("--max-runs", type=int, default=10_000, help="largest run count of the runs curve")
-    ap.add_argument("--agents", type=int, nargs="+", default=[5, 10, 20, 50])
-    ap.add_argument("--max-closed-agents", type=int, default=20, help="largest team run in closed loop")
+    ap.add_argument("--agents", type=int, nargs="+", default=[5, 10, 20, 50, 100])
+    ap.add_argument("--max-closed-agents", type=int, default=100, help="largest team run in closed loop")
+    ap.add_argument("--filters", nargs="+", default=["icf", "modified_icf", "cif"],
+                    help="filters run (the planner needs modified_icf)")
+    ap.add_argument("--robustness-paths", default="auto", choices=["auto", "all_pairs", "spanning_tree"],
+                    help="Config.robustness_paths: how the planner computes R_I")
     ap.add_argument("--horizons", type=int, nargs="+", default=[1, 2, 5, 10, 20])
     ap.add_argument("--consensus", type=int, nargs="+", default=[1, 2, 5, 10])
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "scaling")
@@ -162,7 +169,7 @@ def main(argv=None) -> int:
         _report(pd.read_csv(args.from_csv), args.out)
         return 0
     sc, base, values = load_config_file(ROOT / "configs" / "sun2011.toml")
-    base = dataclasses.replace(base, filters=("icf", "modified_icf", "cif"))
+    base = dataclasses.replace(base, filters=tuple(args.filters), robustness_paths=args.robustness_paths)
     print(f"scaling, {runtime.settings()['cpu_devices']} CPU device(s), {args.steps} steps per run, "
           f"{time.strftime('%Y-%m-%d')}")
     rows = []

@@ -393,3 +393,87 @@ def soft_component_sizes(positions, radius, temperature, alive=None) -> jax.Arra
         keep = keep & alive[:, None] & alive[None, :]
     reach = jnp.where(keep, jax.nn.sigmoid(jnp.where(keep, rho, 0.0) / temperature), 0.0)
     return 1.0 + jnp.sum(reach, axis=-1)
+
+
+# --------------------------------------------------------------------------- robustness on a spanning tree
+
+
+def _widest_tree(margins, root):
+    """Prim's algorithm for the maximum spanning tree of the complete graph with link margins
+    ``margins`` (n, n), grown from ``root``: ``(parent, order, width)`` — each agent's parent
+    in the tree (the root its own), the agents in the order they joined, and
+    ``width[v] = ρ(root, v)``, the widest-path value of :func:`pair_robustness` (the least key
+    taken so far when v joins: every root–v path crosses each earlier cut, whose widest
+    crossing link is that key, and the tree path attains it). O(n²), n sequential steps."""
+    n = margins.shape[-1]
+    dtype = margins.dtype
+    in_tree = jnp.arange(n) == root
+    key = jnp.where(in_tree, -jnp.inf, margins[root])
+    parent = jnp.full(n, root)
+    width = jnp.full(n, jnp.inf, dtype)
+    order = jnp.full(n, root)
+
+    def add(t, c):
+        in_tree, key, parent, width, order, run = c
+        v = jnp.argmax(jnp.where(in_tree, -jnp.inf, key))
+        run = jnp.minimum(run, key[v])
+        width, order, in_tree = width.at[v].set(run), order.at[t].set(v), in_tree.at[v].set(True)
+        better = (margins[v] > key) & ~in_tree
+        return in_tree, jnp.where(better, margins[v], key), jnp.where(better, v, parent), width, order, run
+
+    init = (in_tree, key, parent, width, order, jnp.asarray(jnp.inf, dtype))
+    _, _, parent, width, order, _ = jax.lax.fori_loop(1, n, add, init)
+    return parent, order, width
+
+
+def _alive_root(n: int, alive):
+    alive = jnp.ones(n, bool) if alive is None else jnp.asarray(alive, bool)
+    return alive, jnp.argmax(alive), jnp.sum(alive) >= 2
+
+
+def tree_connectivity_robustness(positions, radius, alive=None) -> jax.Array:
+    """:func:`connectivity_robustness` with the information neighbours N_I(i) = every other agent
+    alive (Sun et al. 2011 eq. 15, Spanos & Murray 2004), in O(n²) instead of O(n³): the same
+    numbers, bit for bit. The widest paths ρ are those of a maximum spanning tree of the margins
+    (:func:`_widest_tree`), and since ρ is an ultrametric (ρ_ij ≥ min(ρ_ik, ρ_kj)), the least ρ
+    from any alive agent to the other alive ones is one number B = min over alive j of ρ(root, j):
+    ``R_I(i) = B/2`` for every alive agent; ``+inf`` for the others, and for all when fewer than
+    two are alive. Paths may run through agents not alive, as in :func:`pair_robustness`.
+    ``alive`` optional bool (n,). (n, d) -> (n,)."""
+    m = link_margins(positions, radius)
+    n = m.shape[-1]
+    alive, root, some = _alive_root(n, alive)
+    _, _, width = _widest_tree(m, root)
+    b = jnp.min(jnp.where(alive & (jnp.arange(n) != root), width, jnp.inf))
+    return jnp.where(alive & some, 0.5 * b, jnp.inf)
+
+
+def smooth_tree_connectivity_robustness(positions, radius, temperature, alive=None) -> jax.Array:
+    """A smooth ``R_I`` (Sun et al. 2011 eq. 15, Spanos & Murray 2004) on a maximum spanning
+    tree, O(n²) per evaluation where :func:`smooth_connectivity_robustness` is O(n³).
+
+    Exactly, ``R_I(i) = B/2`` for every alive agent with B the weakest link of the spanning tree
+    joining the alive agents (:func:`tree_connectivity_robustness`). Here the tree (its
+    topology: which links) is that of the exact margins and held fixed, and the minimum over
+    its links (those whose removal separates two alive agents) is replaced by ``softmin_T``:
+    ``R_I(i) = ½ softmin_T(m_e, e in tree)``, within ``½ T log(n − 1)`` below the exact value.
+    Gradients flow through the tree's link margins only; the tree changes where two margins
+    tie, and there the surrogate jumps by at most that bound. ``+inf`` (zero gradient) for
+    agents not alive, and for all when fewer than two are alive. ``alive`` optional bool (n,);
+    ``temperature`` T > 0 a scalar. (n, d) -> (n,)."""
+    m = link_margins(positions, radius)
+    n = m.shape[-1]
+    alive, root, some = _alive_root(n, alive)
+    parent, order, _ = _widest_tree(jax.lax.stop_gradient(m), root)
+
+    def up(t, has):  # children before parents: does v's subtree hold an alive agent?
+        v = order[n - t]
+        return has.at[parent[v]].set(has[parent[v]] | has[v])
+
+    has = jax.lax.fori_loop(1, n, up, alive)
+    needed = has & (jnp.arange(n) != root)  # the link v–parent(v) separates alive v-side from the root
+    x = jnp.where(needed, m[jnp.arange(n), parent], jnp.zeros((), m.dtype))
+    x = jnp.where(needed, x, jnp.inf)
+    x = jnp.where(some, x, jnp.zeros((), m.dtype))
+    r = 0.5 * softmin(x, jnp.asarray(temperature, m.dtype), axis=-1)
+    return jnp.where(alive & some, r, jnp.inf)

@@ -74,7 +74,7 @@ def rollout(problem: Problem, u: jax.Array, dyn: Dynamics):
 
 
 def horizon_terms(problem: Problem, u: jax.Array, dyn: Dynamics, cost: CostParams, *,
-                  penalty: str, smooth: bool) -> CostTerms:
+                  penalty: str, smooth: bool, paths: str = "all_pairs") -> CostTerms:
     """The terms of Sun et al. 2011, eqs. 16–19 summed over the first ``t_r`` predicted steps
     (later ones masked)."""
     poses, prev, cmds, targets = rollout(problem, u, dyn)
@@ -84,7 +84,7 @@ def horizon_terms(problem: Problem, u: jax.Array, dyn: Dynamics, cost: CostParam
     def body(P, step):
         pose, h, c, x = step
         terms, P_post = step_terms(information_after_prediction(P, F, Q), pose, h, c, x[::2],
-                                   cost, penalty=penalty, smooth=smooth)
+                                   cost, penalty=penalty, smooth=smooth, paths=paths)
         return P_post, terms
 
     # each step recomputed in the backward pass instead of stacking its intermediates
@@ -94,25 +94,27 @@ def horizon_terms(problem: Problem, u: jax.Array, dyn: Dynamics, cost: CostParam
 
 
 def horizon_cost(problem: Problem, u: jax.Array, dyn: Dynamics, cost: CostParams, *,
-                 penalty: str = "barrier", smooth: bool = False) -> jax.Array:
+                 penalty: str = "barrier", smooth: bool = False, paths: str = "all_pairs") -> jax.Array:
     """Sun et al. 2011, eq. 16 (with eqs. 18–19 as penalties) summed over the horizon t_r."""
-    return weighted(horizon_terms(problem, u, dyn, cost, penalty=penalty, smooth=smooth), cost)
+    return weighted(horizon_terms(problem, u, dyn, cost, penalty=penalty, smooth=smooth, paths=paths), cost)
 
 
-def horizon_plan_cost(problem: Problem, dyn: Dynamics, cost: CostParams, *, penalty: str) -> PlanCost:
+def horizon_plan_cost(problem: Problem, dyn: Dynamics, cost: CostParams, *, penalty: str,
+                      paths: str = "all_pairs") -> PlanCost:
     """The horizon cost of Sun et al. 2011, eq. 16 (eqs. 18–19 as penalties) as a
     :class:`~mcjax.planning.solvers.PlanCost` of the plan ``u`` (H, n) in [−1, 1]:
     ``exact`` is :func:`horizon_cost` with ``smooth=False``, ``smooth`` the same with
     ``smooth=True`` (the surrogate of :mod:`~mcjax.scenarios.leader_follower.objectives`).
 
-    ``penalty``: the robustness penalty, ``"barrier"`` or ``"inverse"`` (``Config.robustness_penalty``).
+    ``penalty``: the robustness penalty, ``"barrier"`` or ``"inverse"`` (``Config.robustness_penalty``);
+    ``paths``: how R_I is computed (``Config.robustness_paths``, :data:`~.objectives.ROBUSTNESS_PATHS`).
     Use: ``solve(horizon_plan_cost(problem, dyn, cost, penalty=...), warm, key, options)``."""
     if penalty not in ROBUSTNESS_PENALTIES:
         raise ValueError(f"robustness_penalty must be one of {', '.join(ROBUSTNESS_PENALTIES)}; "
                          f"got {penalty!r}")
     return PlanCost(
-        exact=lambda u: horizon_cost(problem, u, dyn, cost, penalty=penalty, smooth=False),
-        smooth=lambda u: horizon_cost(problem, u, dyn, cost, penalty=penalty, smooth=True),
+        exact=lambda u: horizon_cost(problem, u, dyn, cost, penalty=penalty, smooth=False, paths=paths),
+        smooth=lambda u: horizon_cost(problem, u, dyn, cost, penalty=penalty, smooth=True, paths=paths),
     )
 
 

@@ -42,6 +42,24 @@ from mcjax.numerics import matmul, spd_inverse, wrap_angle
 #: ε of the regularised distance √(|Δ|² + ε²), m.
 DISTANCE_EPS = 1.0
 ROBUSTNESS_PENALTIES = ("barrier", "inverse")
+#: How R_I is computed (Config.robustness_paths): "all_pairs" = the widest path of every pair
+#: (Floyd–Warshall, O(n³); smooth: :func:`mcjax.graph.smooth_connectivity_robustness`),
+#: "spanning_tree" = the same exact numbers from a maximum spanning tree in O(n²), smooth: a softmin
+#: over the tree's links (:func:`mcjax.graph.smooth_tree_connectivity_robustness`, a different
+#: surrogate), "auto" = all pairs up to :data:`TREE_ABOVE` agents, the tree above.
+ROBUSTNESS_PATHS = ("auto", "all_pairs", "spanning_tree")
+#: "auto" takes the spanning tree above this many agents (ours, chosen before measuring: every
+#: built-in config, the paper's 5 UAVs, stays on all pairs; issue "Scale": swarms of 50–100).
+TREE_ABOVE = 10
+
+
+def resolve_paths(paths: str, n: int) -> str:
+    """``"all_pairs"`` or ``"spanning_tree"``: ``Config.robustness_paths`` for a team of ``n``."""
+    if paths not in ROBUSTNESS_PATHS:
+        raise ValueError(f"robustness_paths must be one of {', '.join(ROBUSTNESS_PATHS)}; got {paths!r}")
+    if paths == "auto":
+        return "spanning_tree" if n > TREE_ABOVE else "all_pairs"
+    return paths
 
 
 class CostParams(NamedTuple):
@@ -151,14 +169,15 @@ class CostTerms(NamedTuple):
 
 
 def step_terms(Y, uavs, prev_headings, commands, target_xy, p: CostParams, *,
-               penalty: str = "barrier", smooth: bool):
+               penalty: str = "barrier", smooth: bool, paths: str = "all_pairs"):
     """The unweighted terms of Sun et al. 2011, eqs. 16–19 of one predicted step (see the
     module docstring).
 
     ``Y`` the leader's predicted information at this step, ``uavs`` (n, 4) predicted poses
     after the step, ``prev_headings`` (n,) headings before it (ψ_i(k) of eq. 17),
     ``commands`` (n,) the commanded headings ψᶜ_i(k+1). Returns ``(CostTerms, P)`` with P
-    the predicted posterior covariance of the step."""
+    the predicted posterior covariance of the step. ``paths``: how R_I is computed
+    (:data:`ROBUSTNESS_PATHS`, ``"auto"`` resolved by the team's size)."""
     alive = p.alive > 0.5
     xy = uavs[:, :2]
     r_t = _dist(target_xy - xy)
@@ -170,7 +189,12 @@ def step_terms(Y, uavs, prev_headings, commands, target_xy, p: CostParams, *,
     info, P = a_optimality(Y, position_information(xy, target_xy, p.sigma_range, p.sigma_bearing), gates)
 
     neighbours = alive[:, None] & alive[None, :]
-    if smooth:
+    if resolve_paths(paths, xy.shape[0]) == "spanning_tree":
+        if smooth:
+            R = graph.smooth_tree_connectivity_robustness(xy, p.comm_radius, p.temperature, alive)
+        else:
+            R = graph.tree_connectivity_robustness(xy, p.comm_radius, alive)
+    elif smooth:
         R = graph.smooth_connectivity_robustness(xy, p.comm_radius, p.temperature, neighbours)
     else:
         R = graph.connectivity_robustness(xy, p.comm_radius, neighbours)

@@ -70,7 +70,8 @@ def solve_plan(cfg, problem: Problem, dyn: Dynamics, cost: CostParams, warm, key
     dtype; the commands flown are rolled out from it in that dtype by the caller."""
     dtype, pdt = problem.uavs.dtype, jnp.dtype(cfg.plan_dtype)
     if pdt == dtype:
-        return solve(horizon_plan_cost(problem, dyn, cost, penalty=cfg.robustness_penalty), warm, key,
+        return solve(horizon_plan_cost(problem, dyn, cost, penalty=cfg.robustness_penalty,
+                                       paths=cfg.robustness_paths), warm, key,
                      planner_options(cfg))
     x = problem.target_mean
     shift = jnp.stack([x[0], x[2]])
@@ -79,6 +80,7 @@ def solve_plan(cfg, problem: Problem, dyn: Dynamics, cost: CostParams, warm, key
     def narrow(tree):
         return jax.tree.map(lambda a: jnp.asarray(a).astype(pdt), tree)
 
-    plan = solve(horizon_plan_cost(narrow(local), narrow(dyn), narrow(cost), penalty=cfg.robustness_penalty),
+    plan = solve(horizon_plan_cost(narrow(local), narrow(dyn), narrow(cost), penalty=cfg.robustness_penalty,
+                                   paths=cfg.robustness_paths),
                  narrow(warm), key, planner_options(cfg))
     return jax.tree.map(lambda a: a.astype(dtype), plan)

@@ -47,7 +47,7 @@ from mcjax.models.motion import cv_matrices, cv_process_noise, cv_step
 from mcjax.models.platforms import UnicycleLimits, unicycle_step
 from mcjax.models.sensors import range_bearing
 from mcjax.scenarios import faults, kit
-from mcjax.scenarios.leader_follower.objectives import ROBUSTNESS_PENALTIES
+from mcjax.scenarios.leader_follower.objectives import ROBUSTNESS_PATHS, ROBUSTNESS_PENALTIES, resolve_paths
 from mcjax.scenarios.leader_follower.planner import plan_if_due, planner_options
 from mcjax.smoothing import Smooth
 
@@ -104,6 +104,10 @@ Config = config_type("Config", dict(
     robustness_penalty=Setting("barrier", "penalty of the connectivity robustness R_I (barrier = "
                                "softplus(-R_I/s), ours; inverse = the paper's 1/|R_I|)",
                                choices=ROBUSTNESS_PENALTIES),
+    robustness_paths=Setting("auto", "how R_I is computed: all_pairs = widest path of every pair, O(n^3), smooth "
+                             "by soft Floyd-Warshall; spanning_tree = the same exact R_I in O(n^2), smooth by a "
+                             "softmin over a maximum spanning tree's links (a different surrogate, ours); auto = "
+                             "all pairs up to 10 UAVs, the tree above", choices=ROBUSTNESS_PATHS),
     **faults.SETTINGS,
     **faults.DELAY_SETTINGS,
 ), __name__, _check)
@@ -371,7 +375,9 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
         nees=ne,
         lambda2=graph.algebraic_connectivity(s.carried),
         degrees=graph.degree(s.carried),
-        robustness=graph.connectivity_robustness(s.sensors, comm),
+        robustness=(graph.tree_connectivity_robustness(s.sensors, comm)  # the same numbers in O(n^2)
+                    if resolve_paths(cfg.robustness_paths, n) == "spanning_tree"
+                    else graph.connectivity_robustness(s.sensors, comm)),
         n_seeing=jnp.sum(jnp.all(jnp.isfinite(s.z), axis=-1)),
         positions=s.sensors,
         target=s.target,
