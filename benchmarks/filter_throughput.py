@@ -20,6 +20,8 @@ component's scale, must be ≤ 1e-9).
 
     python benchmarks/filter_throughput.py                      # local, modified_icf; B = 1000, 10000
     python benchmarks/filter_throughput.py --filters cif icf modified_icf kcf local --batches 1000
+    git show REV:mcjax/filters/batched.py > /tmp/batched_rev.py     # an older pure-JAX kernel beside today's
+    python benchmarks/filter_throughput.py --no-variants --baseline /tmp/batched_rev.py
 
 Prints a markdown table: ns per agent-step for each engine. "mcjax" is ``run_filter`` as a user
 calls it: for the local filter and the modified ICF in float64 that is the native kernels
@@ -126,6 +128,29 @@ def median_time(fn, repeats):
     return float(np.median(times))
 
 
+def interleaved_times(fns, repeats):
+    """Median seconds of each of ``fns``, timed in ``repeats`` rounds of one call each, in turn
+    (so a change of the machine's load reaches every engine alike)."""
+    times = [[] for _ in fns]
+    for _ in range(repeats):
+        for i, fn in enumerate(fns):
+            t = time.perf_counter()
+            fn()
+            times[i].append(time.perf_counter() - t)
+    return [float(np.median(t)) for t in times]
+
+
+def load_baseline(path):
+    """A copy of an older ``mcjax/filters/batched.py`` (e.g. ``git show REV:mcjax/filters/batched.py``)
+    loaded as a module, to time beside the current pure-JAX kernels."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("batched_baseline", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def check_peers(kinds, numba_peer, run_filter, tol=1e-9):
     """filterpy and numba against mcjax on 3 runs x 60 steps; prints the errors, returns ok."""
     z, s, a, truth, common = make_runs(3, 60, seed=1)
@@ -159,6 +184,9 @@ def main(argv=None) -> None:
     ap.add_argument("--no-variants", action="store_true",
                     help="skip the mcjax variants: the other device choice (split over every CPU device, "
                          "or one device), and the general (vmap) path of before")
+    ap.add_argument("--baseline", type=Path, default=None,
+                    help="a copy of an older mcjax/filters/batched.py: its pure-JAX kernels, today's and numba "
+                         "are then also timed interleaved, --repeats rounds (one line per row)")
     ap.add_argument("--general-max-batch", type=int, default=1000,
                     help="largest B timed through the general path (it is slow)")
     args = ap.parse_args(argv)
@@ -259,6 +287,27 @@ def main(argv=None) -> None:
             print(f"| {kind} | {B:,} | {fmt(ns_mcjax)} | {fmt(ns_c)} | {fmt(ns_jax)} | {fmt(ns_one)} | {fmt(ns_general)} | {fmt(ns_fp)} | {fmt(ns_numpy)} | {fmt(ns_numba)} | "
                   f"{ratio_fp} | {ratio_nb} | {ratio_jax} | {f_peer} / {f_mcjax} | {gflops} | {gflops_nb} | {os.getloadavg()[0]:.1f} |", flush=True)
             print(f"#   {kind} B={B}: first mcjax call (compilation included) {compile_s:.1f} s", flush=True)
+            if args.baseline is not None and kind in recorded.BATCHED_KINDS and numba_peer is not None:
+                saved = recorded.USE_NATIVE, recorded.batched
+                try:
+                    recorded.USE_NATIVE = False
+                    current, base = recorded.batched, load_baseline(args.baseline)
+
+                    def jax_with(module):
+                        def call():
+                            recorded.batched = module
+                            return run_filter(kind, **batch, x0=x0, **common)
+                        return call
+                    jax_with(base)()  # compiles the baseline's program
+                    t_new, t_old, t_nb = interleaved_times(
+                        [jax_with(current), jax_with(base),
+                         lambda: numba_peer.run_filter_numba(kind, *batch.values(), x0, **common)], args.repeats)
+                finally:
+                    recorded.USE_NATIVE, recorded.batched = saved
+                ns = [v / (B * per_run) * 1e9 for v in (t_new, t_old, t_nb)]
+                print(f"#   {kind} B={B}, interleaved, median of {args.repeats} rounds: pure JAX {ns[0]:,.0f} ns, "
+                      f"baseline pure JAX {ns[1]:,.0f} ns, numba {ns[2]:,.0f} ns; pure JAX / numba {ns[0] / ns[2]:.2f}, "
+                      f"baseline / numba {ns[1] / ns[2]:.2f}; load {os.getloadavg()[0]:.1f}", flush=True)
             del batch
 
 
