@@ -55,7 +55,7 @@ def _memory_per_run(sc, cfg, runs: int) -> float:
     run (bytes): read from the program the engine compiled (no second compilation)."""
     fn = engine.compiled(sc, cfg)
     progs = engine.cached_programs(fn)
-    m = progs[-1][0].memory_analysis() if progs else None
+    m = progs[-1][0].result().memory_analysis() if progs else None  # a program future
     if m is None:
         return float("nan")
     return (m.argument_size_in_bytes + m.output_size_in_bytes + m.temp_size_in_bytes) / engine.batch_size_for(runs)
