@@ -23,7 +23,7 @@ range–bearing sensor, from two ``jvp`` of the same function written on the pos
 its velocity columns left out as structural zeros (:func:`linearise_range_bearing`). The
 modified ICF writes its weighted information pair to memory before the consensus
 (:func:`materialise`): without it XLA recomputed the pair inside every agent's mix, and the
-kernel ran 1.5–1.8x slower (docs/filter_speed.md). Everything is pure JAX and differentiable.
+kernel ran 1.4–1.7x slower (docs/filter_speed.md). Everything is pure JAX and differentiable.
 """
 
 from __future__ import annotations
