@@ -472,8 +472,7 @@ def smooth_tree_connectivity_robustness(positions, radius, temperature, alive=No
 
     has = jax.lax.fori_loop(1, n, up, alive)
     needed = has & (jnp.arange(n) != root)  # the link v–parent(v) separates alive v-side from the root
-    x = jnp.where(needed, m[jnp.arange(n), parent], jnp.zeros((), m.dtype))
-    x = jnp.where(needed, x, jnp.inf)
+    x = jnp.where(needed, m[jnp.arange(n), parent], jnp.inf)
     x = jnp.where(some, x, jnp.zeros((), m.dtype))
     r = 0.5 * softmin(x, jnp.asarray(temperature, m.dtype), axis=-1)
     return jnp.where(alive & some, r, jnp.inf)
