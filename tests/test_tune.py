@@ -438,3 +438,22 @@ def test_two_devices_give_the_one_device_loss_and_gradient(tmp_path):
     two = json.loads(r.stdout.strip().splitlines()[-1])
     assert two["loss"] == float(one.loss).hex()
     assert two["grad"] == [float(g).hex() for g in one.grad]
+
+
+def test_paired_differences_are_the_paired_t_interval():
+    """mcjax tune's held-out comparison against scipy: per filter and column, the mean of tuned −
+    initial by seed and its 95 % Student-t interval (scipy.stats.t on the differences)."""
+    from scipy import stats
+
+    rng = np.random.default_rng(7)
+    n = 40
+    a, b = rng.normal(10.0, 2.0, n), rng.normal(9.0, 2.0, n)
+    runs = pd.DataFrame({"point_id": np.repeat([0, 1], n), "seed_index": np.tile(np.arange(n), 2),
+                         "filter": "f", "rmse": np.r_[a, b]})
+    got = tune.paired_differences(runs, ["rmse"]).iloc[0]
+    d = b - a
+    low, high = stats.t.interval(0.95, n - 1, loc=d.mean(), scale=stats.sem(d))
+    assert got["paired_difference"] == pytest.approx(d.mean(), rel=1e-12)
+    assert (got["ci_low"], got["ci_high"]) == pytest.approx((low, high), rel=1e-9)
+    assert got["initial"] == pytest.approx(a.mean()) and got["tuned"] == pytest.approx(b.mean()) and got["n"] == n
+    assert tune.paired_differences(runs[runs["point_id"] == 0], ["rmse"]).empty  # one point: nothing to pair

@@ -254,9 +254,9 @@ class Smoothing(NamedTuple):
     comm: float = 1e3
 
 
-#: Params with no smooth path (:class:`mcjax.contract.Smooth`): the fault rates, the planning
-#: horizon and re-plan interval (step counts).
-ROUGH = (*faults.ROUGH, "horizon", "replan_every")
+#: Params with no smooth path (:class:`mcjax.smoothing.Smooth`): the fault rates (the horizon and
+#: the re-plan interval are integers, refused as such).
+ROUGH = faults.ROUGH
 
 
 class _Step(NamedTuple):
