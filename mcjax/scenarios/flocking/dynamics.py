@@ -295,3 +295,140 @@ def energy(state: FlockState, adj, sensing, target_q, target_p, g: Gains, l, nod
     if nodes is None:
         return 0.5 * jnp.sum(U + kin + gains)
     return 0.5 * jnp.sum(jnp.where(nodes, U + kin + gains, 0.0))
+
+
+# ------------------------------------------------------------------ error-controlled integration (ours)
+
+#: The Dormand–Prince 5(4) pair (Dormand & Prince 1980; Hairer, Nørsett & Wanner, Solving ODEs I,
+#: Table II.5.2): stage nodes, stage weights, the 5th-order weights (the last stage is the new
+#: state's derivative, "first same as last") and the 5th minus 4th-order weights (error estimate).
+_DP_C = (0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0, 1.0)
+_DP_A = ((), (1 / 5,), (3 / 40, 9 / 40), (44 / 45, -56 / 15, 32 / 9),
+         (19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729),
+         (9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656),
+         (35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84))
+_DP_E = (71 / 57600, 0.0, -71 / 16695, 71 / 1920, -17253 / 339200, 22 / 525, -1 / 40)
+
+
+def _combine(s, ks, h, weights):
+    return jax.tree.map(lambda a, *d: a + h * sum(w * x for w, x in zip(weights, d) if w != 0.0), s, *ks)
+
+
+def dopri5_substep(f, s: FlockState, k1: FlockState, tau, h):
+    """One Dormand–Prince 5(4) step of size ``h`` from time ``tau`` of ``ds/dt = f(s, tau)``,
+    given ``k1 = f(s, tau)``. Returns ``(new state, its derivative, error estimate)``: the
+    5th-order solution (local extrapolation), ``f`` at it (the next step's ``k1``), and the
+    difference of the 5th- and 4th-order solutions (a FlockState)."""
+    ks = [k1]
+    for i in range(1, 7):
+        ks.append(f(_combine(s, ks, h, _DP_A[i]), tau + _DP_C[i] * h))
+    new = _combine(s, ks[:6], h, _DP_A[6])
+    err = jax.tree.map(lambda *d: h * sum(w * x for w, x in zip(_DP_E, d) if w != 0.0), *ks)
+    return new, ks[6], err
+
+
+def closing_step(state: FlockState, adj, R, moving=None):
+    """``½ min (R − r_ij)/|ṙ_ij|`` over links and ``½ min r_ij/|ṙ_ij|`` over pairs (of nodes
+    ``moving``, if given) at this state (ours): the longest step in which no linked pair closes
+    half its gap to R, and no pair half its distance, at its current closing speed (+∞ if none
+    closes)."""
+    _, r, eye = _pair_vectors(state.q)
+    linked = (adj > 0.5) & ~eye
+    pairs = ~eye if moving is None else ~eye & moving[:, None] & moving[None, :]
+    dq = state.q[:, None, :] - state.q[None, :, :]
+    dv = state.p[:, None, :] - state.p[None, :, :]
+    rs = jnp.where(eye, 1.0, r)
+    rate = jnp.sum(dq * dv, -1) / rs                                   # ṙ_ij
+    to_r = jnp.where(linked & (rate > 0), (R - r) / jnp.where(rate > 0, rate, 1.0), jnp.inf)
+    to_0 = jnp.where(pairs & (rate < 0), r / jnp.where(rate < 0, -rate, 1.0), jnp.inf)
+    return 0.5 * jnp.minimum(jnp.min(to_r), jnp.min(to_0))
+
+
+def _pair_rates(s: FlockState):
+    """Pair distances r_ij and their rates ṙ_ij = (q_i − q_j)·(p_i − p_j)/r_ij."""
+    d, r, eye = _pair_vectors(s.q)
+    dv = s.p[:, None, :] - s.p[None, :, :]
+    return r, jnp.sum(d * dv, -1) / jnp.where(eye, 1.0, r)
+
+
+def hermite_extremes(r0, v0, r1, v1, h):
+    """Smallest and largest value over ``[0, h]`` of the cubic Hermite interpolant of ``r(t)``
+    from its values ``r0, r1`` and rates ``v0, v1`` at both ends (elementwise; ours): the ends
+    and the interior zeros of the cubic's derivative. Its error is O(h⁴ r⁗), so the extremes of
+    a pair's distance between two sub-step ends are not missed."""
+    a = 2.0 * (r0 - r1) + h * (v0 + v1)
+    b = 3.0 * (r1 - r0) - h * (2.0 * v0 + v1)
+    c = h * v0                                       # r(s) = a s³ + b s² + c s + r0, s ∈ [0, 1]
+    disc = jnp.maximum(b * b - 3.0 * a * c, 0.0)
+    qq = -(b + jnp.where(b >= 0, 1.0, -1.0) * jnp.sqrt(disc))
+    safe_q = jnp.where(qq == 0, 1.0, qq)
+    s1 = jnp.where(a == 0, 0.0, qq / jnp.where(a == 0, 1.0, 3.0 * a))
+    s2 = jnp.where(qq == 0, 0.0, c / safe_q)          # the stable pair of roots of 3a s² + 2b s + c
+    lo, hi = jnp.minimum(r0, r1), jnp.maximum(r0, r1)
+    for s in (s1, s2):
+        s = jnp.clip(jnp.where(jnp.isfinite(s), s, 0.0), 0.0, 1.0)
+        v = ((a * s + b) * s + c) * s + r0
+        lo, hi = jnp.minimum(lo, v), jnp.maximum(hi, v)
+    return lo, hi
+
+
+def dopri5_adaptive(state: FlockState, adj, sensing, reference, g: Gains, dt, max_substeps: int, tolerance,
+                    moving=None, barrier=None, first_step=None):
+    """Integrate the flock over ``dt`` at a fixed topology with the Dormand–Prince 5(4) pair and
+    a step-size controller (ours; the paper leaves the integration open). A sub-step is accepted
+    when its error estimate is at most ``tolerance`` in every component — each position (m),
+    velocity (m/s) and gain b_ij (1/s), absolute, max norm — and the next size is
+    ``h · clip(0.9 (tolerance/err)^{1/5}, 0.2, 5)`` (no growth right after a rejection). A
+    sub-step is also at most :func:`closing_step` (no linked pair closes half its gap to R,
+    no pair half its distance, at its closing speed), and one whose stages meet a link at or
+    beyond R or two nodes at one point (the potential's slope is NaN there) is rejected and
+    retried at a fifth of its size, so a link event is not stepped over. Over each accepted
+    sub-step the smallest pair distance and link margin ``R − r_ij`` are taken from the cubic
+    Hermite interpolant of each pair's distance (:func:`hermite_extremes`). The first size is
+    ``first_step`` or :func:`stable_step`'s. At most ``max_substeps`` attempts (rejections
+    count); the last allowed one takes whatever time is left (and the step is reported as
+    capped). ``moving``, ``barrier``: as :func:`rk4_adaptive`. Returns ``(state,
+    min_link_margin, min_distance, attempts, capped)``."""
+    def f(s, tau):
+        rq, rp = reference(tau)
+        return derivative(s, adj, sensing, rq, rp, g, moving, barrier)
+
+    dtype = state.q.dtype
+    eye = jnp.eye(state.q.shape[0], dtype=bool)
+    linked = (adj > 0.5) & ~eye
+    apart = eye if moving is None else eye | ~(moving[:, None] & moving[None, :])
+    tol = jnp.asarray(tolerance, dtype)
+
+    def cond(carry):
+        return (carry[1] < dt) & (carry[3] < max_substeps)
+
+    def body(carry):
+        s, tau, h, k, margin, dmin, k1, r0, v0 = carry
+        last = k == max_substeps - 1
+        h = jnp.minimum(jnp.minimum(h, closing_step(s, adj, g.R, moving)), dt - tau)
+        h = jnp.where(last | ~(h > 0), dt - tau, h)
+        final = h >= dt - tau
+        new, k_new, err = dopri5_substep(f, s, k1, tau, h)
+        e = jnp.max(jnp.stack([jnp.max(jnp.abs(x)) for x in jax.tree.leaves(err)])) / tol
+        ok = jnp.isfinite(e) & jnp.all(jnp.isfinite(k_new.q)) & jnp.all(jnp.isfinite(k_new.p))
+        accept = (ok & (e <= 1.0)) | last
+        factor = jnp.where(ok, jnp.clip(0.9 * jnp.maximum(e, 1e-10) ** -0.2, 0.2, 5.0), 0.2)
+        factor = jnp.where(accept, factor, jnp.minimum(factor, 1.0))
+        r1, v1 = _pair_rates(new)
+        lo, hi = hermite_extremes(r0, v0, r1, v1, h)
+        margin_new = jnp.minimum(margin, jnp.min(jnp.where(linked, g.R - hi, jnp.inf)))
+        dmin_new = jnp.minimum(dmin, jnp.min(jnp.where(apart, jnp.inf, lo)))
+        pick = lambda a, b: jax.tree.map(lambda x, y: jnp.where(accept, x, y), a, b)  # noqa: E731
+        s, k1, r0, v0, margin, dmin = pick((new, k_new, r1, v1, margin_new, dmin_new), (s, k1, r0, v0, margin, dmin))
+        # a non-finite accepted state (only at the cap) ends the step: its NaN margin flags it
+        tau = jnp.where(accept, jnp.where(jnp.all(jnp.isfinite(s.q)) & ~final, tau + h, dt), tau)
+        return s, tau, h * factor, k + 1, margin, dmin, k1, r0, v0
+
+    h0 = stable_step(state, adj, sensing, g) if first_step is None else first_step
+    inf = jnp.asarray(jnp.inf, dtype)
+    r0, v0 = _pair_rates(state)
+    carry = (state, jnp.asarray(0.0, dtype), jnp.asarray(h0, dtype), jnp.asarray(0, jnp.int32), inf, inf,
+             f(state, jnp.asarray(0.0, dtype)), r0, v0)
+    state, tau, _, k, margin, dmin, *_ = jax.lax.while_loop(cond, body, carry)
+    fine = jnp.all(jnp.isfinite(state.q))
+    return state, jnp.where(fine, margin, jnp.nan), jnp.where(fine, dmin, jnp.nan), k, k >= max_substeps

@@ -77,6 +77,7 @@ FILTER_NODES = ("sensing", "all")
 CONTROL_REFERENCES = ("estimate", "truth")
 TARGET_PATHS = ("sine", "line")
 START_LAYOUTS = ("uniform", "lattice")
+INTEGRATORS = ("dopri5", "rk4")
 
 
 def _check(cfg) -> None:
@@ -89,8 +90,13 @@ def _check(cfg) -> None:
 Config = config_type("Config", dict(
     **kit.common_settings(filter_kinds=FILTER_KINDS, n_agents=20, n_steps=300, min_steps=2, warmup_steps=20,
                           divergence_threshold=5.0),
-    max_substeps=Setting(200, "most RK4 sub-steps per step; each sub-step is sized from the flock's "
-                         "stiffness and closing speeds (ours)", low=1, integer=True),
+    max_substeps=Setting(200, "most sub-steps per step (dopri5: attempts, rejected ones included; rk4: each "
+                         "sized from the flock's stiffness and closing speeds) (ours)", low=1, integer=True),
+    integrator=Setting("dopri5", "dopri5 = Dormand-Prince 5(4) pair with step-size control at tolerance; rk4 = "
+                       "classical RK4 sub-steps sized for stability at substep_safety (before issue 37) (ours)",
+                       choices=INTEGRATORS),
+    tolerance=Setting(1e-6, "dopri5: bound on each sub-step's error estimate, absolute, per position (m), "
+                      "velocity (m/s) and gain b_ij (1/s) component (ours)", "m, m/s", low=0.0, low_open=True),
     filter_nodes=Setting("sensing", "nodes that run a filter and join its consensus: sensing = type I only "
                          "(paper), all = type II too (with no measurement)", choices=FILTER_NODES),
     control_reference=Setting("estimate", "what type-I nodes steer to: their KCF estimate (paper) or the true "
@@ -218,7 +224,7 @@ class Record(NamedTuple):
     min_link_margin: jax.Array   # smallest R - r over links and sub-steps (<= 0: a link reached R)
     energy: jax.Array            # φ of eq. 15 at the step's end (true target)
     speed_mismatch: jax.Array    # Σ_i |p_i - p_target|² at the step's end
-    substeps: jax.Array          # RK4 sub-steps taken
+    substeps: jax.Array          # sub-steps taken (dopri5: attempted, rejected ones included)
     capped: jax.Array            # the step needed more than max_substeps (its last took the rest)
     target: jax.Array            # (4,) [x, vx, y, vy]
     start_failed: jax.Array      # () no valid initial draw (the same at every step)
@@ -350,8 +356,12 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
 
     moving = None if fault is None else fault.alive
     barrier = None if smoothing is None else jnp.asarray(smoothing.barrier, dtype)
-    flock, margin, dmin, n_sub, capped = fl.rk4_adaptive(state.flock, graph_now, h, reference, gains, p.dt,
-                                                         cfg.max_substeps, p.substep_safety, moving, barrier)
+    if cfg.integrator == "dopri5":
+        flock, margin, dmin, n_sub, capped = fl.dopri5_adaptive(state.flock, graph_now, h, reference, gains, p.dt,
+                                                                cfg.max_substeps, cfg.tolerance, moving, barrier)
+    else:
+        flock, margin, dmin, n_sub, capped = fl.rk4_adaptive(state.flock, graph_now, h, reference, gains, p.dt,
+                                                             cfg.max_substeps, p.substep_safety, moving, barrier)
     if fault is not None:  # a lost node has stopped
         flock = flock._replace(p=jnp.where(moving[:, None], flock.p, 0.0))
 
@@ -420,6 +430,8 @@ def summary(cfg, records: Record | None, params) -> dict:
                       lambda: metrics.nan_min(r.min_distance)),
         final_min_distance=(Output("m", "smallest distance between two nodes at the end", False),
                             lambda: r.min_distance[-1]),
+        min_link_margin=(Output("m", "smallest R - r over links over the run (sub-steps included)", False),
+                         lambda: metrics.nan_min(r.min_link_margin)),
         link_reached_R=(Output("", "some link reached the radius R inside a step, or the flock went non-finite "
                                "(a broken run)", False), lambda: jnp.any(~(r.min_link_margin > 0))),
         energy_start=(Output("", "flocking energy (eq. 15) after the first step", False), lambda: e()[0]),
@@ -428,7 +440,7 @@ def summary(cfg, records: Record | None, params) -> dict:
                          lambda: jnp.maximum(metrics.nan_max(e()[1:] - e()[:-1]), 0.0)),
         final_speed_mismatch=(Output("m^2/s^2", "sum over nodes of |p_i - p_target|^2 at the end", False),
                               lambda: r.speed_mismatch[-1]),
-        substeps_mean=(Output("", "mean RK4 sub-steps per step", False),
+        substeps_mean=(Output("", "mean sub-steps per step (dopri5: attempts, rejected ones included)", False),
                        lambda: jnp.mean(r.substeps.astype(dtype()))),
         substeps_capped=(Output("steps", "steps that needed more than max_substeps sub-steps", False),
                          lambda: jnp.sum(r.capped)),
