@@ -19,14 +19,16 @@ if _FAST_COMPILE not in os.environ.get("XLA_FLAGS", ""):  # xdist workers inheri
 # The engine's program store in a folder of this test session's own, shared by the xdist
 # workers and the CLI subprocesses the tests start (they inherit the environment): a batch
 # program is compiled once per session instead of once per process, and no program stored
-# by an earlier session or another mcjax version is ever used. tests/test_engine.py tests the
-# store itself in subprocesses with folders of their own.
+# by an earlier session or another mcjax version is ever used. It replaces a MCJAX_CACHE_DIR
+# the user exported (the tests write nothing into the user's store, counted against its size
+# limit; tests/test_suite_store.py checks). tests/test_engine.py tests the store itself in
+# subprocesses with folders of their own.
 if "MCJAX_TEST_PROGRAMS" not in os.environ:  # the controller (or a plain run): make the folder
     os.environ["MCJAX_TEST_PROGRAMS"] = tempfile.mkdtemp(prefix="mcjax-test-programs-")
     _OWN_FOLDER = True
 else:
     _OWN_FOLDER = False
-os.environ.setdefault("MCJAX_CACHE_DIR", os.environ["MCJAX_TEST_PROGRAMS"])
+os.environ["MCJAX_CACHE_DIR"] = os.environ["MCJAX_TEST_PROGRAMS"]
 
 
 def pytest_unconfigure(config):
