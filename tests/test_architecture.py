@@ -127,7 +127,7 @@ LAYERS = [
     {"study", "tables", "plots", "listing"},
     {"tune"},
     {"report", "html_report", "findings", "tune_report"},
-    {"cli", "clidoc"},
+    {"cli", "clidoc", "__main__"},
 ]
 
 
