@@ -25,7 +25,12 @@ once per process; the CLI and the engine's entry points call it.
   ``~/.cache/mcjax/jax``); ``MCJAX_CACHE_DIR=off`` turns it off; it is safe to delete at any
   time. The stored programs are kept under ``$MCJAX_CACHE_MAX_GB`` gigabytes (default 2; a
   program of the closed loop is ~8 MB): past it, the least recently used ones are deleted when
-  a new one is stored. (JAX's own persistent compilation cache is not used: it traces and
+  a new one is stored. The folder is made readable by you alone (0700, files 0600), and a
+  stored program is loaded only when its file is yours, writable by no one else, and its
+  content hashes to the SHA-256 its name carries (written with it): anything else — a file
+  another user put there, a group-writable one, an altered one — is not unpickled (unpickling
+  runs code), one warning line names it and the program is compiled afresh
+  (:func:`trusted_read`). (JAX's own persistent compilation cache is not used: it traces and
   lowers a program before it can look it up, so a warm sweep started in 7-10 s against the
   store's 3-4 s, and with two devices every warm sweep failed, "NOT_FOUND: Function … not
   found", jax 0.10.2: docs/benchmarks.md, 2026-12-02.)
@@ -38,6 +43,8 @@ import io
 import os
 import pickle
 import platform
+import stat
+import sys
 import threading
 import warnings
 from functools import lru_cache
@@ -137,12 +144,85 @@ def _code_version() -> str:
     return h.hexdigest()
 
 
-def _executable_path(key: str) -> Path | None:
+def _executable_stem(key: str) -> tuple[Path, str] | None:
+    """The store's folder and the name prefix of the program stored under ``key`` (its file is
+    ``<prefix>-<sha256 of its content>.pkl``), or None when the store is off."""
     folder = cache_dir()
     if folder is None:
         return None
-    digest = hashlib.sha256(f"{_code_version()}|{key}".encode()).hexdigest()[:40]
-    return folder / "mcjax-programs" / f"{digest}.pkl"
+    return folder / "mcjax-programs", hashlib.sha256(f"{_code_version()}|{key}".encode()).hexdigest()[:40]
+
+
+def private_folder(folder: Path) -> Path:
+    """``folder``, created readable by its owner alone (0700); an existing one of yours that
+    others may read or write is made so. Returns ``folder``."""
+    folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+    st = folder.stat()
+    if st.st_uid == os.getuid() and stat.S_IMODE(st.st_mode) & 0o077:
+        os.chmod(folder, 0o700)
+    return folder
+
+
+def write_private(path: Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (:func:`mcjax.files.atomic_write`), the file readable
+    and writable by its owner alone (0600)."""
+    def write(tmp: Path) -> None:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o600)
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+
+    return atomic_write(path, write, durable=False)  # a cache: a lost file is built again
+
+
+def content_name(stem: str, data: bytes, suffix: str) -> str:
+    """The file name that records ``data``'s SHA-256: ``<stem>-<hex digest><suffix>``."""
+    return f"{stem}-{hashlib.sha256(data).hexdigest()}{suffix}"
+
+
+def trusted_read(path: Path) -> tuple[bytes | None, str]:
+    """The bytes of a cached file that is safe to load as code (a pickled program, a shared
+    library), or ``(None, why)``: the file must be a regular file (not a symbolic link), owned
+    by this user, not writable by group or others, in a folder owned by this user (or root) that
+    group and others cannot write, and its content must hash to the SHA-256 at the end of its
+    name (:func:`content_name`, recorded when it was written). The checks and the hash are of
+    the open file itself (no one can swap it in between)."""
+    try:
+        folder = path.parent.stat()
+        if folder.st_uid not in (os.getuid(), 0) or stat.S_IMODE(folder.st_mode) & 0o022:
+            return None, f"its folder {path.parent} may be written by another user"
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+    except OSError as exc:
+        return None, f"cannot be opened ({exc.strerror or exc})"
+    with os.fdopen(fd, "rb") as fh:
+        st = os.fstat(fh.fileno())
+        if not stat.S_ISREG(st.st_mode):
+            return None, "is not a regular file"
+        if st.st_uid != os.getuid():
+            return None, f"belongs to another user (uid {st.st_uid})"
+        if stat.S_IMODE(st.st_mode) & 0o022:
+            return None, f"may be written by group or others (mode {stat.S_IMODE(st.st_mode):o})"
+        data = fh.read()
+    digest = path.name.rsplit(".", 1)[0].rpartition("-")[2]
+    if len(digest) != 64 or hashlib.sha256(data).hexdigest() != digest:
+        return None, "its content does not match the hash recorded when it was written"
+    return data, ""
+
+
+_WARNED: set = set()
+
+
+def distrust(path: Path, why: str, what: str = "stored program") -> None:
+    """One warning line on standard error naming a cached file that is not loaded, and why
+    (once per file and process)."""
+    with _LOCK:
+        if str(path) in _WARNED:
+            return
+        _WARNED.add(str(path))
+    try:
+        sys.stderr.write(f"warning: not loading the {what} {path}: it {why}; building it afresh\n")
+        sys.stderr.flush()
+    except (OSError, ValueError):
+        pass
 
 
 #: Programs loaded from and stored to the disk cache in this process.
@@ -189,26 +269,34 @@ class _Unpickler(pickle.Unpickler):
 def load_executable(key: str, device, local=None):
     """The program stored under ``key`` (:func:`store_executable`), loaded on ``device``, or
     None when there is none, the cache is off, the file cannot be loaded, or the program calls
-    a library kernel this process has not set up (then the caller compiles it again).
+    a library kernel this process has not set up (then the caller compiles it again). A file
+    that fails :func:`trusted_read` is not unpickled: one warning line names it.
     ``local``: the module the program's Params and outputs classes were stored from
     (:func:`store_executable`)."""
-    path = _executable_path(key)
-    if path is None or not path.is_file():
+    stem = _executable_stem(key)
+    if stem is None:
         return None
-    try:
-        blob, in_tree, out_tree, targets = _Unpickler(io.BytesIO(path.read_bytes()), local).load()
-        program = jaxcompat.deserialise((blob, in_tree, out_tree), device)
-        if not set(targets) <= prepare_loading():
-            return None
-        with _LOCK:
-            STATS["loaded"] += 1
+    folder, prefix = stem
+    for path in sorted(folder.glob(f"{prefix}-*.pkl")):
+        data, why = trusted_read(path)
+        if data is None:
+            distrust(path, why)
+            continue
         try:
-            os.utime(path)  # recently used: the last to be pruned
-        except OSError:
-            pass
-        return program
-    except Exception:  # a damaged or foreign file: compile again and overwrite it
-        return None
+            blob, in_tree, out_tree, targets = _Unpickler(io.BytesIO(data), local).load()
+            program = jaxcompat.deserialise((blob, in_tree, out_tree), device)
+            if not set(targets) <= prepare_loading():
+                return None
+            with _LOCK:
+                STATS["loaded"] += 1
+            try:
+                os.utime(path)  # recently used: the last to be pruned
+            except OSError:
+                pass
+            return program
+        except Exception:  # a file of another version of this program: compile again and overwrite it
+            return None
+    return None
 
 
 def store_executable(key: str, data: tuple | None, targets: frozenset, local=None) -> None:
@@ -217,8 +305,8 @@ def store_executable(key: str, data: tuple | None, targets: frozenset, local=Non
     calls (atomically; failures are ignored: the cache is an optimisation). The classes of
     module ``local`` in its input and output trees (a scenario file's Params, State …) are
     stored by their name in that module, which the loading process passes again."""
-    path = _executable_path(key)
-    if path is None:
+    stem = _executable_stem(key)
+    if stem is None:
         return
     limit = envvars.cache_max_bytes()  # a bad MCJAX_CACHE_MAX_GB is the user's to see, not swallowed below
     if data is None:
@@ -226,9 +314,14 @@ def store_executable(key: str, data: tuple | None, targets: frozenset, local=Non
     try:
         buffer = io.BytesIO()
         _Pickler(buffer, local).dump((*data, tuple(sorted(targets))))
-        atomic_write(path, buffer.getvalue(), durable=False)  # a cache: a lost program is compiled again
+        folder, prefix = stem
+        blob = buffer.getvalue()
+        path = write_private(private_folder(folder) / content_name(prefix, blob, ".pkl"), blob)
         STATS["stored"] += 1
-        _prune(path.parent, limit, keep=path)
+        for other in folder.glob(f"{prefix}-*.pkl"):  # an older or untrusted copy of the same program
+            if other != path:
+                other.unlink(missing_ok=True)
+        _prune(folder, limit, keep=path)
     except Exception:
         pass
 

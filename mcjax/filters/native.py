@@ -7,7 +7,8 @@ step, each reading the state again, on one thread; a compiled loop keeps 8 lanes
 So when the machine has a C++ compiler, the first call builds ``native_kernels.cc`` into a
 shared library (``c++ -O3 -march=native -fno-math-errno``, with glibc's vector math library
 where it links; a few seconds), keeps it in mcjax's cache folder (keyed on the source, the
-compiler and the CPU; safe to delete), and registers its two handlers with XLA; the same
+compiler and the CPU; safe to delete; loaded only when the file is yours alone and unaltered
+since it was built: :func:`load_library`), and registers its two handlers with XLA; the same
 library checks ``run_filter``'s adjacency (:func:`adjacency_bytes`). Without a compiler, or
 with ``MCJAX_NATIVE=off``, :func:`available` is False and ``run_filter`` uses the pure-JAX
 kernels and numpy checks; the kernels are also the ones for float32 and for gradients. Both
@@ -30,7 +31,6 @@ import jax
 import numpy as np
 
 from mcjax import envvars, runtime
-from mcjax.files import atomic_write
 
 SOURCE = Path(__file__).with_name("native_kernels.cc")
 TARGETS = {"local": ("mcjax_local_ekf", "McjaxLocalEkf"), "modified_icf": ("mcjax_modified_icf", "McjaxModifiedIcf")}
@@ -47,7 +47,9 @@ def _compiler() -> str | None:
     return next((c for c in (os.environ.get("CXX"), "c++", "g++", "clang++") if c and shutil.which(c)), None)
 
 
-def _library_path(cxx: str) -> Path:
+def _library_stem(cxx: str) -> tuple[Path, str]:
+    """The cache folder of the built library and its name's prefix (keyed on the source, the
+    compiler, the CPU and JAX); the file is ``<prefix>-<sha256 of its content>.so``."""
     version = subprocess.run([cxx, "--version"], capture_output=True, text=True, timeout=30).stdout
     cpu = platform.processor() or platform.machine()
     try:
@@ -58,23 +60,48 @@ def _library_path(cxx: str) -> Path:
     key = hashlib.sha256(SOURCE.read_bytes() + version.encode() + cpu.encode() + jax.__version__.encode())
     folder = runtime.cache_dir()
     folder = (folder / "mcjax-native") if folder is not None else Path(tempfile.gettempdir()) / f"mcjax-native-{os.getuid()}"
-    return folder / f"filters-{key.hexdigest()[:24]}.so"
+    return folder, f"filters-{key.hexdigest()[:24]}"
 
 
-def _build(cxx: str, target: Path) -> None:
+def _build(cxx: str, folder: Path, prefix: str) -> Path:
     """Compile, with glibc's vector math library (libmvec: a vectorised atan2) where it links,
-    else without it; atomically (:func:`mcjax.files.atomic_write`): a concurrent process sees
-    the whole library or none."""
-    def compile_to(tmp: Path) -> None:
+    else without it, into ``folder`` (made 0700), the file 0600 and named after its content's
+    SHA-256 (:func:`mcjax.runtime.content_name`), written atomically: a concurrent process sees
+    the whole library or none. Returns its path."""
+    runtime.private_folder(folder)
+    with tempfile.TemporaryDirectory(dir=folder, prefix=".build-") as work:
+        out = Path(work) / "lib.so"
         cmd = [cxx, "-O3", "-march=native", "-fno-math-errno", "-std=c++17", "-shared", "-fPIC", "-pthread",
-               f"-I{jax.ffi.include_dir()}", str(SOURCE), "-o", str(tmp)]
+               f"-I{jax.ffi.include_dir()}", str(SOURCE), "-o", str(out)]
         for extra in (["-DMCJAX_LIBMVEC", "-lmvec"], []):
             done = subprocess.run(cmd + extra, capture_output=True, text=True, timeout=300)
             if done.returncode == 0:
-                return
-        raise RuntimeError(f"{' '.join(cmd)} failed: {done.stderr.strip()[-500:]}")
+                break
+        else:
+            raise RuntimeError(f"{' '.join(cmd)} failed: {done.stderr.strip()[-500:]}")
+        data = out.read_bytes()
+    return runtime.write_private(folder / runtime.content_name(prefix, data, ".so"), data)
 
-    atomic_write(target, compile_to, durable=False)
+
+def load_library(folder: Path, prefix: str):
+    """The built library of ``prefix`` in ``folder``, loaded, or None when there is none that
+    passes :func:`mcjax.runtime.trusted_read` (a shared library runs code when it is loaded: one
+    yours alone, unaltered since it was built); a file that fails is named in one warning line
+    and not loaded. The library is loaded from the file descriptor that was checked."""
+    for path in sorted(folder.glob(f"{prefix}-*.so")):
+        data, why = runtime.trusted_read(path)
+        if data is None:
+            runtime.distrust(path, why, "native kernels' library")
+            continue
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+        try:
+            if hashlib.sha256(os.pread(fd, len(data) + 1, 0)).digest() != hashlib.sha256(data).digest():
+                continue  # replaced since it was checked
+            target = f"/proc/self/fd/{fd}" if Path("/proc/self/fd").is_dir() else str(path)
+            return ctypes.cdll.LoadLibrary(target)
+        finally:
+            os.close(fd)
+    return None
 
 
 @lru_cache(maxsize=1)
@@ -90,10 +117,12 @@ def available() -> bool:
         STATUS["reason"] = "no C++ compiler (c++, g++, clang++ or $CXX) on PATH"
         return False
     try:
-        path = _library_path(cxx)
-        if not path.exists():
-            _build(cxx, path)
-        lib = ctypes.cdll.LoadLibrary(str(path))
+        folder, prefix = _library_stem(cxx)
+        lib = load_library(folder, prefix)
+        if lib is None:
+            lib = load_library(_build(cxx, folder, prefix).parent, prefix)
+        if lib is None:
+            raise RuntimeError(f"the library just built in {folder} does not load")
         for name, symbol in TARGETS.values():
             jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(getattr(lib, symbol)), platform="cpu")
         lib.mcjax_adjacency_bytes.restype = ctypes.c_int
