@@ -235,7 +235,7 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
         base = (spec.parent / s.source["base"]).resolve()
         try:
             todo = prepare_output(s, out_dir, resume=resume, force=force, keep=[spec, base], spec_file=spec,
-                                  note=lambda line: click.echo(f"resume: {line}", err=True))
+                                  note=lambda line: click.echo(f"resume: {line}", err=True), hold=session)
         except OutputError as exc:
             _fail(str(exc))
         click.echo(headline)
@@ -380,23 +380,23 @@ def tune(spec, out_dir, resume, force):
         return (f"interrupted: progress saved in {state['out']}; finish with: mcjax tune "
                 f"{shlex.quote(str(spec))} --out {shlex.quote(str(state['out']))} --resume")
 
-    with ctrl_c(hint) as stop:
+    with ctrl_c(hint) as stop, contextlib.ExitStack() as held:  # held: the output folder's lock
         from mcjax.study import default_out_dir
 
         state["out"] = out_dir = out_dir or default_out_dir(spec)
-        _tune(spec, out_dir, resume, force, state, stop, hint)
+        _tune(spec, out_dir, resume, force, state, stop, hint, held)
 
 
-def _tune(spec_path, out_dir, resume, force, state, stop, hint):
-    from mcjax import results
-    from mcjax import tune as tuning
-    from mcjax.study import OutputError, SpecError
+def _tune(spec_path, out_dir, resume, force, state, stop, hint, held):
+    from mcjax import results, scenarios, tune as tuning
+    from mcjax.study import OutputError, SpecError, store
 
     try:
         spec = tuning.load_tune_spec(spec_path)
     except SpecError as exc:
         _fail(str(exc))
     try:
+        held.enter_context(store.hold_output(out_dir))
         tuning.prepare_tune_output(spec, out_dir, resume=resume, force=force, spec_file=spec_path,
                                    keep=[spec_path, (spec_path.parent / spec.source["base"]).resolve()])
     except OutputError as exc:
@@ -485,15 +485,15 @@ def list_scenarios(scenario, config_file):
             file = read_config_file(config_file)
         except SpecError as exc:
             _fail(str(exc))
+    from mcjax.listing import did_you_mean, scenario_text
+
     try:
         sc = scenarios.get(scenario, base_dir=Path.cwd()) if scenario is not None else file.scenario
     except (ValueError, ImportError) as exc:
-        _fail(str(exc))
+        _fail(f"{exc}{did_you_mean(scenario, scenarios.known())}")
     if file is not None and file.scenario.name != sc.name:
         _fail(f"{config_file} is a config of scenario {file.scenario.name!r}, not {sc.name!r}: "
               f"`mcjax list {file.scenario.name} --config {shlex.quote(str(config_file))}`")
-    from mcjax.listing import scenario_text
-
     click.echo(scenario_text(sc, file, config_file))
 
 if __name__ == "__main__":

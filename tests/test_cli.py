@@ -196,3 +196,55 @@ def test_shipped_sweeps_validate(tmp_path, spec):
     r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / "o"), "--dry-run"])
     assert r.exit_code == 0, r.output
     assert "runs" in r.output and not (tmp_path / "o").exists()
+
+
+def test_python_dash_m_mcjax_is_the_command_line():
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "mcjax", "list"], capture_output=True, text=True, timeout=120,
+                       cwd=__import__("pathlib").Path(__file__).parents[1])
+    assert r.returncode == 0, r.stderr
+    assert r.stdout == CliRunner().invoke(main, ["list"]).output and "leader_follower" in r.stdout
+
+
+@pytest.mark.parametrize("typed, meant", [("leader_folower", "leader_follower"), ("flockng", "flocking"),
+                                          ("uuv-imm", "uuv_imm"), ("wind_formations", "wind_formation")])
+def test_list_suggests_the_scenario_one_typo_away(typed, meant):
+    r = CliRunner().invoke(main, ["list", typed])
+    assert r.exit_code == 2 and len(r.output.strip().splitlines()) == 1, r.output
+    assert f"did you mean {meant!r}? (`mcjax list {meant}`)" in r.output
+    far = CliRunner().invoke(main, ["list", "kalman"])
+    assert far.exit_code == 2 and "did you mean" not in far.output  # nothing close: no guess
+
+
+def test_list_with_a_config_marks_every_field_it_sets_to_the_default():
+    """docs/cli.md: `(FILE: the same)` where the file sets a field to the default — Config fields
+    too — and a value the file writes with fewer decimals (546.41 for 546.41016) is not a change."""
+    import tomllib
+    from pathlib import Path
+
+    from mcjax import scenarios
+    from mcjax.listing import same_value
+
+    path = Path(__file__).parents[1] / "configs" / "ren2017.toml"
+    r = CliRunner().invoke(main, ["list", "uuv_imm", "--config", str(path)])
+    assert r.exit_code == 0, r.output
+    lines = r.output.splitlines()
+    data = tomllib.loads(path.read_text())
+    sc = scenarios.get("uuv_imm")
+    for table, names in (("params", sc.params_table), ("config", sc.settings)):
+        for name in names:
+            value = lines[next(i for i, s in enumerate(lines) if s.startswith(f"  {name}:") or
+                               s.startswith(f"  {name} ")) + 1]
+            if name in data[table]:  # this config sets every field to the code's default
+                assert "(ren2017.toml: the same" in value and "<-" not in value, (name, value)
+            else:
+                assert "ren2017.toml" not in value, (name, value)
+    assert "(ren2017.toml: the same, rounded)" in lines[next(i for i, s in enumerate(lines)
+                                                               if s.startswith("  uuv_positions")) + 1]
+    # rounding is not a licence to hide a change
+    assert same_value(546.41016, 546.41) == "rounded" and same_value([[1.0, 546.41016]], [[1, 546.41]]) == "rounded"
+    assert same_value(3.04, 3.0) is None and same_value(249.0, 200.0) is None and same_value(0.001, 0.0) is None
+    assert same_value(546.41016, 546.42) is None and same_value(("a", "b"), ("a", "b")) == "exact"
+    assert same_value(1.0, 1) == "exact" and same_value([1.0, 2.0], [1.0]) is None
