@@ -22,9 +22,23 @@ ACK = "stopping after the chunk in flight; press Ctrl-C again to stop now"
 ACK_DASK = "stopping: cancelling the chunks in flight (the chunks written stay); press Ctrl-C again to stop now"
 
 
+#: What must happen before the process leaves at once (:func:`exit_now`, a second Ctrl-C), last
+#: added first: e.g. removing an output folder's lock (:mod:`mcjax.study.lock`).
+AT_EXIT: list = []
+
+
+def last_calls() -> None:
+    """Run (and forget) the callables of :data:`AT_EXIT`, last added first, ignoring their errors."""
+    while AT_EXIT:
+        with contextlib.suppress(Exception):
+            AT_EXIT.pop()()
+
+
 def exit_now(code: int) -> None:
     """Leave at once, without the interpreter's teardown: JAX's compute and compile threads may
-    still run, and tearing the runtime down under them can crash the process."""
+    still run, and tearing the runtime down under them can crash the process. :data:`AT_EXIT`
+    runs first."""
+    last_calls()
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):
             stream.flush()
@@ -75,6 +89,7 @@ def ctrl_c(last_words, ack: str = ACK):
             count += data.count(bytes([signal.SIGINT]))
             if count >= 2:
                 say(f"\nstopped now; {last_words()}")
+                last_calls()
                 os._exit(130)
             if count == 1 and not stop.is_set():
                 stop.set()

@@ -1,19 +1,22 @@
 """A study's output folder: its identity file, the part files on disk, ``--resume`` and
 ``--force`` (for sweeps, tunes and a tune's held-out evaluation alike). Every file is written
 atomically (:func:`mcjax.files.atomic_write`); the Parquet parts themselves are written by
-:func:`mcjax.results.write_part`. No JAX.
+:func:`mcjax.results.write_part`. One command writes a folder at a time (:func:`hold_output`,
+the lock of :mod:`mcjax.study.lock`). No JAX.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 import shutil
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 from mcjax import results
 from mcjax.files import atomic_write
+from mcjax.study import lock
 from mcjax.study.checks import is_int, one_line
 from mcjax.study.plan import Study
 from mcjax.study.rows import chunk_parts
@@ -27,6 +30,23 @@ RESULTS_DIR = Path("results")
 
 class OutputError(ValueError):
     """The output folder cannot be used as asked (not empty, nothing to resume, another sweep)."""
+
+
+@contextlib.contextmanager
+def hold_output(out_dir: str | Path, warn: Callable[[str], None] | None = None) -> Iterator[None]:
+    """Hold ``out_dir``'s lock (:func:`mcjax.study.lock.hold`: one writer per output folder) for
+    the ``with`` block; :class:`OutputError` in one line naming the holder when another command
+    holds it. ``warn`` is told when a lock left by a process that is gone is taken over."""
+    try:
+        with lock.hold(out_dir, warn):
+            yield
+    except lock.LockError as exc:
+        raise OutputError(str(exc)) from None
+
+
+def _contents(folder: Path) -> list[Path]:
+    """What a folder holds, but for its lock."""
+    return [p for p in folder.iterdir() if p.name != lock.LOCK_FILE]
 
 
 def default_out_dir(spec_path: str | Path) -> Path:
@@ -84,7 +104,7 @@ def check_replaceable(out_dir: Path, keep: list[Path], identity_file: str = IDEN
                     else "your home folder" if g == guarded[2] else str(g))
             raise OutputError(f"--force: {out_dir} is or holds {what}; it replaces only a {kind}'s own output folder "
                               f"(choose another --out)")
-    if any(out.iterdir()) and not (out / identity_file).is_file():
+    if _contents(out) and not (out / identity_file).is_file():
         raise OutputError(f"--force: {out_dir} is not empty and holds no {identity_file}, so it is no {kind}'s output "
                           f"folder; --force replaces only those (choose another --out)")
 
@@ -102,12 +122,13 @@ def start_fresh(out_dir: str | Path, *, force: bool, keep: list[Path] = (), iden
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise OutputError(f"output folder {out_dir} is a file; choose another --out")
-    if out_dir.exists() and any(out_dir.iterdir()):
+    if out_dir.exists() and _contents(out_dir):
         if not force:
             raise OutputError(f"output folder {out_dir} is not empty; pass --resume to finish it, --force to "
                               f"replace it, or choose another --out")
         check_replaceable(out_dir, list(keep), identity_file, kind)
-        shutil.rmtree(out_dir)
+        for item in _contents(out_dir):  # the lock stays: this command holds it
+            shutil.rmtree(item) if item.is_dir() and not item.is_symlink() else item.unlink()
     out_dir.mkdir(parents=True, exist_ok=True)
     return out_dir
 
@@ -118,7 +139,8 @@ def _spec_file(spec_file) -> str | None:
 
 def prepare_output(study: Study, out_dir: str | Path, *, resume: bool = False, force: bool = False,
                    keep: list[Path] = (), spec_file: str | Path | None = None,
-                   note: Callable[[str], None] | None = None) -> list[int] | None:
+                   note: Callable[[str], None] | None = None,
+                   hold: contextlib.ExitStack | None = None) -> list[int] | None:
     """Make ``out_dir`` ready for ``study``; return the chunks still to run (None: all).
 
     A fresh sweep needs an empty or missing folder (``force`` replaces one that holds a
@@ -126,12 +148,15 @@ def prepare_output(study: Study, out_dir: str | Path, *, resume: bool = False, f
     writes the identity file (with ``spec_file`` and the ``--set`` values, for resuming).
     ``resume`` needs the same identity, removes half-written staging files and returns the
     chunks whose parts are missing or damaged (:func:`check_parts`; ``note`` is told about
-    each problem). Raises :class:`OutputError` otherwise."""
+    each problem). With ``hold``, first takes the folder's lock (:func:`hold_output`) and
+    keeps it until ``hold`` closes. Raises :class:`OutputError` otherwise."""
     out_dir = Path(out_dir)
     ident = identity(study)
     if resume and force:
         raise OutputError("--resume and --force exclude each other")
     try:
+        if hold is not None:
+            hold.enter_context(hold_output(out_dir))
         if resume:
             saved = read_identity(out_dir)
             if {k: saved[k] for k in IDENTITY_KEYS} != ident:
