@@ -196,7 +196,7 @@ def _executor(remote: _Remote):
 
 def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state, stop, hint, remote=_Remote()):
     overrides = _parse_set(sets)
-    from mcjax import results
+    from mcjax import results, scenarios
     from mcjax.study import OutputError, SpecError, load_spec, prepare_output, read_identity, run_sweep
 
     if resume and not dry_run:  # what the interrupted sweep was given, unless given again
@@ -212,8 +212,8 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
     except SpecError as exc:
         _fail(str(exc))
     plan = s.plan
-    headline = (f"scenario {s.scenario.name}: {s.n_points} point(s) x {s.seeds} seed(s) = {s.n_runs} runs, "
-                f"{len(plan)} chunk(s) of {s.chunk_runs}, filters {', '.join(s.config.filters)}")
+    headline = (f"scenario {scenarios.describe(s.scenario)}: {s.n_points} point(s) x {s.seeds} seed(s) = "
+                f"{s.n_runs} runs, {len(plan)} chunk(s) of {s.chunk_runs}, filters {', '.join(s.config.filters)}")
     if dry_run:
         from mcjax.tables import format_table
 
@@ -294,7 +294,7 @@ def run(config, seeds, sets):
         if data is not None and "base" in data:
             _fail(f"{config} is a sweep spec (it names a base config), not a config file: run it with "
                   f"`mcjax sweep {shlex.quote(str(config))}`")
-        from mcjax.engine import BATCH_SIZE, devices
+        from mcjax import engine, scenarios
         from mcjax.study import SpecError, build_spec, run_sweep
 
         if not config.is_file():
@@ -302,12 +302,12 @@ def run(config, seeds, sets):
         try:
             # chunks of one batch per device: a Ctrl-C waits for little (the numbers do not depend on it)
             s = build_spec({"base": str(config.resolve())}, Path.cwd(), seeds=seeds, overrides=overrides,
-                           chunk_size=BATCH_SIZE * len(devices()))
+                           chunk_size=engine.BATCH_SIZE * len(engine.devices()))
         except SpecError as exc:
             _fail(str(exc))
         configure()
-        click.echo(f"scenario {s.scenario.name}: {s.n_points} point(s) x {s.seeds} seed(s) = {s.n_runs} runs, "
-                   f"filters {', '.join(s.config.filters)}")
+        click.echo(f"scenario {scenarios.describe(s.scenario)}: {s.n_points} point(s) x {s.seeds} seed(s) = "
+                   f"{s.n_runs} runs, filters {', '.join(s.config.filters)}")
         df = run_sweep(s, should_stop=stop.is_set)
         if stop.is_set():
             click.echo(f"interrupted: {len(df) // max(len(s.config.filters), 1)} of {s.n_runs} run(s) done, "
@@ -407,8 +407,8 @@ def _tune(spec_path, out_dir, resume, force, state, stop, hint, held):
         click.echo(hint(), err=True)
         exit_now(130)
     names = ", ".join(f"{b.name} in ({b.low:g}, {b.high:g}) {b.scale}" for b in spec.bounds)
-    click.echo(f"scenario {spec.study.scenario.name}: tuning {names} with {spec.optimizer} (learning rate "
-               f"{spec.learning_rate:g}) for {spec.steps} step(s) on {spec.train_seeds} training seed(s); "
+    click.echo(f"scenario {scenarios.describe(spec.study.scenario)}: tuning {names} with {spec.optimizer} "
+               f"(learning rate {spec.learning_rate:g}) for {spec.steps} step(s) on {spec.train_seeds} training seed(s); "
                f"loss on {spec.loss.filter}")
     saved = tuning.load_state(out_dir, spec)
     done = 0 if saved is None else saved[0]

@@ -9,6 +9,10 @@ Three ways to name a scenario (in a config file's ``scenario = "..."``, or :func
   ``pyproject.toml``, ``[project.entry-points."mcjax.scenarios"] my_name = "my_pkg.module:SCENARIO"``;
 * a reference ``"path/to/file.py:SCENARIO"`` (relative to the config file's folder) or
   ``"some.module:SCENARIO"`` (an importable module) — for a scenario you are writing.
+
+The last two import and run Python code named by a config file: a config or spec from
+elsewhere is to be read like code (docs/cli.md, "What a spec may run"). :func:`origin` tells
+which file or module a scenario came from (``mcjax sweep`` / ``run`` / ``tune`` print it).
 """
 
 from __future__ import annotations
@@ -27,6 +31,34 @@ ENTRY_POINT_GROUP = "mcjax.scenarios"
 
 BUILTIN: dict[str, Scenario] = {s.name: s for s in (leader_follower.SCENARIO, uuv_imm.SCENARIO, urban_bearing.SCENARIO,
                                                   flocking.SCENARIO, wind_formation.SCENARIO)}
+
+
+#: Where each scenario that is not built in was imported from, by id (kept alive with it).
+_ORIGINS: dict[int, tuple[Scenario, str]] = {}
+
+
+def _note_origin(obj, where: str):
+    if isinstance(obj, Scenario) and obj not in BUILTIN.values():
+        _ORIGINS.setdefault(id(obj), (obj, where))
+    return obj
+
+
+def origin(scenario: Scenario) -> str | None:
+    """The file, module or plugin a scenario was imported from (by :func:`get`), or None for a
+    built-in one (and for one :func:`get` did not import)."""
+    entry = _ORIGINS.get(id(scenario))
+    return entry[1] if entry is not None and entry[0] is scenario else None
+
+
+def describe(scenario: Scenario) -> str:
+    """A scenario's name, and where it was imported from when it is not built in (:func:`origin`)."""
+    where = origin(scenario)
+    return scenario.name if where is None else f"{scenario.name} (imported from {where})"
+
+
+def _module_file(module) -> str:
+    where = getattr(module, "__file__", None)
+    return f" ({where})" if where else ""
 
 
 def _plugin_points() -> dict:
@@ -60,11 +92,13 @@ def _from_reference(ref: str, base_dir: Path | None) -> Scenario:
             module = importlib.util.module_from_spec(spec)
             sys.modules[name] = module  # before exec: its dataclasses look their module up
             spec.loader.exec_module(module)
+        source = str(path)
     else:
         module = importlib.import_module(where)
+        source = f"module {where}{_module_file(module)}"
     if not hasattr(module, attr):
         raise ValueError(f"scenario {ref!r}: {where} has no attribute {attr!r}")
-    return _checked(getattr(module, attr), ref)
+    return _note_origin(_checked(getattr(module, attr), ref), source)
 
 
 def get(name: str, base_dir: str | Path | None = None) -> Scenario:
@@ -74,7 +108,9 @@ def get(name: str, base_dir: str | Path | None = None) -> Scenario:
         return BUILTIN[name]
     plugins = _plugin_points()
     if name in plugins:
-        return _checked(plugins[name].load(), name)
+        point = plugins[name]
+        obj = _checked(point.load(), name)
+        return _note_origin(obj, f"plugin {point.value}{_module_file(sys.modules.get(point.module))}")
     if ":" in name:
         return _from_reference(name, None if base_dir is None else Path(base_dir))
     raise ValueError(f"scenario must be one of {', '.join(known())} (or 'file.py:ATTRIBUTE'); got {name!r}")
