@@ -1,3 +1,402 @@
 """The report's "What this shows": sentences about a sweep generated from its data, each
 backed by the intervals it quotes; a glossary from the dataset's declarations; the base
-Params table. This module imports neither JAX nor matplotlib."""
+Params table.
+
+* :func:`findings` -- per swept axis, two to four :class:`Finding` sentences: which filter
+  has the lowest mean error where, how the error changes along the axis, where runs diverge,
+  where the comm graph disconnects. Every number comes with its 95 % interval.
+* :func:`glossary` -- ``(term, words)`` for the filters, the error metric, the divergence
+  flag, the graph statistics, the swept axes and the intervals, from the declarations.
+* :func:`params_table` -- the base Params of the dataset with their units and descriptions.
+* :func:`percent` -- a rate with its interval as ``"2.0 % [0.6, 7.0]"``.
+
+The rule of every sentence: an order between two filters (or between two values of an axis)
+is stated only when their 95 % intervals do not overlap -- the mean error's Student-t
+intervals, the divergence rate's Wilson intervals. Separate intervals are a conservative
+test (two means whose intervals touch may still differ); where they overlap the sentence
+says so and claims no order. Counts ("no run diverged") are stated as counts, with the
+upper end of the rate's interval. :class:`Finding` keeps each order it claims, so a test
+can check every claim against the intervals.
+
+Everything is read from the dataset's metadata (the scenario's declarations): nothing
+here names a scenario, a filter or a unit. This module imports neither JAX nor matplotlib.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping, NamedTuple, Sequence
+
+import numpy as np
+import pandas as pd
+
+from mcjax import tables
+from mcjax.statistics import CONFIDENCE, mean_ci, wilson_interval
+
+__all__ = ["Finding", "findings", "glossary", "params_table", "percent", "quote"]
+
+PCT = f"{100 * CONFIDENCE:g} %"
+
+
+class Finding(NamedTuple):
+    """One sentence of "What this shows": the swept axis it is about, its text, the orders it
+    claims -- ``(lower, higher, where)``: filter ``lower``'s statistic is below filter
+    ``higher``'s at the axis value ``where``, their intervals apart -- and its kind:
+    ``"lowest"`` (the mean error's order), ``"trend"``, ``"divergence"`` (orders of the
+    divergence rate) or ``"graph"``."""
+
+    axis: str
+    text: str
+    orders: tuple[tuple[str, str, Any], ...] = ()
+    kind: str = "lowest"
+
+
+def percent(rate: float, low: float, high: float) -> str:
+    """A rate with its interval in percent, one decimal: ``"2.0 % [0.6, 7.0]"``."""
+    if not math.isfinite(rate):
+        return "nan"
+    if not (math.isfinite(low) and math.isfinite(high)):
+        return f"{100 * rate:.1f} %"
+    return f"{100 * rate:.1f} % [{100 * low:.1f}, {100 * high:.1f}]"
+
+
+def quote(mean: float, low: float, high: float, unit: str = "") -> str:
+    """A mean with its interval in the tables' number format: ``"11.09 m [10.96, 11.22]"``."""
+    u = f" {unit}" if unit else ""
+    m = tables.format_number(mean, tables.STAT_DIGITS)
+    if not (math.isfinite(low) and math.isfinite(high)):
+        return f"{m}{u} (no interval)"
+    return f"{m}{u} [{tables.format_number(low, tables.STAT_DIGITS)}, {tables.format_number(high, tables.STAT_DIGITS)}]"
+
+
+def _apart(lo_a: float, hi_a: float, lo_b: float, hi_b: float) -> bool:
+    """Interval a lies wholly below interval b (both finite)."""
+    return all(math.isfinite(x) for x in (lo_a, hi_a, lo_b, hi_b)) and hi_a < lo_b
+
+
+def _listing(items: Sequence[str]) -> str:
+    items = list(items)
+    if len(items) <= 1:
+        return "".join(items)
+    return ", ".join(items[:-1]) + " and " + items[-1]
+
+
+class _Axis(NamedTuple):
+    name: str
+    values: list
+    unit: str
+    factor: float
+
+    def text(self, value: Any) -> str:
+        v = value
+        if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_)):
+            v = float(v) * self.factor if self.factor != 1.0 else v
+        return tables.format_number(v, 4) + (f" {self.unit}" if self.unit else "")
+
+    def texts(self, values: Sequence[Any]) -> str:
+        return _listing([self.text(v) for v in values])
+
+
+def _sorted_values(series: pd.Series) -> list:
+    values = list(pd.unique(series))
+    try:
+        return sorted(values)
+    except TypeError:
+        return values
+
+
+def _lowest_error(s: pd.DataFrame, ax: _Axis, sch: tables.Schema, filters: list, unit: str,
+                  pooled: str) -> Finding | None:
+    """Which filter has the lowest mean error at which values of the axis."""
+    e = sch.error
+    winners: dict[Any, str | None] = {}
+    overlaps: dict[Any, list[str]] = {}
+    orders: list[tuple[str, str, Any]] = []
+    chains: dict[Any, list[str]] = {}
+    for v in ax.values:
+        rows = s[s[ax.name].map(lambda x, v=v: x == v)].set_index("filter")
+        rows = rows.loc[[f for f in filters if f in rows.index]]
+        if len(rows) < 2:
+            return None
+        rows = rows.sort_values(f"{e}_mean")
+        means, los, his = (rows[c].to_numpy(dtype=float) for c in (f"{e}_mean", f"{e}_ci_low", f"{e}_ci_high"))
+        names = [str(f) for f in rows.index]
+        for i in range(len(names)):
+            for j in range(len(names)):
+                if i != j and _apart(los[i], his[i], los[j], his[j]):
+                    orders.append((names[i], names[j], v))
+        best = names[0]
+        clear = all(_apart(los[0], his[0], los[j], his[j]) for j in range(1, len(names)))
+        winners[v] = best if clear else None
+        if not clear:
+            overlaps[v] = [n for j, n in enumerate(names[1:], 1) if not _apart(los[0], his[0], los[j], his[j])]
+            overlaps[v].insert(0, best)
+        elif all(_apart(los[j], his[j], los[j + 1], his[j + 1]) for j in range(len(names) - 1)):
+            chains[v] = names
+    parts = []
+    for w in dict.fromkeys(x for x in winners.values() if x is not None):
+        where = [v for v, x in winners.items() if x == w]
+        at = where[-1]
+        r = s[(s[ax.name].map(lambda x, at=at: x == at)) & (s["filter"] == w)].iloc[0]
+        if at in chains and len(chains[at]) > 2:
+            rows = s[s[ax.name].map(lambda x, at=at: x == at)].set_index("filter")
+            chain = " < ".join(f"{f} {quote(rows.loc[f, f'{e}_mean'], rows.loc[f, f'{e}_ci_low'], rows.loc[f, f'{e}_ci_high'], unit)}"
+                               for f in chains[at])
+            detail = f"at {ax.text(at)} the whole order is apart: {chain}"
+        else:
+            rows = s[s[ax.name].map(lambda x, at=at: x == at)].set_index("filter")
+            others = rows.drop(index=w).sort_values(f"{e}_mean")
+            nxt = others.index[0]
+            detail = (f"at {ax.text(at)} {quote(r[f'{e}_mean'], r[f'{e}_ci_low'], r[f'{e}_ci_high'], unit)} "
+                      f"against {quote(others.loc[nxt, f'{e}_mean'], others.loc[nxt, f'{e}_ci_low'], others.loc[nxt, f'{e}_ci_high'], unit)} "
+                      f"for the next lowest, {nxt}")
+        parts.append(f"{w} at {ax.name} = {ax.texts(where)} ({detail})")
+    if overlaps:
+        said = "; ".join(f"at {ax.text(v)} {_listing(n)} overlap" for v, n in overlaps.items())
+        parts.append(f"where the {PCT} intervals of the lowest means overlap, no filter is named ({said})")
+    text = f"{pooled}Lowest mean {e}: " + "; ".join(parts)
+    return Finding(ax.name, text + ".", tuple(orders))
+
+
+def _trend(s: pd.DataFrame, ax: _Axis, sch: tables.Schema, filters: list, unit: str, pooled: str) -> Finding | None:
+    """How the error of each filter changes between the axis' first and last value."""
+    e = sch.error
+    first, last = ax.values[0], ax.values[-1]
+    moves: dict[str, list[str]] = {"falls": [], "rises": []}
+    still = []
+    for f in filters:
+        a = s[(s[ax.name].map(lambda x: x == first)) & (s["filter"] == f)]
+        b = s[(s[ax.name].map(lambda x: x == last)) & (s["filter"] == f)]
+        if a.empty or b.empty:
+            continue
+        a, b = a.iloc[0], b.iloc[0]
+        qa = quote(a[f"{e}_mean"], a[f"{e}_ci_low"], a[f"{e}_ci_high"], unit)
+        qb = quote(b[f"{e}_mean"], b[f"{e}_ci_low"], b[f"{e}_ci_high"], unit)
+        lo_a, hi_a, lo_b, hi_b = (float(a[f"{e}_ci_low"]), float(a[f"{e}_ci_high"]),
+                                  float(b[f"{e}_ci_low"]), float(b[f"{e}_ci_high"]))
+        if _apart(lo_b, hi_b, lo_a, hi_a):
+            moves["falls"].append(f"{f}'s from {qa} to {qb}")
+        elif _apart(lo_a, hi_a, lo_b, hi_b):
+            moves["rises"].append(f"{f}'s from {qa} to {qb}")
+        else:
+            still.append(f)
+    if not any(moves.values()) and not still:
+        return None
+    said = [f"the mean {e} {way}{' for every filter' if len(m) == len(filters) else ''}: " + "; ".join(m)
+            for way, m in moves.items() if m]
+    if still:
+        said.append(f"{_listing(still)}'s does not move beyond its {PCT} intervals")
+    text = f"From {ax.name} = {ax.text(first)} to {ax.text(last)} " + "; ".join(said)
+    return Finding(ax.name, (pooled + text)[0].upper() + (pooled + text)[1:] + ".", kind="trend")
+
+
+def _rates_at(s: pd.DataFrame, ax: _Axis, v: Any, filters: list) -> str:
+    rows = s[s[ax.name].map(lambda x: x == v)].set_index("filter")
+    return ", ".join(f"{f} {percent(rows.loc[f, 'div_rate'], rows.loc[f, 'div_ci_low'], rows.loc[f, 'div_ci_high'])}"
+                     for f in filters if f in rows.index)
+
+
+def _divergence(s: pd.DataFrame, ax: _Axis, sch: tables.Schema, filters: list, pooled: str) -> Finding | None:
+    """At which values of the axis runs diverge, with the rates at the edge."""
+    if not sch.divergence:
+        return None
+    k = s.groupby(ax.name, sort=False)["diverged"].sum()
+    seen = [v for v in ax.values if k.get(v, 0) > 0]
+    none = [v for v in ax.values if k.get(v, 0) == 0]
+    n = s.groupby(ax.name, sort=False)["n"].min()
+    if not seen:
+        hi = max(wilson_interval(0, int(n.get(v))).high for v in ax.values)
+        return Finding(ax.name, f"{pooled}No run of any filter diverged at any {ax.name} (0 runs of "
+                                f"{int(n.min())} or more per point and filter; the rate's {PCT} interval ends at "
+                                f"{100 * hi:.1f} % or below).", kind="divergence")
+    worst = max(seen, key=lambda v: float(s[s[ax.name].map(lambda x: x == v)]["div_rate"].max()))
+    text = f"{pooled}Runs diverge at {ax.name} = {ax.texts(seen)}"
+    if none:
+        hi = max(wilson_interval(0, int(n.get(v))).high for v in none)
+        text += f" and in none of the runs at {ax.texts(none)} (0 %, the interval up to {100 * hi:.1f} %)"
+        edge = None
+        if max(ax.values.index(v) for v in seen) < min(ax.values.index(v) for v in none):
+            edge = seen[-1]
+            text += f"; divergence starts below {ax.text(none[0])}: at {ax.text(edge)} {_rates_at(s, ax, edge, filters)}"
+        elif min(ax.values.index(v) for v in seen) > max(ax.values.index(v) for v in none):
+            edge = seen[0]
+            text += f"; divergence starts above {ax.text(none[-1])}: at {ax.text(edge)} {_rates_at(s, ax, edge, filters)}"
+        if worst != edge:
+            text += f"; at {ax.text(worst)} {_rates_at(s, ax, worst, filters)}"
+    else:
+        text += f" (every value); at {ax.text(worst)} {_rates_at(s, ax, worst, filters)}"
+    orders = []
+    rows = s[s[ax.name].map(lambda x: x == worst)].sort_values("div_rate")
+    if len(rows) > 1:
+        lo = rows.iloc[0]
+        if all(_apart(lo["div_ci_low"], lo["div_ci_high"], r["div_ci_low"], r["div_ci_high"])
+               for _, r in rows.iloc[1:].iterrows()):
+            text += f"; there {lo['filter']} diverges least (its interval below the others')"
+            orders = [(str(lo["filter"]), str(r["filter"]), worst) for _, r in rows.iloc[1:].iterrows()]
+    return Finding(ax.name, text[0].upper() + text[1:] + ".", tuple(orders), "divergence")
+
+
+def _graph(df: pd.DataFrame, ax: _Axis, sch: tables.Schema, pooled: str) -> Finding | None:
+    """Where the comm graph disconnects (runs with a disconnected step), once per run."""
+    ds = sch.disconnected_steps
+    if not ds:
+        return None
+    keys = [k for k in ("point_id", "seed_index") if k in df.columns]
+    runs = df.drop_duplicates(subset=keys) if len(keys) == 2 else df[df["filter"] == df["filter"].iloc[0]]
+    stats = {}
+    for v in ax.values:
+        g = runs[runs[ax.name].map(lambda x, v=v: x == v)][ds].to_numpy(dtype=float)
+        g = g[np.isfinite(g)]
+        if g.size == 0:
+            continue
+        k = int((g > 0).sum())
+        stats[v] = (k, g.size, wilson_interval(k, g.size), mean_ci(g))
+    if not stats:
+        return None
+    some = [v for v, st in stats.items() if st[0] > 0]
+    none = [v for v, st in stats.items() if st[0] == 0]
+    u = tables.unit(ds, sch)
+
+    def at(v):
+        k, n, ci, m = stats[v]
+        return (f"at {ax.text(v)} in {percent(k / n, ci.low, ci.high)} of runs "
+                f"({ds}: mean {quote(m.mean, m.low, m.high, u)} per run)")
+
+    if not some:
+        return Finding(ax.name, f"{pooled}The comm graph stays connected in every run at every {ax.name} "
+                                f"({ds} = 0 in all {sum(st[1] for st in stats.values())} runs).", kind="graph")
+    text = f"{pooled}The comm graph disconnects at some step " + "; ".join(at(v) for v in some)
+    if none:
+        hi = max(wilson_interval(0, stats[v][1]).high for v in none)
+        text += f", and in no run at {ax.texts(none)} (0 %, the interval up to {100 * hi:.1f} %)"
+    return Finding(ax.name, text[0].upper() + text[1:] + ".", kind="graph")
+
+
+def findings(df: pd.DataFrame, metadata: Mapping[str, Any] | tables.Schema,
+             axes: Sequence[str] | None = None) -> list[Finding]:
+    """The sentences of "What this shows" for a runs table: per swept axis with more than one
+    value, which filter has the lowest mean error where, how each filter's error changes from
+    the axis' first to its last value, where runs diverge and where the comm graph
+    disconnects (each when the dataset declares it). With several axes, the sentences about
+    one axis pool the runs over the others and say so. A single point gets the sentence about
+    the filters' order only."""
+    sch = tables.schema(metadata, df.columns)
+    axes = tables.resolve_axes(sch, df.columns, axes)
+    data = tables.prepare(df, axes)
+    filters = [str(f) for f in tables.ordered_filters(data["filter"], sch.filters)]
+    unit = tables.unit(sch.error, sch)
+    out: list[Finding] = []
+    plot_axes = [a for a in axes if data[a].nunique(dropna=False) > 1]
+    if not plot_axes:
+        data = data.assign(_point="this point")
+        s = tables.summarize(data, sch, ["_point"])
+        single = _lowest_error(s, _Axis("_point", ["this point"], "", 1.0), sch, filters, unit, "")
+        if single is not None:
+            out.append(Finding("", single.text.replace("at _point = this point ", "").replace("at this point ", ""),
+                               tuple((a, b, None) for a, b, _ in single.orders)))
+        return out
+    for a in plot_axes:
+        shown, factor = tables.display(a, sch)
+        ax = _Axis(a, _sorted_values(data[a]), shown, factor)
+        others = [o for o in plot_axes if o != a]
+        pooled = f"Pooling the runs over {_listing(others)}: " if others else ""
+        s = tables.summarize(data, sch, [a])
+        for make in (lambda: _lowest_error(s, ax, sch, filters, unit, pooled),
+                     lambda: _trend(s, ax, sch, filters, unit, pooled),
+                     lambda: _divergence(s, ax, sch, filters, pooled),
+                     lambda: _graph(data, ax, sch, pooled)):
+            f = make()
+            if f is not None:
+                out.append(f)
+    return out
+
+
+# ------------------------------------------------------------------------------ glossary
+
+#: What each role means, in words that hold for any scenario (the roles of mcjax.contract).
+ROLE_WORDS = {
+    "error": "the metric the report leads with; the mean over runs comes with its {pct} Student-t interval",
+    "divergence": "a run counts as diverged when this flag is set; the divergence rate is the percentage of runs "
+                  "flagged, with its {pct} Wilson interval",
+    "nonfinite": "a run whose estimate went NaN or infinite (it counts as diverged)",
+    "connectivity_mean": "λ2, the algebraic connectivity: the second-smallest eigenvalue of the comm graph's "
+                         "Laplacian; 0 when the graph has fallen apart, larger when it is better connected",
+    "connectivity_min": "the same λ2 at the run's worst step: 0 means the graph was disconnected at least once",
+    "disconnected_steps": "how many of the run's steps the comm graph was in pieces (λ2 = 0): agents in "
+                          "different pieces cannot share estimates",
+}
+
+
+def _decl_words(name: str, sch: tables.Schema) -> str:
+    decl = sch.outputs.get(name) if name in sch.outputs else sch.params.get(name)
+    return str((decl or {}).get("description") or "").strip() if isinstance(decl, Mapping) else ""
+
+
+def glossary(metadata: Mapping[str, Any], axes: Sequence[str] = ()) -> list[tuple[str, str]]:
+    """``(term, words)`` for the words of the page: each filter (its declared words from the
+    metadata's ``filter_descriptions`` where the scenario gives them, else the scenario's own
+    title), the error metric, the divergence flag (with the config's threshold), the graph
+    statistics, each swept axis, the base Params and the two kinds of interval."""
+    sch = tables.schema(metadata)
+    pct = PCT
+    out: list[tuple[str, str]] = []
+    described = metadata.get("filter_descriptions") if isinstance(metadata, Mapping) else None
+    described = described if isinstance(described, Mapping) else {}
+    missing = [f for f in sch.filters if not described.get(f)]
+    for f in sch.filters:
+        if described.get(f):
+            out.append((f, str(described[f])))
+    if missing:
+        out.append((", ".join(missing), "the estimators compared, run side by side on the same measurements in "
+                    "every run (one row per run and filter)" + (f"; the scenario's own words: {sch.title}"
+                                                                if sch.title else "")))
+    config = metadata.get("config") if isinstance(metadata.get("config"), Mapping) else {}
+    for role in ("error", "divergence", "nonfinite", "connectivity_mean", "connectivity_min", "disconnected_steps"):
+        name = getattr(sch, role)
+        if not name:
+            continue
+        u = tables.unit(name, sch)
+        words = _decl_words(name, sch)
+        text = (words + " — " if words else "") + ROLE_WORDS[role].format(pct=pct)
+        if role == "divergence" and "divergence_threshold" in config:
+            text += f" (in this config divergence_threshold = {tables.format_number(config['divergence_threshold'])})"
+        out.append((f"{name} [{u}]" if u else name, text))
+    for a in axes:
+        shown = tables.display(a, sch)[0]
+        out.append((f"{a} [{shown}]" if shown else a, (_decl_words(a, sch) or "a swept Param") + " — swept"))
+    out.append(("Params", "the scenario's parameters a sweep may vary without recompiling (radii, noise levels, "
+                          "weights); their values in this dataset are in the table 'Base Params'"))
+    out.append((f"{pct} interval", "a mean's Student-t interval, a rate's Wilson score interval: where two "
+                                   "intervals do not overlap, the report calls one value lower"))
+    return out
+
+
+def params_table(metadata: Mapping[str, Any], axes: Sequence[str] = ()) -> tuple[list[list[str]], str]:
+    """The base Params as rows ``[name, value, unit, description]`` and a note on where the
+    values come from: the metadata's ``base_params`` (the Params every point starts from,
+    written by the sweep) when the dataset has them, else only the spec's ``[params]`` table
+    (a dataset written before the base Params were recorded: the note says so)."""
+    sch = tables.schema(metadata)
+    values = metadata.get("base_params")
+    if isinstance(values, Mapping) and values:
+        note = "The Params every point starts from (the base config with the spec's [params] and --set applied)."
+    else:
+        spec = metadata.get("spec") if isinstance(metadata.get("spec"), Mapping) else {}
+        values = spec.get("params") if isinstance(spec.get("params"), Mapping) else {}
+        base = spec.get("base")
+        note = ("This dataset does not record its base Params (written by an older mcjax): only the spec's "
+                "[params] are shown" + (f"; the rest are those of its base config, {base}" if base else "") + ".")
+    rows = []
+    for name in list(sch.params) + [k for k in values if k not in sch.params]:
+        if name not in values and name not in axes:
+            continue
+        value = f"swept ({name} is an axis)" if name in axes else tables.format_number(
+            _plain(values[name]), tables.KEY_DIGITS)
+        rows.append([name, value, tables.unit(name, sch), _decl_words(name, sch)])
+    return rows, note
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, list):
+        return tuple(_plain(v) for v in value)
+    return value

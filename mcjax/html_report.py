@@ -1,13 +1,17 @@
 """``OUT/report/index.html``: one self-contained page per sweep dataset.
 
-The page holds the sweep's description, its spec (as TOML) and config, its provenance
-(package versions, git revision, dates, runs present and planned), the summary tables and
-every plot with its caption. Images are embedded as base64 ``data:`` URIs and the style
-sheet is inline: the page loads nothing from a network or another file, so it can be
-mailed or archived alone. No scripts.
+The page leads with what the data show: "What this shows", sentences written from the runs
+with their intervals (:mod:`mcjax.findings`). Then every plot with its caption, the summary
+tables (the wide one scrolls inside its box), a glossary from the scenario's declarations and
+the base Params; below them the spec (as TOML), the config and the provenance (package
+versions, git revision, dates, runs present and planned). Images are embedded as base64
+``data:`` URIs and the style sheet is inline: the page loads nothing from a network or
+another file, so it can be mailed or archived alone. No scripts.
 
 * :func:`page` -- the HTML text; :func:`write_page` -- writes it to ``OUT/report/index.html``.
 * :func:`spec_toml` -- a spec (the dict of a TOML file) written back as TOML.
+* :func:`head`, :data:`FOOT`, :func:`html_table`, :func:`image` -- the pieces other pages
+  share (:mod:`mcjax.tune_report`).
 
 Numbers are formatted by :mod:`mcjax.tables` (:func:`~mcjax.tables.format_cells`,
 :func:`~mcjax.tables.format_number`), as in the printed tables.  This module does not
@@ -27,11 +31,11 @@ from typing import Any, Mapping, Sequence
 import pandas as pd
 import tomli_w
 
-from mcjax import tables
+from mcjax import findings, tables
 from mcjax.files import atomic_write
 from mcjax.statistics import CONFIDENCE
 
-__all__ = ["PAGE_NAME", "page", "write_page", "spec_toml", "glance"]
+__all__ = ["PAGE_NAME", "page", "write_page", "spec_toml", "glance", "head", "FOOT", "html_table", "image"]
 
 #: The page's file name inside ``OUT/report/``.
 PAGE_NAME = "index.html"
@@ -65,7 +69,12 @@ h2 { border-bottom: 1px solid #ddd; padding-bottom: 0.2rem; margin-top: 2.2rem; 
 .warning { background: #fde8e8; border-left: 4px solid #b00000; padding: 0.6rem 0.8rem; }
 nav ul { list-style: none; padding: 0; display: flex; gap: 1.2rem; flex-wrap: wrap; }
 pre { background: #f4f4f4; padding: 0.8rem; overflow-x: auto; font-size: 0.85rem; }
-.scroll { overflow-x: auto; }
+.scroll { overflow-x: auto; max-width: 100%; }
+.findings { background: #f1f6fc; border-left: 4px solid #1f77b4; padding: 0.2rem 1rem 0.6rem; }
+.findings li { margin: 0.35rem 0; }
+.note { color: #555; font-size: 0.85rem; }
+dt { font-weight: 600; margin-top: 0.4rem; }
+dd { margin-left: 1.2rem; }
 table { border-collapse: collapse; font-size: 0.82rem; margin: 0.6rem 0; }
 th, td { border: 1px solid #ddd; padding: 0.2rem 0.45rem; }
 th { background: #f0f0f0; text-align: left; }
@@ -93,7 +102,7 @@ def spec_toml(spec: Mapping[str, Any]) -> str:
 # ------------------------------------------------------------------------------ tables
 
 
-def _html_table(headers: Sequence[str], rows: Sequence[Sequence[str]], numbers: bool = False) -> str:
+def html_table(headers: Sequence[str], rows: Sequence[Sequence[str]], numbers: bool = False) -> str:
     """A table of texts (escaped) by :meth:`pandas.DataFrame.to_html`; ``numbers``: its cells
     right-aligned in tabular figures."""
     frame = pd.DataFrame([list(r) for r in rows], columns=list(headers), dtype=object)
@@ -114,7 +123,7 @@ def glance(summary: pd.DataFrame, sch: tables.Schema, axes: Sequence[str]) -> pd
     """The summary's headline columns as text: per point (its axes in their display units)
     and filter, the runs, the mean error
     ``mean [low, high]`` and, with a divergence flag, the mean over non-divergent runs and
-    the divergence rate with their intervals (numbers by :func:`mcjax.tables.format_number`)."""
+    the divergence rate in percent ("2.0 % [0.6, 7.0]"), with their intervals (numbers by :func:`mcjax.tables.format_number`)."""
     e = sch.error
 
     def interval(row, mean, low, high) -> str:
@@ -138,14 +147,16 @@ def glance(summary: pd.DataFrame, sch: tables.Schema, axes: Sequence[str]) -> pd
         out["non-divergent runs"] = summary["n_ok"]
         out[f"mean {e}, non-divergent" + (f" [{u}]" if u else "")] = [
             interval(r, f"{e}_ok_mean", f"{e}_ok_ci_low", f"{e}_ok_ci_high") for _, r in summary.iterrows()]
-        out["divergence rate"] = [interval(r, "div_rate", "div_ci_low", "div_ci_high") for _, r in summary.iterrows()]
+        out["divergence rate"] = [findings.percent(r["div_rate"], r["div_ci_low"], r["div_ci_high"])
+                                  for _, r in summary.iterrows()]
     return out
 
 
 # ------------------------------------------------------------------------------ the page
 
 
-def _image(path: Path) -> str:
+def image(path: Path) -> str:
+    """A PNG file as a ``data:`` URI (embedded: the page loads no other file)."""
     return "data:image/png;base64," + base64.b64encode(Path(path).read_bytes()).decode("ascii")
 
 
@@ -156,9 +167,43 @@ def _png_size(path: Path) -> tuple[int, int] | None:
     return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
 
 
+def _figures(plots: Sequence[Any]) -> list[str]:
+    """Each plot as a figure: the PNG embedded at half its pixel size (drawn at twice the
+    figure's layout resolution: sharp on high-density screens), its alt text the caption's
+    first sentence (what the plot shows), the caption under it."""
+    out = []
+    for p in plots:
+        path = Path(p.path)
+        size = _png_size(path)
+        dims = f' width="{(size[0] + 1) // 2}" height="{(size[1] + 1) // 2}"' if size else ""
+        alt = str(p.caption).split(". ")[0].rstrip(".") + "."
+        out.append(f'<figure id="{_e(path.stem)}"><img src="{image(path)}" alt="{_e(alt)}"{dims}>'
+                   f"<figcaption><strong>{_e(path.name)}</strong> — {_e(p.caption)}</figcaption></figure>")
+    return out
+
+
+def _findings_section(df: pd.DataFrame, metadata: Mapping[str, Any], axes: Sequence[str],
+                      warning: str | None, facts: str) -> str:
+    found = findings.findings(df, metadata, axes)
+    parts = ['<section id="findings" class="findings"><h2>What this shows</h2>']
+    if warning:
+        parts.append(f'<p class="warning">WARNING: {_e(warning)}</p>')
+    parts.append(f"<p>{_e(facts)}</p>")
+    if found:
+        parts.append("<ul>" + "".join(f"<li>{_e(f.text)}</li>" for f in found) + "</ul>")
+    else:
+        parts.append("<p>(No sentence: the dataset has fewer than two filters to compare.)</p>")
+    parts.append(f'<p class="note">Written from the runs below; an order is stated only where the '
+                 f'{_e(findings.PCT)} intervals do not overlap (<a href="#glossary">glossary</a>).</p>')
+    parts.append("</section>")
+    return "\n".join(parts)
+
+
 def page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, Any], plots: Sequence[Any],
          skipped: Sequence[Any] = (), warning: str | None = None, now: datetime | None = None) -> str:
-    """The HTML text of the report on the dataset in ``out_dir``.
+    """The HTML text of the report on the dataset in ``out_dir``: what it shows first
+    (:mod:`mcjax.findings`), then the plots, the summary tables, the glossary and the base
+    Params, and below them the spec, config and provenance.
 
     Args:
         out_dir: the sweep's output folder (named on the page).
@@ -178,40 +223,72 @@ def page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, An
     title = f"{sch.scenario}: {out.name}" if sch.scenario else out.name
     description = spec.get("description") if isinstance(spec.get("description"), str) else None
 
-    parts = [f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
-             f'<meta name="viewport" content="width=device-width, initial-scale=1">\n'
-             f"<title>mcjax report — {_e(title)}</title>\n<style>{_STYLE}</style>\n</head>\n<body>\n<main>"]
+    parts = [head(f"mcjax report — {title}")]
     parts.append(f"<h1>mcjax report — {_e(title)}</h1>")
     if sch.title:
         parts.append(f'<p class="subtitle">{_e(sch.title)}</p>')
-    parts.append('<section id="description"><h2>Description</h2>')
     parts.append(f"<p>{_e(description)}</p>" if description else "<p>(The spec gives no description.)</p>")
     runs = (len(df[["point_id", "seed_index"]].drop_duplicates()) if {"point_id", "seed_index"} <= set(df.columns)
             else None)
     planned = metadata.get("n_runs")
     filters = ", ".join(tables.ordered_filters(df["filter"], sch.filters)) if "filter" in df.columns else ""
     axes_text = ", ".join(f"{a} (plotted in {tables.display(a, sch)[0] or 'no unit'})" for a in axes)
-    facts = [f"Dataset: <code>{_e(out)}</code>",
-             f"Filters: {_e(filters)}",
-             f"Swept: {_e(axes_text) if axes else 'nothing (a single point)'}",
-             f"Runs: {_e(runs if runs is not None else '?')} present of {_e(planned if planned is not None else '?')} "
-             f"planned ({len(df)} rows, one per run and filter)"]
-    parts.append("<ul>" + "".join(f"<li>{f}</li>" for f in facts) + "</ul>")
-    if warning:
-        parts.append(f'<p class="warning">WARNING: {_e(warning)}</p>')
+    runs_text = (f"{runs if runs is not None else '?'} runs present of {planned if planned is not None else '?'} "
+                 f"planned")
+    parts.append(_findings_section(df, metadata, axes, warning,
+                                   f"{runs_text}; filters {filters}; swept: {axes_text or 'nothing (one point)'}."))
+    parts.append('<nav><ul><li><a href="#plots">Plots</a></li><li><a href="#summary">Summary</a></li>'
+                 '<li><a href="#glossary">Glossary</a></li><li><a href="#params">Base Params</a></li>'
+                 '<li><a href="#spec">Spec</a></li><li><a href="#provenance">Provenance</a></li></ul></nav>')
+
+    # plots
+    parts.append('<section id="plots"><h2>Plots</h2>')
+    if not plots:
+        parts.append("<p>(No plots.)</p>")
+    parts.extend(_figures(plots))
+    if skipped:
+        parts.append("<h3>Not plotted</h3><ul>" + "".join(f"<li><code>{_e(s.name)}</code>: {_e(s.reason)}.</li>"
+                                                         for s in skipped) + "</ul>")
     parts.append("</section>")
-    parts.append('<nav><ul><li><a href="#spec">Spec</a></li><li><a href="#provenance">Provenance</a></li>'
-                 '<li><a href="#summary">Summary</a></li><li><a href="#plots">Plots</a></li></ul></nav>')
+
+    # summary
+    pct = f"{100 * CONFIDENCE:g} %"
+    parts.append('<section id="summary"><h2>Summary</h2>')
+    parts.append(f"<p>Per point (in the plots' units) and filter: the runs, the mean {_e(sch.error)} with its "
+                 f"{pct} Student-t "
+                 f"interval" + (f", the same over the non-divergent runs and the divergence rate in percent with "
+                                f"its {pct} Wilson interval" if sch.divergence else "") + ".</p>")
+    g = glance(summary, sch, axes)
+    parts.append(html_table(*tables.format_cells(g)[:2], numbers=True))
+    parts.append("<h3>Every statistic</h3><p>As <code>mcjax report</code> prints it (the dataset's units; "
+                 "rates as fractions); the table scrolls sideways inside its box.</p>")
+    parts.append('<ul class="legend">' + "".join(f"<li>{_e(line)}</li>"
+                                                for line in tables.legend_lines(sch, axes)) + "</ul>")
+    parts.append(html_table(*tables.format_cells(summary)[:2], numbers=True))
+    parts.append("</section>")
+
+    # glossary and base Params
+    parts.append('<section id="glossary"><h2>Glossary</h2><dl>' + "".join(
+        f"<dt>{_e(term)}</dt><dd>{_e(words)}</dd>" for term, words in findings.glossary(metadata, axes))
+        + "</dl></section>")
+    rows, note = findings.params_table(metadata, axes)
+    parts.append(f'<section id="params"><h2>Base Params</h2><p>{_e(note)}</p>')
+    parts.append(html_table(["Param", "value", "unit", "what it is"], rows) if rows else "<p>(None recorded.)</p>")
+    parts.append("</section>")
 
     # spec and config
     parts.append('<section id="spec"><h2>Spec</h2>')
+    parts.append("<ul>" + "".join(f"<li>{f}</li>" for f in (
+        f"Dataset: <code>{_e(out)}</code>", f"Filters: {_e(filters)}",
+        f"Swept: {_e(axes_text) if axes else 'nothing (a single point)'}",
+        f"Runs: {_e(runs_text)} ({len(df)} rows, one per run and filter)")) + "</ul>")
     parts.append(f"<pre>{_e(spec_toml(spec))}</pre>" if spec else "<p>(No spec in the dataset's metadata.)</p>")
     config = metadata.get("config")
     if isinstance(config, Mapping) and config:
         parts.append("<h3>Config (as run)</h3>")
         rows = [[str(k), tables.format_number(v, tables.KEY_DIGITS) if not isinstance(v, str) else v]
                 for k, v in config.items()]
-        parts.append(_html_table(["field", "value"], rows))
+        parts.append(html_table(["field", "value"], rows))
     parts.append("</section>")
 
     # provenance
@@ -223,40 +300,21 @@ def page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, An
             value = metadata[key]
             rows.append([name, str(value).lower() if isinstance(value, bool) else str(value)])
     rows.append(["report written (UTC)", now.astimezone(timezone.utc).isoformat(timespec="seconds")])
-    parts.append(_html_table(["what", "value"], rows))
+    parts.append(html_table(["what", "value"], rows))
     parts.append("</section>")
-
-    # summary
-    pct = f"{100 * CONFIDENCE:g} %"
-    parts.append('<section id="summary"><h2>Summary</h2>')
-    parts.append(f"<p>Per point (in the plots' units) and filter: the runs, the mean {_e(sch.error)} with its "
-                 f"{pct} Student-t "
-                 f"interval" + (f", the same over the non-divergent runs and the divergence rate with its {pct} "
-                                f"Wilson interval" if sch.divergence else "") + ".</p>")
-    g = glance(summary, sch, axes)
-    parts.append(_html_table(*tables.format_cells(g)[:2], numbers=True))
-    parts.append("<h3>Every statistic</h3><p>As <code>mcjax report</code> prints it (the dataset's units).</p>")
-    parts.append('<ul class="legend">' + "".join(f"<li>{_e(line)}</li>"
-                                                for line in tables.legend_lines(sch, axes)) + "</ul>")
-    parts.append(_html_table(*tables.format_cells(summary)[:2], numbers=True))
-    parts.append("</section>")
-
-    # plots
-    parts.append('<section id="plots"><h2>Plots</h2>')
-    if not plots:
-        parts.append("<p>(No plots.)</p>")
-    for p in plots:
-        path = Path(p.path)
-        size = _png_size(path)
-        dims = f' width="{size[0]}" height="{size[1]}"' if size else ""
-        parts.append(f'<figure id="{_e(path.stem)}"><img src="{_image(path)}" alt="{_e(path.name)}"{dims}>'
-                     f"<figcaption><strong>{_e(path.name)}</strong> — {_e(p.caption)}</figcaption></figure>")
-    if skipped:
-        parts.append("<h3>Not plotted</h3><ul>" + "".join(f"<li><code>{_e(s.name)}</code>: {_e(s.reason)}.</li>"
-                                                         for s in skipped) + "</ul>")
-    parts.append("</section>")
-    parts.append("</main>\n</body>\n</html>\n")
+    parts.append(FOOT)
     return "\n".join(parts)
+
+
+def head(title: str) -> str:
+    """The page's head with the inline style sheet, and the opening of its body."""
+    return (f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
+            f'<meta name="viewport" content="width=device-width, initial-scale=1">\n'
+            f"<title>{_e(title)}</title>\n<style>{_STYLE}</style>\n</head>\n<body>\n<main>")
+
+
+#: The page's end.
+FOOT = "</main>\n</body>\n</html>\n"
 
 
 def write_page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, Any], plots: Sequence[Any],

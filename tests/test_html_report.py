@@ -130,11 +130,12 @@ def test_every_plot_is_embedded_with_a_caption(reported):
         assert data[:8] == PNG
         assert data in on_disk  # the very file written beside the page
         embedded.append(on_disk[data])
-        assert fig["img"].get("alt") == on_disk[data]
         caption = " ".join(fig["caption"].split())
         assert caption.startswith(on_disk[data]) and len(caption) > len(on_disk[data]) + 40, caption
+        alt = fig["img"].get("alt")  # says what the plot shows: the caption's first sentence, not the file name
+        assert alt != on_disk[data] and len(alt) > 40 and caption.split(" — ", 1)[1].startswith(alt[:-1]), alt
     assert sorted(embedded) == sorted(on_disk.values())
-    captions = {f["img"]["alt"]: " ".join(f["caption"].split()) for f in page.figures}
+    captions = {" ".join(f["caption"].split()).split(" — ")[0]: " ".join(f["caption"].split()) for f in page.figures}
     # the panels and the pooling are said in words
     assert "One panel per value of eps" in captions["rmse_vs_comm_radius.png"]
     assert "comm_radius [km]" in captions["rmse_vs_comm_radius.png"]
@@ -146,7 +147,7 @@ def test_page_holds_description_spec_provenance_and_tables(reported):
     page = parse(out / "report" / "index.html")
     meta = results.read_metadata(out)
     headings = [" ".join(t.split()) for t in page.text.get("h2", [])]
-    assert headings == ["Description", "Spec", "Provenance", "Summary", "Plots"]
+    assert headings == ["What this shows", "Plots", "Summary", "Glossary", "Base Params", "Spec", "Provenance"]
     body = " ".join(" ".join(v) for v in page.text.values())
     assert "Synthetic <sweep> & friends" in body  # escaped in the file, the same text once parsed
     spec_text = "".join(page.text["pre"])

@@ -49,7 +49,7 @@ def test_single_agent_no_graph_labels_in_m():
     assert ax.get_xlabel() == "turn_rate [deg/s]"  # radians are shown in degrees
     assert [t.get_text() for t in ax.get_legend().get_texts()] == list(meta["filters"])
     assert figs["rmse_nondiverged_vs_turn_rate.png"].axes[0].get_ylabel() == "mean rmse, non-divergent runs [m]"
-    assert figs["divergence_vs_turn_rate.png"].axes[0].get_ylabel() == "divergence rate (fraction of runs)"
+    assert figs["divergence_vs_turn_rate.png"].axes[0].get_ylabel() == "divergence rate (% of runs)"
 
 
 def test_error_in_m_per_s_never_labelled_m():

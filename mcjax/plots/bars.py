@@ -12,7 +12,8 @@ import pandas as pd
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
-from mcjax.plots.common import MIN_RUNS, PCT, errorbar, maybe_log_y, n_range, new_figure, number_ticks, with_unit
+from mcjax.plots.common import (MIN_RUNS, PCT, errorbar, maybe_log_y, n_range, new_figure, percent_ticks,
+                                with_unit)
 from mcjax.tables import Schema, ordered_filters, unit
 
 __all__ = ["bar_figure"]
@@ -75,10 +76,10 @@ def bar_figure(summary: pd.DataFrame, sch: Schema, colors: Mapping[Any, str]) ->
         ax2.set_ylim(0, top)
         ax2.set_xticks(x)
         ax2.set_xticklabels(names, rotation=20)
-        ax2.set_ylabel("divergence rate (fraction of runs)")
+        ax2.set_ylabel("divergence rate (% of runs)")
         ax2.set_title(f"Divergence rate ({PCT} Wilson interval)", fontsize="medium")
         ax2.grid(True, axis="y", alpha=0.3)
-        number_ticks(ax2.yaxis)
+        percent_ticks(ax2.yaxis)
     what = f"{e} and divergence" if sch.divergence else e
     fig.suptitle(f"Single sweep point: {what} per filter\n{n_range(summary['n'], 'filter')}; "
                  f"n on each bar: the runs it rests on", fontsize="medium")

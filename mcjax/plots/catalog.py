@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 
 from mcjax import tables
 from mcjax.plots.bars import bar_figure
-from mcjax.plots.common import (MAX_PANELS, PALETTE, PCT, SAME_RTOL, Plot, PlotFile, Skipped, Stat, XAxis,
+from mcjax.plots.common import (DPI, MAX_PANELS, PALETTE, PCT, SAME_RTOL, Plot, PlotFile, Skipped, Stat, XAxis,
                                 filter_colors, one_row_per_run, with_unit, x_axis)
 from mcjax.plots.heatmaps import heatmap_figure
 from mcjax.plots.lines import connectivity_figure, line_figure
@@ -219,9 +219,9 @@ def plots(df: pd.DataFrame, metadata: Mapping[str, Any] | Schema,
                     s, xa, sch, colors, Stat("div_rate", "div_ci_low", "div_ci_high", "n", True),
                     panel_axes, facets, xaxes,
                     title=f"Divergence rate vs {name} (bars: {PCT} Wilson interval)",
-                    ylabel="divergence rate (fraction of runs)", pooled=pooled)
+                    ylabel="divergence rate (% of runs)", pooled=pooled)
                 yield Plot(f"divergence_vs_{tag}.png", fig,
-                           f"Fraction of runs with {sch.divergence} true, against {x_text}, one line per "
+                           f"Percentage of runs with {sch.divergence} true, against {x_text}, one line per "
                            f"filter (shifted sideways a little so equal rates stay apart); bars: its {PCT} "
                            f"Wilson interval.{where} {text}")
         derivatives = sensitivity_columns(data.columns, sch)
@@ -291,8 +291,8 @@ def figures(df: pd.DataFrame, metadata: Mapping[str, Any] | Schema,
 def write_plots(df: pd.DataFrame, metadata: Mapping[str, Any] | Schema, out_dir: str | os.PathLike,
                 axes: str | Sequence[str] | None = None,
                 note: str | None = None) -> tuple[list[PlotFile], list[Skipped]]:
-    """Write the :func:`plots` of a runs table as PNG files to ``out_dir/report/``
-    (created if missing): the written files with their captions, in the order made, and
+    """Write the :func:`plots` of a runs table as PNG files (at :data:`~mcjax.plots.common.DPI`,
+    twice the layout's resolution) to ``out_dir/report/`` (created if missing): the written files with their captions, in the order made, and
     the plots skipped. ``note`` (e.g. that the dataset is incomplete) is printed in red
     along the bottom of every figure."""
     report_dir = Path(out_dir) / "report"
@@ -307,7 +307,7 @@ def write_plots(df: pd.DataFrame, metadata: Mapping[str, Any] | Schema, out_dir:
         if note:
             fig.supxlabel(note, color="#b00000", fontsize="small")  # constrained layout makes room
         path = report_dir / item.name
-        fig.savefig(path, format="png")
+        fig.savefig(path, format="png", dpi=DPI)
         fig.clear()
         written.append(PlotFile(path, item.caption))
     return written, skipped

@@ -20,7 +20,7 @@ from matplotlib.ticker import FuncFormatter, NullFormatter
 from mcjax.statistics import CONFIDENCE
 from mcjax.tables import Schema, format_number, ordered_filters
 
-__all__ = ["PALETTE", "MIN_RUNS", "MAX_PANELS", "SAME_RTOL", "PCT", "Plot", "Skipped", "PlotFile", "XAxis",
+__all__ = ["PALETTE", "MIN_RUNS", "MAX_PANELS", "SAME_RTOL", "PCT", "LOG_Y_DECADES", "DPI", "percent_ticks", "Plot", "Skipped", "PlotFile", "XAxis",
            "x_axis", "spans_decades", "number_ticks", "maybe_log_y", "with_unit", "filter_colors", "new_figure",
            "n_range", "errorbar", "one_row_per_run", "Stat"]
 
@@ -35,6 +35,12 @@ MAX_PANELS = 12
 #: Relative tolerance under which a metric counts as equal across an axis' values (the
 #: same seed at two points may differ in the last bits: different lanes of a batch).
 SAME_RTOL = 1e-9
+#: A plotted mean gets a log axis (y axis, heatmap colours) when its values span more than
+#: this many decades.
+LOG_Y_DECADES = 1.0
+#: Resolution of the written PNG files: twice the figures' layout resolution (100 dpi), so a
+#: page showing them at their layout size is sharp on high-density screens.
+DPI = 200
 #: The confidence level as the captions say it ("95 %").
 PCT = f"{100 * CONFIDENCE:g} %"
 
@@ -114,12 +120,18 @@ def number_ticks(axis) -> None:
 
 
 def maybe_log_y(ax, values: Iterable[float]) -> None:
-    """A log y scale when ``values`` span more than two decades; tick labels in the tables'
-    number format."""
-    if spans_decades(values):
+    """A log y scale when the plotted means ``values`` span more than a decade (:data:`LOG_Y_DECADES`:
+    735 m beside 11 m would flatten every value but the largest on a linear axis); tick labels in
+    the tables' number format."""
+    if spans_decades(values, LOG_Y_DECADES):
         ax.set_yscale("log")
         ax.yaxis.set_minor_formatter(NullFormatter())
     number_ticks(ax.yaxis)
+
+
+def percent_ticks(axis) -> None:
+    """Tick labels of a rate's ``axis`` (fractions) in percent: ``"20 %"``."""
+    axis.set_major_formatter(FuncFormatter(lambda v, _: f"{100 * float(v):.4g} %"))
 
 
 def with_unit(text: str, u: str) -> str:

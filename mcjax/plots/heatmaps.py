@@ -14,7 +14,8 @@ from matplotlib import colormaps
 from matplotlib.colors import LogNorm, Normalize
 from matplotlib.figure import Figure
 
-from mcjax.plots.common import MIN_RUNS, Stat, XAxis, n_range, new_figure, number_ticks, spans_decades
+from mcjax.plots.common import (LOG_Y_DECADES, MIN_RUNS, Stat, XAxis, n_range, new_figure, number_ticks, percent_ticks,
+                                spans_decades)
 from mcjax.tables import Schema, axis_label, format_number, ordered_filters
 
 __all__ = ["heatmap_figure"]
@@ -40,7 +41,7 @@ def heatmap_figure(summary: pd.DataFrame, a: XAxis, b: XAxis, sch: Schema, st: S
         cmap = colormaps["Reds"].with_extremes(bad="0.85")
     else:
         lo, hi = (float(trusted.min()), float(trusted.max())) if trusted.size else (0.0, 1.0)
-        norm = LogNorm(lo, hi) if spans_decades(trusted) else Normalize(lo, hi if hi > lo else lo + 1.0)
+        norm = LogNorm(lo, hi) if spans_decades(trusted, LOG_Y_DECADES) else Normalize(lo, hi if hi > lo else lo + 1.0)
         cmap = colormaps["viridis"].with_extremes(bad="0.85")
     annotate = len(a.values) * len(b.values) <= 100
     image = None
@@ -71,7 +72,7 @@ def heatmap_figure(summary: pd.DataFrame, a: XAxis, b: XAxis, sch: Schema, st: S
             if np.isfinite(v) and n >= MIN_RUNS:
                 shade = norm(v)
                 dark = (shade > 0.55) if st.rate else (shade < 0.5)
-                text = format_number(v, 2 if st.rate else 3) + (f"\nn={n}" if vary else "")
+                text = (f"{100 * v:.3g} %" if st.rate else format_number(v, 3)) + (f"\nn={n}" if vary else "")
                 ax.text(i, j, text, ha="center", va="center", fontsize="x-small",
                         color="white" if dark else "black")
             elif np.isfinite(v):
@@ -83,7 +84,9 @@ def heatmap_figure(summary: pd.DataFrame, a: XAxis, b: XAxis, sch: Schema, st: S
         ax.set_visible(False)
     if image is not None:
         cbar = fig.colorbar(image, ax=list(grid[:m]), label=cbar_label, shrink=0.9)
-        if not isinstance(norm, LogNorm):
+        if st.rate:
+            percent_ticks(cbar.ax.yaxis)
+        elif not isinstance(norm, LogNorm):
             number_ticks(cbar.ax.yaxis)
     notes = [f"n per cell where it varies ({n_range(counts, 'cell and filter')})" if vary
              else n_range(counts, "cell and filter")]

@@ -17,7 +17,7 @@ from matplotlib.lines import Line2D
 from matplotlib.ticker import NullFormatter
 
 from mcjax.plots.common import (MIN_RUNS, PALETTE, PCT, Stat, XAxis, errorbar, maybe_log_y, n_range, new_figure,
-                                number_ticks, one_row_per_run, with_unit)
+                                number_ticks, one_row_per_run, percent_ticks, with_unit)
 from mcjax.statistics import mean_ci
 from mcjax.tables import Schema, axis_label, display, format_number, ordered_filters, unit
 
@@ -139,7 +139,7 @@ def line_figure(summary: pd.DataFrame, xa: XAxis, sch: Schema, colors: Mapping[A
         top = np.nanmax(np.r_[summary[st.high].to_numpy(dtype=float), drawn, 0.0])
         top = min(1.05, max(0.05, 1.12 * top))
         axs[0].set_ylim(-0.02 * top, top)
-        number_ticks(axs[0].yaxis)
+        percent_ticks(axs[0].yaxis)
     else:
         maybe_log_y(axs[0], drawn)
     handles, labels = axs[0].get_legend_handles_labels()
