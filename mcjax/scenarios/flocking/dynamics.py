@@ -308,6 +308,11 @@ _DP_A = ((), (1 / 5,), (3 / 40, 9 / 40), (44 / 45, -56 / 15, 32 / 9),
          (9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656),
          (35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84))
 _DP_E = (71 / 57600, 0.0, -71 / 16695, 71 / 1920, -17253 / 339200, 22 / 525, -1 / 40)
+#: The share of the tolerance each sub-step's error estimate may use (ours): a step's error adds
+#: up over its sub-steps (~10 in steady flight, ~100 in the first second). With the whole
+#: tolerance per sub-step, one 0.1 s step erred by up to 2.2x it (velocity, transient; 100
+#: states, 2026-12-03); a tenth keeps the step's error within the tolerance (benchmarks/flocking_integrator.py).
+SUBSTEP_SHARE = 0.1
 
 
 def _combine(s, ks, h, weights):
@@ -376,9 +381,10 @@ def dopri5_adaptive(state: FlockState, adj, sensing, reference, g: Gains, dt, ma
                     moving=None, barrier=None, first_step=None):
     """Integrate the flock over ``dt`` at a fixed topology with the Dormand–Prince 5(4) pair and
     a step-size controller (ours; the paper leaves the integration open). A sub-step is accepted
-    when its error estimate is at most ``tolerance`` in every component — each position (m),
-    velocity (m/s) and gain b_ij (1/s), absolute, max norm — and the next size is
-    ``h · clip(0.9 (tolerance/err)^{1/5}, 0.2, 5)`` (no growth right after a rejection). A
+    when its error estimate in every component — each position (m), velocity (m/s) and gain
+    b_ij (1/s), absolute, max norm — is at most ``SUBSTEP_SHARE × tolerance`` (a tenth, so the
+    whole step's error stays within ``tolerance``), and the next size is
+    ``h · clip(0.9 (bound/err)^{1/5}, 0.2, 5)`` (no growth right after a rejection). A
     sub-step is also at most :func:`closing_step` (no linked pair closes half its gap to R,
     no pair half its distance, at its closing speed), and one whose stages meet a link at or
     beyond R or two nodes at one point (the potential's slope is NaN there) is rejected and
@@ -397,7 +403,7 @@ def dopri5_adaptive(state: FlockState, adj, sensing, reference, g: Gains, dt, ma
     eye = jnp.eye(state.q.shape[0], dtype=bool)
     linked = (adj > 0.5) & ~eye
     apart = eye if moving is None else eye | ~(moving[:, None] & moving[None, :])
-    tol = jnp.asarray(tolerance, dtype)
+    tol = jnp.asarray(SUBSTEP_SHARE * tolerance, dtype)
 
     def cond(carry):
         return (carry[1] < dt) & (carry[3] < max_substeps)
