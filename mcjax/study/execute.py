@@ -31,8 +31,15 @@ class ChunkRows(NamedTuple):
 
 
 class ChunkError(RuntimeError):
-    """A chunk failed while it was computed (on a Dask worker); the message, one line, names
-    the chunk, the points it covers and the error."""
+    """A chunk failed while it was computed (on a Dask worker), or could not be written; the
+    message, one line, names the chunk, the points it covers and the error."""
+
+
+class WriteError(ChunkError):
+    """Writing a chunk's parts failed (a full disk, a lost mount: any OSError). No partial part
+    is visible (each part is written whole or not at all); the chunks written before stay, and
+    ``--resume`` re-runs this one. The message, one line, names the chunk, the file and the
+    error, and says how to finish."""
 
 
 def chunk_rows(study: Study, chunks: list[int] | None = None) -> Iterator[ChunkRows]:
@@ -100,7 +107,8 @@ def run_sweep(study: Study, out_dir: str | Path | None = None, *, chunks: list[i
     on disk only). ``progress(runs)`` is told
     after each chunk is written. ``should_stop()`` is asked before the first chunk and after
     each one: True stops the sweep there (the chunks done stay written). No empty staging
-    folder is left behind."""
+    folder is left behind. A part that cannot be written (an OSError: a full disk) stops the
+    sweep with :class:`WriteError`."""
     out_dir = study.out_dir if out_dir is None else out_dir
     plan = study.plan
     todo = list(range(len(plan))) if chunks is None else [i for i in chunks if 0 <= i < len(plan)]
@@ -113,7 +121,12 @@ def run_sweep(study: Study, out_dir: str | Path | None = None, *, chunks: list[i
             if out_dir is not None:
                 if metadata is None:
                     metadata = part_metadata(study, study.chunk_runs)
-                publish_chunk(out_dir, rows, metadata)
+                try:
+                    publish_chunk(out_dir, rows, metadata)
+                except OSError as exc:
+                    where = f" ({exc.filename})" if exc.filename else ""
+                    raise WriteError(f"writing the parts of chunk {rows.index} failed: {exc.strerror or exc}{where}; "
+                                     f"no partial part is left; once there is room, finish with --resume") from None
             if keep:
                 done[rows.index] = rows.runs
             if progress is not None:
