@@ -437,23 +437,21 @@ def _tune(spec_path, out_dir, resume, force, state, stop, hint, held):
         todo = tuning.prepare_evaluation(ev, out_dir, spec_file=spec_path)
     except (SpecError, OutputError) as exc:
         _fail(str(exc))
-    from mcjax.study import run_sweep
-
     remaining = ev.runs_in(todo)
     click.echo(f"held-out evaluation (exact simulation): {ev.n_points} point(s) x {ev.seeds} seed(s) = "
                f"{ev.n_runs} runs" + ("" if todo is None else f", {remaining} still to run"))
     with tqdm(total=remaining, unit="run", desc="evaluate", disable=None) as bar:
-        run_sweep(ev, out_dir, chunks=todo, progress=bar.update, should_stop=stop.is_set, keep=False)
+        tuning.run_evaluation(ev, out_dir, chunks=todo, progress=bar.update, should_stop=stop.is_set)
     if stop.is_set():
         click.echo(hint(), err=True)
         exit_now(130)
     runs = results.read_table(out_dir, "runs")
-    _print_summary(runs, ev)
+    click.echo(tuning.summary_text(runs, ev))  # the initial row first, a column role = initial / tuned
     paired = tuning.paired_differences(runs, [k for k, o in ev.scenario.outputs(ev.config).items()
                                               if o.role in ("error", "divergence")])
     if len(paired):
         click.echo("tuned - initial, paired by seed (mean and 95 % t-interval):\n" + paired.to_string(index=False))
-    click.echo(f"point 0 = initial, point 1 = tuned Params; report: mcjax report {shlex.quote(str(out_dir))}")
+    click.echo(f"role = initial (point 0) / tuned (point 1); report: mcjax report {shlex.quote(str(out_dir))}")
     finish(stop)
 
 

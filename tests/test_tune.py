@@ -385,6 +385,11 @@ def test_cli_resume_after_a_kill_gives_the_same_trace_end_to_end_and_report(spec
     assert "wall_s" in trace.columns and (out / "trace.png").stat().st_size > 0
     ident = json.loads((out / "sweep.json").read_text())
     assert ident["n_runs"] == 2 * 3
+    held = pd.read_parquet(out / "runs")  # the dataset and the printed table say which row is which
+    assert (held["role"].astype(str) == np.where(held["point_id"].astype(int) == 0, "initial", "tuned")).all()
+    table = r.output.split("tuned - initial, paired", 1)[0]  # the summary table, before the paired comparison
+    printed = [line.split()[0] for line in table.splitlines() if line.split()[:1] in (["initial"], ["tuned"])]
+    assert printed == ["initial", "tuned"], r.output
     r2 = CliRunner().invoke(main, ["report", str(out), "--no-plots"])
     assert r2.exit_code == 0, r2.output
     assert "comm_radius" in r2.output
@@ -457,3 +462,35 @@ def test_paired_differences_are_the_paired_t_interval():
     assert (got["ci_low"], got["ci_high"]) == pytest.approx((low, high), rel=1e-9)
     assert got["initial"] == pytest.approx(a.mean()) and got["tuned"] == pytest.approx(b.mean()) and got["n"] == n
     assert tune.paired_differences(runs[runs["point_id"] == 0], ["rmse"]).empty  # one point: nothing to pair
+
+
+def test_evaluation_rows_and_printed_table_say_initial_and_tuned(spec):
+    """The held-out evaluation's rows carry ``role`` = "initial" (point 0) / "tuned" (point 1),
+    and mcjax tune's printed table puts the initial row first even where the tuned value sorts
+    first (here a smaller comm radius), with the same numbers as the rows' own means."""
+    final = spec.initial().copy()
+    final[spec.names.index("comm_radius")] *= 0.5  # tuned < initial: sorted by value, tuned would come first
+    ev = tune.evaluation_spec(spec, final)
+    assert list(ev.zipped) == ["comm_radius"]
+    rng = np.random.default_rng(3)
+    rows = []
+    for point, radius in enumerate(ev.zipped["comm_radius"]):
+        for seed in range(4):
+            row = {"scenario": ev.scenario.name, "point_id": point, "seed_index": seed, "comm_radius": radius,
+                   "filter": "modified_icf"}
+            for name, o in ev.scenario.outputs(ev.config).items():
+                row[name] = bool(rng.random() < 0.3) if o.role in ("divergence", "nonfinite") else rng.gamma(2.0, 5.0)
+            rows.append(row)
+    runs = tune.with_role(pd.DataFrame(rows))
+    assert list(runs.columns[runs.columns.get_loc("role"):][:2]) == ["role", "filter"]
+    assert (runs["role"] == np.where(runs["point_id"] == 0, "initial", "tuned")).all()
+    text = tune.summary_text(runs, ev)
+    table = [line.split() for line in text.splitlines() if line.split()[:1] in (["initial"], ["tuned"])]
+    assert [r[0] for r in table] == ["initial", "tuned"], text
+    header = next(line.split() for line in text.splitlines() if line.split()[:2] == ["role", "comm_radius"])
+    means = runs.groupby("role")["rmse"].mean()
+    for r in table:
+        assert float(r[header.index("rmse_mean")]) == pytest.approx(means[r[0]], rel=1e-3)
+    assert "role: initial = the Params the tune started from" in text
+    # an evaluation written before the column: the table still says which row is which
+    assert tune.summary_text(runs.drop(columns="role"), ev) == text

@@ -58,18 +58,21 @@ from mcjax.tune.loss import (RUNS_PER_DEVICE, Evaluation, Evaluator, batch_funct
                              run_loss, train_keys)
 from mcjax.study.store import TUNE_IDENTITY_FILE as IDENTITY_FILE
 from mcjax.study.store import prepare_evaluation
-from mcjax.tune.optimise import (STATE_FILE, TRACE_FILE, evaluation_spec, final_values, finished, identity, load_state,
-                                 make_optimizer, optimise, paired_differences, plot_trace, prepare_tune_output,
-                                 save_state, trace_columns)
+from mcjax.tune.optimise import (ROLE_COLUMN, ROLES, STATE_FILE, TRACE_FILE, RoleExecutor, evaluation_spec,
+                                 final_values, finished, identity, load_state, make_optimizer, optimise,
+                                 paired_differences, plot_trace, prepare_tune_output, run_evaluation, save_state,
+                                 summary_text, trace_columns, with_role)
 from mcjax.tune.spec import (BOUND_KEYS, GRADIENT_MODES, LOSS_KEYS, MAX_STEPS, MAX_TRAIN_SEEDS, NONFINITE_ERROR,
                              OPTIMIZERS, SCALES, SHARED_KEYS, TUNE_KEYS, Bound, Loss, TuneSpec, build_tune_spec,
                              continuous_params, from_unconstrained, load_tune_spec, to_unconstrained)
 
 __all__ = [
     "RUNS_PER_DEVICE", "Evaluation", "Evaluator", "batch_function", "params_at", "program_key", "run_loss",
-    "train_keys", "IDENTITY_FILE", "STATE_FILE", "TRACE_FILE", "evaluation_spec", "final_values", "finished",
-    "identity", "load_state", "make_optimizer", "optimise", "paired_differences", "plot_trace", "prepare_evaluation",
-    "prepare_tune_output", "save_state", "trace_columns", "BOUND_KEYS", "GRADIENT_MODES", "LOSS_KEYS", "MAX_STEPS",
+    "train_keys", "IDENTITY_FILE", "ROLE_COLUMN", "ROLES", "STATE_FILE", "TRACE_FILE", "RoleExecutor",
+    "evaluation_spec", "final_values", "finished", "identity", "load_state", "make_optimizer", "optimise",
+    "paired_differences", "plot_trace", "prepare_evaluation", "prepare_tune_output", "run_evaluation", "save_state",
+    "summary_text",
+    "trace_columns", "with_role", "BOUND_KEYS", "GRADIENT_MODES", "LOSS_KEYS", "MAX_STEPS",
     "MAX_TRAIN_SEEDS", "NONFINITE_ERROR", "OPTIMIZERS", "SCALES", "SHARED_KEYS", "TUNE_KEYS", "Bound", "Loss",
     "TuneSpec", "build_tune_spec", "continuous_params", "from_unconstrained", "load_tune_spec", "to_unconstrained",
 ]

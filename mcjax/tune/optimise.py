@@ -1,6 +1,7 @@
 """A tune's optimisation with its atomic per-step state (:func:`optimise`, resumable), the
 trace's figure, and the held-out evaluation of the initial and final Params as a two-point
-sweep (:func:`evaluation_spec`)."""
+sweep (:func:`evaluation_spec`) whose rows say their ``role``, initial or tuned
+(:class:`RoleExecutor`, :func:`summary_text`)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from mcjax.files import atomic_write
-from mcjax.study import Study, build_spec, store
+from mcjax.study import LocalExecutor, Study, build_spec, run_sweep, store
 from mcjax.tune.loss import Evaluator
 from mcjax.tune.spec import TuneSpec, from_unconstrained, to_unconstrained
 
@@ -160,6 +161,56 @@ def evaluation_spec(spec: TuneSpec, final) -> Study:
     data["description"] = (data.get("description", "") + " — held-out evaluation of mcjax tune: point 0 = "
                            "initial, point 1 = tuned Params").strip(" —")
     return build_spec(data, Path(spec.base_dir))
+
+
+#: The evaluation dataset's column saying which Params a row ran: point 0 the initial values,
+#: point 1 the tuned ones (a one-point evaluation, where no Param moved, is all "initial").
+ROLE_COLUMN, ROLES = "role", ("initial", "tuned")
+
+
+def with_role(rows: pd.DataFrame) -> pd.DataFrame:
+    """``rows`` of the held-out evaluation with the column ``role`` ("initial" for point 0,
+    "tuned" for point 1) just before ``filter``."""
+    out = rows.copy()
+    where = out.columns.get_loc("filter") if "filter" in out.columns else len(out.columns)
+    out.insert(where, ROLE_COLUMN, np.where(out["point_id"].to_numpy() == 0, *ROLES))
+    return out
+
+
+class RoleExecutor:
+    """The held-out evaluation's executor: ``inner`` (default: this process,
+    :class:`mcjax.study.LocalExecutor`) computes the chunks; every row leaves with its ``role``
+    (:func:`with_role`), so the dataset says which row is initial and which tuned."""
+
+    def __init__(self, inner=None):
+        self.inner = inner if inner is not None else LocalExecutor()
+
+    def map_chunks(self, study: Study, chunks: list[int], should_stop: Callable[[], bool]):
+        for rows in self.inner.map_chunks(study, chunks, should_stop):
+            series = rows.timeseries
+            yield rows._replace(runs=with_role(rows.runs), timeseries=None if series is None else with_role(series))
+
+
+def run_evaluation(ev: Study, out_dir: Path, **options) -> None:
+    """Run the held-out evaluation into ``out_dir`` (:func:`mcjax.study.run_sweep` with
+    ``options``: ``chunks``, ``progress``, ``should_stop``), each row with its ``role``
+    (:class:`RoleExecutor`); no rows kept in memory."""
+    run_sweep(ev, out_dir, executor=RoleExecutor(), keep=False, **options)
+
+
+def summary_text(runs: pd.DataFrame, ev: Study) -> str:
+    """The held-out evaluation's summary as ``mcjax report`` prints a sweep's (legend, then one
+    row per role and filter), the initial row first and a column ``role`` saying which is which."""
+    from mcjax import tables
+
+    runs = runs if ROLE_COLUMN in runs.columns else with_role(runs)  # an evaluation written before the column
+    metadata = {**ev.scenario.metadata(ev.config), "spec": ev.source}
+    axes = tables.swept_axes(metadata, runs.columns)
+    summary = tables.summarize(runs, metadata, [ROLE_COLUMN, *axes])  # "initial" sorts before "tuned"
+    legend = tables.legend_lines(metadata, axes)
+    legend.insert(len(legend) - 1, f"{ROLE_COLUMN}: initial = the Params the tune started from (point 0), tuned = "
+                                   f"where it ended (point 1)")
+    return tables.format_table(summary, "text", legend)
 
 
 def paired_differences(runs: pd.DataFrame, columns: list[str]) -> pd.DataFrame:
