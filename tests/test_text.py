@@ -1,0 +1,81 @@
+"""Text a user reads says what it means: no code identifiers in the scenarios' descriptions or
+in a dataset's metadata, and a report's Spec block is the spec that ran.
+
+A rename once leaked into user-facing strings ("mean full-state NEES over alive kit.agents",
+"mean number of kit.agents that see the target", in `mcjax list` and in every Parquet file's
+metadata); a sweep run with ``--seeds 50`` recorded ``seeds = 100`` in its spec."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from mcjax import scenarios
+from mcjax.listing import scenario_text
+from mcjax.study import load_spec, part_metadata, read_config_file
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: ``name.attribute`` of the code's own names: the scenario kit, a Config or Params object, numpy, JAX.
+CODE = re.compile(r"\b(kit|cfg|params|config|np|jnp|jax|lax|self|state|records?|sc|smoothing)\.[A-Za-z_]")
+
+
+def test_the_pattern_finds_the_leak_it_is_for():
+    assert CODE.search("mean full-state NEES over alive kit.agents and steps after warm-up")
+    assert CODE.search("mean number of kit.agents that see the target") and CODE.search("cfg.n_agents UAVs")
+    assert not CODE.search("position error (m), e.g. 1.5 m; Params.horizon (t_r) <= this; Sun et al. 2011")
+
+
+def _configs(sc):
+    """The scenario's default Config, every built-in config file's, and each with faults on."""
+    out = [sc.Config()]
+    for path in sorted((ROOT / "configs").glob("*.toml")):
+        f = read_config_file(path)
+        if f.scenario.name == sc.name:
+            out.append(f.config)
+    if "faults" in sc.settings:
+        out += [dataclasses.replace(c, faults="on") for c in list(out)]
+    return out
+
+
+def _texts(sc, cfg) -> list[tuple[str, str]]:
+    texts = [("title", sc.title)]
+    texts += [(f"params.{k}", f"{p.unit} {p.description}") for k, p in sc.params_table.items()]
+    texts += [(f"config.{k}", f"{s.unit} {s.description}") for k, s in sc.settings.items()]
+    texts += [(f"output {k}", f"{o.unit} {o.description}") for k, o in sc.outputs(cfg).items()]
+    if sc.timeseries_outputs is not None:
+        texts += [(f"series {k}", f"{o.unit} {o.description}") for k, o in sc.timeseries_outputs(cfg).items()]
+    texts.append(("Parquet metadata", json.dumps(sc.metadata(cfg), ensure_ascii=False)))
+    texts.append(("mcjax list", scenario_text(sc)))
+    return texts
+
+
+@pytest.mark.parametrize("name", scenarios.known())
+def test_user_facing_strings_hold_no_code_identifiers(name):
+    sc = scenarios.get(name)
+    bad = []
+    for cfg in _configs(sc):
+        for where, text in _texts(sc, cfg):
+            for m in CODE.finditer(text):
+                bad.append(f"{where}: ...{text[max(0, m.start() - 40):m.end() + 20]}...")
+    assert not bad, "\n".join(sorted(set(bad)))
+
+
+def test_the_spec_recorded_is_the_one_that_ran(tmp_path):
+    """--seeds and --chunk-size are merged into the recorded spec as --set values are (the report's
+    Spec block shows what ran), and a sweep given its own values again records the same spec
+    (what --resume compares)."""
+    spec = ROOT / "sweeps" / "default.toml"
+    written = load_spec(spec)
+    ran = load_spec(spec, seeds=7, chunk_size=3, overrides={"params.sigma_range": 12.0})
+    meta = part_metadata(ran, ran.chunk_runs)
+    assert meta["spec"]["seeds"] == 7 == ran.seeds == meta["seeds"]
+    assert meta["spec"]["chunk_size"] == 3 and meta["spec"]["params"]["sigma_range"] == 12.0
+    assert "seeds" not in written.source or written.source["seeds"] == written.seeds
+    again = load_spec(spec, seeds=written.seeds, chunk_size=written.chunk_size)  # --resume passes the saved ones
+    assert again.source == written.source
+    assert load_spec(spec, seeds=7).source == load_spec(spec, seeds=7).source
