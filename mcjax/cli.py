@@ -368,8 +368,8 @@ def tune(spec, out_dir, resume, force):
     OUT/trace.parquet and OUT/trace.png, and the optimiser's state is saved atomically after
     every step, so a killed tune resumes (--resume) from its last completed step. Then the
     initial and the final Params are run on the held-out seeds with the exact simulation,
-    written as a two-point sweep (point 0 = initial, point 1 = tuned) and summarised as by
-    `mcjax report`. The first Ctrl-C stops after the step in flight, a second one at once
+    written as a two-point sweep (point 0 = initial, point 1 = tuned; a column role says
+    which) and summarised, the initial row first. The first Ctrl-C stops after the step in flight, a second one at once
     (exit code 130); both print the command that resumes. See docs/tune.md.
     """
     state = {"out": out_dir, "started": False}
