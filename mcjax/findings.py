@@ -33,7 +33,7 @@ import pandas as pd
 from mcjax import tables
 from mcjax.statistics import CONFIDENCE, mean_ci, wilson_interval
 
-__all__ = ["Finding", "findings", "glossary", "params_table", "percent", "quote"]
+__all__ = ["PCT", "Finding", "findings", "glossary", "params_table", "percent", "quote", "declared_words"]
 
 PCT = f"{100 * CONFIDENCE:g} %"
 
@@ -327,7 +327,8 @@ ROLE_WORDS = {
 }
 
 
-def _decl_words(name: str, sch: tables.Schema) -> str:
+def declared_words(name: str, sch: tables.Schema) -> str:
+    """The declared description of an output or Param column ("" without one)."""
     decl = sch.outputs.get(name) if name in sch.outputs else sch.params.get(name)
     return str((decl or {}).get("description") or "").strip() if isinstance(decl, Mapping) else ""
 
@@ -356,14 +357,14 @@ def glossary(metadata: Mapping[str, Any], axes: Sequence[str] = ()) -> list[tupl
         if not name:
             continue
         u = tables.unit(name, sch)
-        words = _decl_words(name, sch)
+        words = declared_words(name, sch)
         text = (words + " — " if words else "") + ROLE_WORDS[role].format(pct=pct)
         if role == "divergence" and "divergence_threshold" in config:
             text += f" (in this config divergence_threshold = {tables.format_number(config['divergence_threshold'])})"
         out.append((f"{name} [{u}]" if u else name, text))
     for a in axes:
         shown = tables.display(a, sch)[0]
-        out.append((f"{a} [{shown}]" if shown else a, (_decl_words(a, sch) or "a swept Param") + " — swept"))
+        out.append((f"{a} [{shown}]" if shown else a, (declared_words(a, sch) or "a swept Param") + " — swept"))
     out.append(("Params", "the scenario's parameters a sweep may vary without recompiling (radii, noise levels, "
                           "weights); their values in this dataset are in the table 'Base Params'"))
     out.append((f"{pct} interval", "a mean's Student-t interval, a rate's Wilson score interval: where two "
@@ -392,7 +393,7 @@ def params_table(metadata: Mapping[str, Any], axes: Sequence[str] = ()) -> tuple
             continue
         value = f"swept ({name} is an axis)" if name in axes else tables.format_number(
             _plain(values[name]), tables.KEY_DIGITS)
-        rows.append([name, value, tables.unit(name, sch), _decl_words(name, sch)])
+        rows.append([name, value, tables.unit(name, sch), declared_words(name, sch)])
     return rows, note
 
 
