@@ -333,11 +333,12 @@ def declared_words(name: str, sch: tables.Schema) -> str:
     return str((decl or {}).get("description") or "").strip() if isinstance(decl, Mapping) else ""
 
 
-def glossary(metadata: Mapping[str, Any], axes: Sequence[str] = ()) -> list[tuple[str, str]]:
+def glossary(metadata: Mapping[str, Any], axes: Sequence[str] = (), *, tuned: bool = False) -> list[tuple[str, str]]:
     """``(term, words)`` for the words of the page: each filter (its declared words from the
     metadata's ``filter_descriptions`` where the scenario gives them, else the scenario's own
     title), the error metric, the divergence flag (with the config's threshold), the graph
-    statistics, each swept axis, the base Params and the two kinds of interval."""
+    statistics, each swept axis (``tuned``: each tuned Param of a tune's evaluation), the base
+    Params and the two kinds of interval."""
     sch = tables.schema(metadata)
     pct = PCT
     out: list[tuple[str, str]] = []
@@ -364,9 +365,11 @@ def glossary(metadata: Mapping[str, Any], axes: Sequence[str] = ()) -> list[tupl
         out.append((f"{name} [{u}]" if u else name, text))
     for a in axes:
         shown = tables.display(a, sch)[0]
-        out.append((f"{a} [{shown}]" if shown else a, (declared_words(a, sch) or "a swept Param") + " — swept"))
+        out.append((f"{a} [{shown}]" if shown else a, (declared_words(a, sch) or "a Param")
+                    + (" — tuned by gradient through the closed loop" if tuned else " — swept")))
     out.append(("Params", "the scenario's parameters a sweep may vary without recompiling (radii, noise levels, "
-                          "weights); their values in this dataset are in the table 'Base Params'"))
+                          "weights)" + ("" if tuned else "; their values in this dataset are in the table "
+                                                         "'Base Params'")))
     out.append((f"{pct} interval", "a mean's Student-t interval, a rate's Wilson score interval: where two "
                                    "intervals do not overlap, the report calls one value lower"))
     return out

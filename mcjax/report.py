@@ -27,7 +27,7 @@ import pandas as pd
 from mcjax import results, tables
 from mcjax.tables import FORMATS
 
-__all__ = ["FORMATS", "summary_text", "report", "completeness"]
+__all__ = ["FORMATS", "summary_text", "report", "completeness", "datasets_in", "listing"]
 
 #: The sweep's identity file in its output folder (written by :mod:`mcjax.study.store`).
 IDENTITY_FILE = "sweep.json"
@@ -90,6 +90,35 @@ def completeness(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping
             f"finish it with `mcjax sweep {shlex.quote(spec)} --out {shlex.quote(str(out))} --resume`")
 
 
+def datasets_in(folder: str | os.PathLike) -> list[Path]:
+    """The dataset folders directly inside ``folder`` (each with a ``runs/`` folder holding
+    Parquet parts), sorted by name: what ``results/`` holds after a few sweeps."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    return sorted(d for d in folder.iterdir()
+                  if d.is_dir() and (d / "runs").is_dir() and next((d / "runs").rglob("*.parquet"), None))
+
+
+def listing(folder: str | os.PathLike, inside: list[Path]) -> str:
+    """What ``mcjax report FOLDER`` prints for a folder of datasets: one line per dataset with
+    its scenario, runs and description, and the command that reports on it."""
+    lines = [f"{folder} holds {len(inside)} dataset(s), not one; report on one of them:"]
+    for d in inside:
+        try:
+            meta = results.read_metadata(d)
+        except (OSError, ValueError):
+            meta = {}
+        spec = meta.get("spec") if isinstance(meta.get("spec"), Mapping) else {}
+        what = [str(meta["scenario"])] if meta.get("scenario") else []
+        if isinstance(meta.get("n_runs"), int):
+            what.append(f"{meta['n_runs']} runs planned")
+        if isinstance(spec.get("description"), str):
+            what.append(spec["description"])
+        lines.append(f"  mcjax report {shlex.quote(str(d))}" + (f"    # {'; '.join(what)}" if what else ""))
+    return "\n".join(lines) + "\n"
+
+
 def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
            warn: Callable[[str], None] | None = None) -> tuple[str, list[Path]]:
     """Summarise a sweep's output folder: ``(formatted table, plot paths)``.
@@ -99,7 +128,10 @@ def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
     unless ``plots=False``, writes the figures of :func:`mcjax.plots.write_plots` to
     ``OUT/report/`` and then the self-contained page ``OUT/report/index.html``
     (:mod:`mcjax.html_report`: description, spec, provenance, tables, every plot with its
-    caption), whose path is the last of the returned paths. A dataset with fewer runs than its sweep planned (:func:`completeness`)
+    caption), whose path is the last of the returned paths. The folder of a tune (``tune.json``,
+    ``trace.parquet``) gets :mod:`mcjax.tune_report`'s page instead, and no plots; a folder of
+    datasets (e.g. ``results/``) gets :func:`listing` as its text and no files. A dataset with
+    fewer runs than its sweep planned (:func:`completeness`)
     gets a ``WARNING:`` line at the top of the table's header (``warn`` is told too: CSV has
     no header) and a note on every plot.
 
@@ -120,6 +152,9 @@ def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
         raise results.DamagedPartError(str(exc).replace("mcjax sweep SPEC", f"mcjax sweep {shlex.quote(spec)}")
                                        if isinstance(spec, str) else str(exc)) from None
     if df.empty:
+        inside = datasets_in(out)
+        if inside:
+            return listing(out, inside), []
         raise ValueError(f"no runs found in {str(out)!r}: expected Parquet part files in "
                          f"{str(out / 'runs')!r} (is this the output folder of `mcjax sweep`?)")
     metadata = results.read_metadata(out)
@@ -133,6 +168,10 @@ def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
     table = summary_text(df, metadata, fmt, warning=incomplete)
     if not plots:
         return table, []
+    from mcjax import tune_report
+
+    if tune_report.is_tune_folder(out):  # a two-point zip: the tune's own page, no sweep plots
+        return table, [tune_report.write_page(out, df, metadata, warning=incomplete)]
     from mcjax.html_report import write_page
     from mcjax.plots import write_plots  # matplotlib only when plotting
 
