@@ -353,6 +353,48 @@ def energy_lines(en: dict, label: str) -> list[str]:
     ]
 
 
+# --------------------------------------------------------------------------- the integrator's convergence
+
+
+EXTREMES = (("min_distance", "smallest distance between two nodes, m", np.argmin),
+            ("min_link_margin", "smallest link margin R − r, m", np.argmin),
+            ("energy_max_rise", "largest rise of Q between two steps", np.argmax))
+
+
+def run_seeds(scenario, cfg, p, seeds, base_seed: int) -> dict:
+    """The summaries of the given seed indices (numpy) in one compiled batch."""
+    seeds = np.asarray(seeds)
+    keys = jax.numpy.asarray(engine.run_keys(base_seed, seeds))
+    params = jax.tree.map(lambda x: jax.numpy.broadcast_to(x, (len(seeds),) + np.shape(x)), p)
+    return {k: np.asarray(v) for k, v in engine.compiled(scenario, cfg)(params, keys).items()}
+
+
+def convergence(scenario, cfg, p, out: dict, base_seed: int, per_extreme: int = 10, factor: float = 100.0):
+    """Each extreme over the runs (smallest distance, smallest link margin, largest energy rise)
+    at the config's tolerance and ``factor`` times tighter: the ``per_extreme`` runs nearest
+    each extreme are re-run at the tighter tolerance (an extreme moves by far less than the gap
+    to the 11th run, checked), and the largest change of any re-run run's value. Returns
+    ``(rows, tight config)``."""
+    order = {name: (np.argsort(out[name]) if pick is np.argmin else np.argsort(-out[name]))[:per_extreme]
+             for name, _, pick in EXTREMES}
+    seeds = np.unique(np.concatenate(list(order.values())))
+    tight = dataclasses.replace(cfg, tolerance=cfg.tolerance / factor)
+    t0 = time.perf_counter()
+    fine = run_seeds(scenario, tight, p, seeds, base_seed)
+    wall = time.perf_counter() - t0
+    rows = []
+    for name, label, pick in EXTREMES:
+        base = out[name][seeds]
+        change = np.abs(fine[name] - base)
+        i = int(pick(out[name]))
+        extreme_fine = fine[name][int(pick(fine[name]))]
+        rows.append(dict(name=name, label=label, value=float(out[name][i]), seed=i, tight=float(extreme_fine),
+                         change=float(abs(extreme_fine - out[name][i])), max_change=float(change.max()),
+                         gap=float(abs(np.sort(out[name])[per_extreme] - out[name][i])) if pick is np.argmin else
+                         float(abs(np.sort(out[name])[-per_extreme - 1] - out[name][i]))))
+    return rows, tight, len(seeds), wall
+
+
 # --------------------------------------------------------------------------- scaling
 
 
@@ -648,9 +690,35 @@ def run_paper(args) -> tuple[int, tuple]:
           f"(batches of {engine.batch_size_for(args.runs)} runs; the first, with the compilation, took {first:.1f} s"
           f"{later}); load average {', '.join(f'{x:.1f}' for x in os.getloadavg())} on {os.cpu_count()} CPUs "
           f"(wall clock on a shared machine)")
-    print(f"RK4 sub-steps per 0.1 s step: mean over runs {out['substeps_mean'].mean():.2f} (run means: min "
+    print(f"sub-steps ({cfg.integrator}; dopri5: attempts) per 0.1 s step: mean over runs {out['substeps_mean'].mean():.2f} (run means: min "
           f"{out['substeps_mean'].min():.2f}, max {out['substeps_mean'].max():.2f}); steps at the cap of "
           f"{cfg.max_substeps}: {int(out['substeps_capped'].sum())} (in {int(np.sum(out['substeps_capped'] > 0))} runs)")
+    conv, tight, n_conv, wall_conv = convergence(scenario, cfg, p, out, args.base_seed)
+    print(f"\n### The integrator: {cfg.integrator}, tolerance {cfg.tolerance:g} (m, m/s) — extremes and their "
+          f"convergence\n")
+    print(f"the {n_conv} runs nearest the three extremes re-run at {tight.tolerance:g} (100x tighter) in "
+          f"{wall_conv:.1f} s incl. compilation\n")
+    print("| extreme over the runs | value | seed | at 100x tighter | change | largest change of a re-run run | "
+          "gap to the 11th run |\n|---|---|---|---|---|---|---|")
+    for r in conv:
+        print(f"| {r['label']} | {r['value']:.6g} | {r['seed']} | {r['tight']:.6g} | {r['change']:.1e} | "
+              f"{r['max_change']:.1e} | {r['gap']:.1e} |")
+    if args.rk4_runs > 0:
+        n_old = min(args.rk4_runs, args.runs)
+        sc_o, cfg_o, p_o = setup(args.config, {"integrator": "rk4", "max_substeps": 200})
+        out_o, _, wall_o, first_o = run_batches(sc_o, cfg_o, p_o, n_old, args.base_seed, "RK4 sub-steps (before)")
+        n_b = -(-n_old // engine.batch_size_for(n_old))
+        print(f"\nthe same first {n_old} runs with the RK4 sub-steps used before (integrator = rk4, max_substeps 200): "
+              f"wall {wall_o:.1f} s incl. compilation ({wall_o / n_old * 1e3:.0f} ms/run"
+              + (f"; {(wall_o - first_o) / (n_old - engine.batch_size_for(n_old)) * 1e3:.0f} ms/run without the "
+                 f"first batch" if n_b > 1 else "")
+              + f"), {out_o['substeps_mean'].mean():.2f} sub-steps per step; load average "
+              f"{', '.join(f'{x:.1f}' for x in os.getloadavg())}")
+        for name, label, pick in EXTREMES:
+            new_v, old_v = out[name][:n_old], out_o[name]
+            print(f"  {label} over these runs: {new_v[pick(new_v)]:.6g} (dopri5) vs {old_v[pick(old_v)]:.6g} "
+                  f"(rk4); per run, "
+                  f"largest |rk4 − dopri5| {np.max(np.abs(old_v - new_v)):.3g}")
     df = run_rows(scenario, cfg, out, {"seed_index": np.arange(args.runs)})
     meta = {**scenario.metadata(cfg), "benchmark": "flocking_lou2013", "config": dataclasses.asdict(cfg),
             "config_file": str(args.config), "runs": args.runs, "wall_s": wall, **environment_metadata()}
@@ -805,6 +873,8 @@ def main(argv=None) -> int:
     ap.add_argument("--check", action=argparse.BooleanOptionalAction, default=True,
                     help="exit 1 when a check fails (default on)")
     ap.add_argument("--ideal-runs", type=int, default=100, help="runs of Theorem 2's ideal case (0: skip)")
+    ap.add_argument("--rk4-runs", type=int, default=100,
+                    help="the first runs again with the RK4 sub-steps used before, for their cost (0: skip)")
     ap.add_argument("--nx-runs", type=int, default=5, help="runs re-run step by step for the networkx cross-check")
     ap.add_argument("--nx-init", type=int, default=200, help="initial draws for the networkx cross-check")
     ap.add_argument("--scaling", action=argparse.BooleanOptionalAction, default=True,
