@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import base64
 import json
+import re
 import shutil
 import subprocess
 import tomllib
@@ -13,6 +14,7 @@ from html.parser import HTMLParser
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from click.testing import CliRunner
 from test_plots import check_png
@@ -247,3 +249,101 @@ def test_page_in_a_headless_browser(reported, tmp_path):
 
     img = mpimg.imread(shot)[..., :3]
     assert 0.5 < float(np.mean(img)) < 0.999
+
+
+# ------------------------------------------------------------------------------ the default sweep's page
+
+ROOT = Path(__file__).resolve().parents[1]
+#: Mean error per comm radius (m) and the filters' factors, roughly the default sweep's.
+LEVELS = {50e3: 700.0, 60e3: 120.0, 80e3: 35.0, 100e3: 17.0}
+DIVERGED = {50e3: 0.95, 60e3: 0.6, 80e3: 0.03, 100e3: 0.0}
+
+
+def _default_like(out: Path) -> Path:
+    """The default sweep's dataset with made-up numbers: its real metadata (the scenario's
+    declarations, the spec, the config), 4 comm radii x 100 seeds x 3 filters, its columns."""
+    from mcjax.study import load_spec, part_metadata
+
+    study = load_spec(ROOT / "sweeps" / "default.toml")
+    meta = part_metadata(study, study.chunk_size)
+    rng = np.random.default_rng(3)
+    rows = []
+    for pid, radius in enumerate(LEVELS):
+        for s in range(study.seeds):
+            run = {k: float(rng.uniform(0.1, 2.0)) for k, o in meta["outputs"].items() if not o["per_filter"]}
+            run["disconnected_steps"] = int(rng.poisson(40)) if radius < 70e3 else 0
+            for fi, f in enumerate(meta["filters"]):
+                row = {k: float(rng.uniform(1, 50)) for k, o in meta["outputs"].items() if o["per_filter"]}
+                div = bool(rng.random() < DIVERGED[radius] * (1 - 0.2 * fi))
+                row.update(rmse=LEVELS[radius] * (1.6 - 0.3 * fi) * float(rng.lognormal(0, 0.3)), diverged=div,
+                           nonfinite=False)
+                rows.append(dict(scenario=meta["scenario"], point_id=pid, seed_index=s, comm_radius=radius,
+                                 filter=f, **row, **run))
+    write_dataset(out, pd.DataFrame(rows), meta)
+    r = CliRunner().invoke(main, ["report", str(out)])
+    assert r.exit_code == 0, r.output
+    return out / "report" / "index.html"
+
+
+@pytest.fixture(scope="module")
+def default_page(tmp_path_factory):
+    return _default_like(tmp_path_factory.mktemp("default") / "default")
+
+
+@pytest.mark.xdist_group("test_html_report")
+def test_the_default_sweeps_page_leads_with_findings_and_fits_1280_px(default_page):
+    """Structural: the findings block comes first, every image is a PNG written beside the page,
+    every table sits in a box that scrolls sideways, nothing is wider than 1280 px."""
+    raw = default_page.read_text(encoding="utf-8")
+    page = parse(default_page)
+    sections = [a.get("id") for tag, a in page.tags if tag == "section"]
+    assert sections[0] == "findings", sections
+    first_figure = next(i for i, (tag, _) in enumerate(page.tags) if tag in ("figure", "table"))
+    findings_at = next(i for i, (tag, a) in enumerate(page.tags) if tag == "section" and a.get("id") == "findings")
+    assert findings_at < first_figure
+    sentences = [" ".join(t.split()) for t in page.text.get("li", [])][:4]
+    assert sentences[0].startswith("Lowest mean rmse:") and "km" in sentences[0], sentences
+    assert any(s.startswith("Runs diverge at comm_radius") and re.search(r"\d+\.\d % \[\d+\.\d, \d+\.\d\]", s)
+               for s in sentences), sentences
+    on_disk = {p.read_bytes() for p in default_page.parent.glob("*.png")}
+    imgs = [a for tag, a in page.tags if tag == "img"]
+    assert len(imgs) == len(on_disk) == 4
+    for a in imgs:
+        assert base64.b64decode(a["src"].removeprefix("data:image/png;base64,")) in on_disk
+        assert int(a["width"]) <= 1280 and len(a["alt"]) > 40
+    widths = [int(w) for w in re.findall(r'width="(\d+)"', raw)] + [int(w) for w in re.findall(r"width:\s*(\d+)px", raw)]
+    assert max(widths) <= 1280, widths
+    assert raw.count("<table") == raw.count('<div class="scroll"><table')  # every table in its scroll box
+    assert re.search(r"\.scroll \{[^}]*overflow-x: auto", raw)
+    # the plots are drawn at 2x: the PNG is twice the size the page shows it at
+    for a in imgs:
+        data = base64.b64decode(a["src"].removeprefix("data:image/png;base64,"))
+        assert int.from_bytes(data[16:20], "big") in (2 * int(a["width"]), 2 * int(a["width"]) - 1)
+    headings = [" ".join(t.split()) for t in page.text.get("h2", [])]
+    assert headings[0] == "What this shows" and headings[-2:] == ["Spec", "Provenance"]
+
+
+@pytest.mark.xdist_group("test_html_report")
+@pytest.mark.skipif(_browser() is None, reason="no headless Chromium on this machine (apt-get install chromium)")
+def test_the_default_sweeps_page_in_a_browser_at_1280_px(default_page, tmp_path):
+    """In a real browser 1280 px wide: the findings block is the first thing, every image is
+    decoded, the page does not scroll sideways, the wide table scrolls inside its box."""
+    probe = tmp_path / "probe.html"
+    probe.write_text(default_page.read_text(encoding="utf-8").replace("</body>", (
+        '<pre id="probe"></pre><script>window.addEventListener("load", () => {'
+        'const boxes = [...document.querySelectorAll(".scroll")];'
+        'document.getElementById("probe").textContent = JSON.stringify({'
+        'page: document.documentElement.scrollWidth, view: document.documentElement.clientWidth,'
+        'first: document.querySelector("main section").id,'
+        'findingsTop: document.getElementById("findings").getBoundingClientRect().top,'
+        'figureTop: document.querySelector("figure").getBoundingClientRect().top,'
+        'images: [...document.images].map(i => [i.complete, i.naturalWidth, i.getBoundingClientRect().right]),'
+        'boxes: boxes.map(b => [b.scrollWidth, b.clientWidth, b.getBoundingClientRect().right])});});'
+        '</script></body>')), encoding="utf-8")
+    r = _run_browser(_browser(), "--window-size=1280,900", "--dump-dom", probe.as_uri())
+    found = json.loads(r.stdout.split('<pre id="probe">', 1)[1].split("</pre>", 1)[0])
+    assert found["view"] == 1280 and found["page"] <= 1280, found  # no horizontal page overflow
+    assert found["first"] == "findings" and found["findingsTop"] < found["figureTop"]
+    assert len(found["images"]) == 4 and all(done and w > 100 and right <= 1280 for done, w, right in found["images"])
+    assert all(right <= 1280 for _, _, right in found["boxes"])
+    assert any(inner > outer for inner, outer, _ in found["boxes"]), found["boxes"]  # the wide table scrolls inside
