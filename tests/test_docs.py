@@ -95,7 +95,10 @@ def test_readme_opens_with_the_two_commands_ci_runs():
     lang, text, _ = fenced(README)[0]
     lines = [line for line in text.splitlines() if line.strip()]
     assert lang == "bash" and len(lines) == 2, text
-    assert lines[0].startswith("pip install -e . && mcjax sweep sweeps/default.toml")
+    # any Python, an externally managed one too: a virtual environment first, made and activated in the line
+    assert lines[0].startswith("python3 -m venv .venv && . .venv/bin/activate && pip install -e . && "
+                               "mcjax sweep sweeps/default.toml")
+    assert "mcjax report" not in lines[0]  # the sweep prints the summary; the report would print it again
     assert lines[1] == 'pip install -e ".[test]" && python -m pytest'
     ci = [line for line in (ROOT / ".ci" / "run").read_text().splitlines() if line.startswith("pip install")]
     assert ci == [lines[1]]  # what CI runs is what a newcomer types
@@ -217,7 +220,7 @@ class Runner:
     """Runs one document's commands in order in a scratch folder."""
 
     def __init__(self, folder: Path, plots_for: set[str]):
-        self.folder, self.plots_for, self.outputs = folder, plots_for, {}
+        self.folder, self.plots_for, self.outputs, self.venvs = folder, plots_for, {}, []
 
     def __call__(self, cmd: list[str]) -> str | None:
         """None if the command ran as documented, else what went wrong."""
@@ -226,6 +229,8 @@ class Runner:
             return self.pip(args)
         if prog in ("python", "python3"):
             return self.python(args)
+        if prog in (".", "source"):  # activating the virtual environment a `python3 -m venv DIR` made
+            return None if args in ([f"{d}/bin/activate"] for d in self.venvs) else f"no venv made for {args}"
         if prog == "mcjax":
             return self.mcjax(args)
         return f"no check for the program {prog!r} (add one to tests/test_docs.py or mark the block)"
@@ -248,6 +253,9 @@ class Runner:
 
     def python(self, args):
         if args[:2] == ["-m", "pytest"]:
+            return None
+        if args[:2] == ["-m", "venv"] and len(args) == 3:
+            self.venvs.append(args[2])  # not made: the tests already run in an environment
             return None
         if args[:2] == ["-m", "mcjax.clidoc"]:
             return None

@@ -79,3 +79,34 @@ def test_the_spec_recorded_is_the_one_that_ran(tmp_path):
     again = load_spec(spec, seeds=written.seeds, chunk_size=written.chunk_size)  # --resume passes the saved ones
     assert again.source == written.source
     assert load_spec(spec, seeds=7).source == load_spec(spec, seeds=7).source
+
+
+def _readme_rows() -> dict:
+    """{(comm radius in km, filter): (rmse_mean, div_rate)} of the README's printed summary."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    block = text.split("## What you should see", 1)[1].split("```text", 1)[1].split("```", 1)[0]
+    lines = block.splitlines()
+    header = next(line.split() for line in lines if line.split()[:2] == ["comm_radius", "filter"])
+    rows = {}
+    for line in lines:
+        cells = line.split()
+        if len(cells) == len(header) and cells[0].isdigit() and cells[2].isdigit():  # radius, filter, n, ...
+            rows[(int(cells[0]) / 1000, cells[1])] = (float(cells[header.index("rmse_mean")]),
+                                                       float(cells[header.index("div_rate")]))
+    return rows
+
+
+def test_papers_default_sweep_table_is_what_the_readme_prints():
+    """docs/papers.md's "The default sweep" table and the README's printed summary are the same
+    sweep's numbers wherever both give one (a re-run that updates one and not the other fails)."""
+    text = (ROOT / "docs" / "papers.md").read_text(encoding="utf-8")
+    section = text.split("### The default sweep", 1)[1].split("\n### ", 1)[0]
+    table = [[c.strip() for c in line.strip("|").split("|")] for line in section.splitlines() if line.startswith("|")]
+    radii = [float(c) for c in table[0][1:]]
+    names = {"ICF": "icf", "modified ICF": "modified_icf", "CIF": "cif"}
+    papers = {(r, names[row[0]]): tuple(float(x) for x in cell.split(" / "))
+              for row in table[2:] for r, cell in zip(radii, row[1:])}
+    readme = _readme_rows()
+    assert len(readme) >= 4 and set(readme) <= set(papers), (sorted(readme), sorted(papers))
+    for key, value in readme.items():
+        assert papers[key] == value, (key, papers[key], value)
