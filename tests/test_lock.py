@@ -22,7 +22,8 @@ from mcjax.results import read_table
 from mcjax.study import lock
 
 PROBE = '''
-"""One agent tracking a 1-D random walk; a host callback sleeps while the file `slow` exists."""
+"""One agent tracking a 1-D random walk; a host callback waits while the file `slow` exists,
+and takes half a second per chunk while the file `pace` exists."""
 import time
 from pathlib import Path
 import numpy as np
@@ -36,9 +37,13 @@ Config = config_type("Config", common_settings(filter_kinds=("kf",), n_agents=1,
 Params = params_type("Params", dict(q=Param(1.0, "m", "walk std", low=0),
                                     r=Param(1.0, "m", "noise std", low=0, low_open=True)), __name__)
 
+PACE = Path(__file__).with_name("pace")
+
 def _host(r):
     while SLOW.exists():
         time.sleep(0.05)
+    if PACE.exists():
+        time.sleep(0.5)
     return np.asarray(r)
 
 def init(cfg, p, key):
@@ -68,7 +73,7 @@ def write_probe(root: Path) -> Path:
     (root / "probe.py").write_text(textwrap.dedent(PROBE))
     (root / "probe.toml").write_text('scenario = "probe.py:SCENARIO"\n')
     spec = root / "sweep.toml"
-    spec.write_text('base = "probe.toml"\nseeds = 20\nchunk_size = 20\n[grid]\nr = [0.5, 1.0, 2.0]\n')
+    spec.write_text('base = "probe.toml"\nseeds = 100\nchunk_size = 100\n[grid]\nr = [0.5, 1.0, 2.0]\n')
     return spec
 
 
@@ -161,7 +166,7 @@ def test_two_sweeps_on_one_folder_one_runs_the_other_exits_2(probe, tmp_path):
     stdout, stderr = first.communicate(timeout=300)
     assert first.returncode == 0, stderr
     assert not (out / lock.LOCK_FILE).exists()  # released at the end
-    assert len(read_table(out)) == 60
+    assert len(read_table(out)) == 300
 
 
 def test_a_tune_respects_the_lock(tmp_path):

@@ -29,6 +29,12 @@ How the work is shared:
   written twice since only whole chunks are published. A chunk that raises stops the sweep
   with :class:`mcjax.study.execute.ChunkError` (one line: the chunk, its points, the error); the
   chunks already written stay.
+* A scheduler that goes away (killed, its node lost) ends the sweep with
+  :class:`SchedulerLost` (one line; the command exits 1) within :data:`LOST_AFTER` seconds:
+  Dask cancels every chunk in flight when the client loses its scheduler, and the client is
+  closed without waiting for the scheduler. The chunks written stay; ``--resume`` finishes
+  them, locally or on a new cluster, with the same bytes. Dask's own log lines about the lost
+  connection are silenced (the client reports it once).
 
 Dask is an optional dependency: ``pip install -e ".[dask]"``.
 """
@@ -38,6 +44,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import hashlib
+import logging
 import os
 import sys
 import time
@@ -58,12 +65,21 @@ INSTALL_HINT = 'pip install -e ".[dask]"  (or: pip install "dask[distributed]")'
 CONNECT_TIMEOUT = 20
 #: How often (seconds) the client looks for completed chunks (and Ctrl-C) while it waits.
 POLL = 0.05
+#: Seconds within which a sweep whose scheduler went away ends (SchedulerLost, exit code 1).
+LOST_AFTER = 10
+#: Seconds given to closing a client whose scheduler is gone.
+CLOSE_TIMEOUT = 2
 #: Specs a worker keeps unpickled (each with its compiled program in the engine's caches).
 _WORKER_SPECS_MAX = 4
 #: The specs a worker process has unpickled, by their spec token (:class:`Shipment`).
 _WORKER_SPECS: dict[str, Study] = {}
 #: The first copy of each scenario a worker process has unpickled, by scenario token.
 _WORKER_SCENARIOS: dict[str, Any] = {}
+
+
+class SchedulerLost(ChunkError):
+    """The Dask scheduler went away in the middle of a sweep; the message, one line, says so and
+    how to finish (``--resume``)."""
 
 
 class DaskMissing(ImportError):
@@ -221,14 +237,21 @@ class DaskExecutor:
         futures = {self.client.submit(compute_chunk, spec_future, i, fingerprint,
                                       key=f"mcjax-chunk-{shipment.spec_token}-{run}-{i}"): i for i in chunks}
         completed = distributed.as_completed(list(futures), loop=self.client.loop)
+        lost = None  # when the client was first seen without its scheduler
         try:
             while not completed.is_empty():
                 if should_stop():
                     return
+                if self.client.status != "running":
+                    lost = lost or time.monotonic()
+                    if time.monotonic() - lost > LOST_AFTER / 2:
+                        raise self._lost()
                 done = completed.next_batch(block=False)
                 if not done:
                     time.sleep(POLL)
                     continue
+                if self.client.status != "running" and any(f.status == "cancelled" for f in done):
+                    raise self._lost()  # Dask cancels everything in flight when the scheduler goes
                 failed = []
                 for future in sorted(done, key=futures.get):  # complete chunks first, in plan order
                     if future.status == "finished":
@@ -243,10 +266,16 @@ class DaskExecutor:
                     raise ChunkError(f"{describe_chunk(spec, futures[future])} failed on a Dask worker: "
                                      f"{_error_text(exc)}")
         finally:
-            left = [f for f in futures if f.status not in ("finished", "error")]
-            if left:
-                self.client.cancel(left)
-            spec_future.release()
+            if self.client.status == "running":
+                left = [f for f in futures if f.status not in ("finished", "error")]
+                if left:
+                    self.client.cancel(left)
+                spec_future.release()
+
+    def _lost(self) -> SchedulerLost:
+        address = getattr(self.client.scheduler, "address", None) or "its address"
+        return SchedulerLost(f"lost the Dask scheduler at {address} (its chunks in flight are cancelled); finish "
+                             f"with --resume (locally, or on a new cluster)")
 
 
 @contextlib.contextmanager
@@ -261,6 +290,7 @@ def connect(scheduler: str | None = None, workers: int | None = None) -> Iterato
         raise ValueError("give a scheduler address or a number of workers")
     with contextlib.ExitStack() as stack:
         if scheduler is not None:
+            stack.enter_context(_quiet_dask_logs())  # a lost scheduler is reported once, by SchedulerLost
             try:
                 client = distributed.Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False)
             except (OSError, TimeoutError) as exc:
@@ -268,8 +298,32 @@ def connect(scheduler: str | None = None, workers: int | None = None) -> Iterato
         else:
             cluster = stack.enter_context(local_cluster(workers))
             client = distributed.Client(cluster, set_as_default=False)
-        stack.callback(client.close)
+        stack.callback(_close, client)
         yield DaskExecutor(client)
+
+
+def _close(client) -> None:
+    """Close ``client``; one whose scheduler is gone is closed without waiting for it."""
+    if client.status == "running":
+        client.close()
+        return
+    with contextlib.suppress(Exception):
+        client.close(timeout=CLOSE_TIMEOUT)
+
+
+@contextlib.contextmanager
+def _quiet_dask_logs() -> Iterator[None]:
+    """Dask's loggers at CRITICAL for the ``with`` block (then as they were)."""
+    loggers = [logging.getLogger(name) for name in ["distributed", *logging.root.manager.loggerDict]
+               if name == "distributed" or name.startswith("distributed.")]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        for lg, level in zip(loggers, levels):
+            lg.setLevel(level)
 
 
 def local_cluster(workers: int, **kwargs):
