@@ -324,8 +324,8 @@ def run(config, seeds, sets):
 @click.option("--no-plots", is_flag=True, help="Print the table only; write no PNG or HTML files.")
 def report(out_dir, fmt, no_plots):
     """Summarise the sweep dataset in OUT_DIR; write plots and one self-contained HTML page
-    (OUT_DIR/report/index.html: description, spec, provenance, tables, every plot with a
-    caption) to OUT_DIR/report/.
+    (OUT_DIR/report/index.html: findings with intervals, plots, tables, glossary, Params, spec,
+    provenance). A tune's folder gets its own page (no sweep plots); a folder of datasets is listed.
 
     The table groups runs by the swept params and filter: mean error with its 95 % t-interval
     (all runs and non-divergent runs), divergence rate with its 95 % Wilson interval, lambda2
