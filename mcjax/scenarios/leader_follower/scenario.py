@@ -87,10 +87,10 @@ Config = config_type("Config", dict(
     kcf_gain=Setting("gamma_M", "KCF consensus gain form", choices=KCF_GAINS),
     planner=Setting("none", "receding-horizon planner; none = open loop (every UAV holds heading_cmd)",
                     choices=PLANNERS),
-    max_horizon=Setting(8, "steps the planning rollout runs; Params.horizon (t_r) <= this", "steps",
+    max_horizon=Setting(8, "steps the planning rollout runs; the horizon t_r (param horizon) <= this", "steps",
                         low=1, integer=True),
     plan_period=Setting(0, "tau_r fixed in the compiled program: the planner runs only on the steps it "
-                        "re-plans (Params.replan_every must equal it); 0 = tau_r from Params, free to vary "
+                        "re-plans (param replan_every must equal it); 0 = tau_r from the Params, free to vary "
                         "in a batch, at the cost of planning every step and keeping the due plans",
                         "steps", low=0, integer=True),
     plan_iterations=Setting(10, "gradient: Adam steps; cem: rounds", low=1, integer=True),
