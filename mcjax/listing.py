@@ -18,7 +18,7 @@ from mcjax.tables import format_number
 
 
 def did_you_mean(name: str | None, known: list[str]) -> str:
-    """``"; did you mean 'leader_follower'?"`` for a scenario name one typo away from a known
+    """``"; did you mean 'NAME'?"`` for a scenario name one typo away from a known
     one (:func:`difflib.get_close_matches`), else ``""``."""
     if not name or name in known:
         return ""
