@@ -151,10 +151,14 @@ def _lowest_error(s: pd.DataFrame, ax: _Axis, sch: tables.Schema, filters: list,
                       f"against {quote(others.loc[nxt, f'{e}_mean'], others.loc[nxt, f'{e}_ci_low'], others.loc[nxt, f'{e}_ci_high'], unit)} "
                       f"for the next lowest, {nxt}")
         parts.append(f"{w} at {ax.name} = {ax.texts(where)} ({detail})")
-    if overlaps:
-        said = "; ".join(f"at {ax.text(v)} {_listing(n)} overlap" for v, n in overlaps.items())
-        parts.append(f"where the {PCT} intervals of the lowest means overlap, no filter is named ({said})")
-    text = f"{pooled}Lowest mean {e}: " + "; ".join(parts)
+    said = "; ".join(f"at {ax.text(v)} {_listing(n)} overlap" for v, n in overlaps.items())
+    if not parts:
+        text = f"{pooled}No filter's mean {e} lies below all the others' beyond the {PCT} intervals ({said})"
+    else:
+        if overlaps:
+            parts.append(f"elsewhere the {PCT} intervals of the lowest means overlap, so no filter is named "
+                         f"lowest ({said})")
+        text = f"{pooled}Lowest mean {e}: " + "; ".join(parts)
     return Finding(ax.name, text + ".", tuple(orders))
 
 
@@ -185,7 +189,8 @@ def _trend(s: pd.DataFrame, ax: _Axis, sch: tables.Schema, filters: list, unit: 
     said = [f"the mean {e} {way}{' for every filter' if len(m) == len(filters) else ''}: " + "; ".join(m)
             for way, m in moves.items() if m]
     if still:
-        said.append(f"{_listing(still)}'s does not move beyond its {PCT} intervals")
+        said.append(f"the mean {e} of {_listing(still)} does not change beyond the {PCT} intervals (those at the "
+                    f"two ends overlap)")
     text = f"From {ax.name} = {ax.text(first)} to {ax.text(last)} " + "; ".join(said)
     return Finding(ax.name, (pooled + text)[0].upper() + (pooled + text)[1:] + ".", kind="trend")
 
@@ -299,7 +304,7 @@ def findings(df: pd.DataFrame, metadata: Mapping[str, Any] | tables.Schema,
         shown, factor = tables.display(a, sch)
         ax = _Axis(a, _sorted_values(data[a]), shown, factor)
         others = [o for o in plot_axes if o != a]
-        pooled = f"Pooling the runs over {_listing(others)}: " if others else ""
+        pooled = ""  # said at the end of each sentence instead
         s = tables.summarize(data, sch, [a])
         for make in (lambda: _lowest_error(s, ax, sch, filters, unit, pooled),
                      lambda: _trend(s, ax, sch, filters, unit, pooled),
@@ -307,7 +312,7 @@ def findings(df: pd.DataFrame, metadata: Mapping[str, Any] | tables.Schema,
                      lambda: _graph(data, ax, sch, pooled)):
             f = make()
             if f is not None:
-                out.append(f)
+                out.append(f._replace(text=f.text[:-1] + f" (runs pooled over {_listing(others)}).") if others else f)
     return out
 
 
