@@ -383,12 +383,19 @@ def glossary(metadata: Mapping[str, Any], axes: Sequence[str] = (), *, tuned: bo
 def params_table(metadata: Mapping[str, Any], axes: Sequence[str] = ()) -> tuple[list[list[str]], str]:
     """The base Params as rows ``[name, value, unit, description]`` and a note on where the
     values come from: the metadata's ``base_params`` (the Params every point starts from,
-    written by the sweep) when the dataset has them, else only the spec's ``[params]`` table
-    (a dataset written before the base Params were recorded: the note says so)."""
+    written by the sweep) when the dataset has them; else ``base_params_file`` (the base config
+    file's ``[params]`` as :func:`mcjax.report.base_params_from_files` read them); else only the
+    spec's ``[params]`` table. The note says which."""
     sch = tables.schema(metadata)
     values = metadata.get("base_params")
+    files = metadata.get("base_params_file")
     if isinstance(values, Mapping) and values:
         note = "The Params every point starts from (the base config with the spec's [params] and --set applied)."
+    elif isinstance(files, Mapping) and isinstance(files.get("values"), Mapping):
+        values = files["values"]
+        note = (f"The dataset does not record its base Params (written by an older mcjax): these are the [params] "
+                f"of its base config file {files.get('path')} as that file is now, with the spec's [params] over "
+                f"them; if the file changed since the sweep ran, they may differ from what ran.")
     else:
         spec = metadata.get("spec") if isinstance(metadata.get("spec"), Mapping) else {}
         values = spec.get("params") if isinstance(spec.get("params"), Mapping) else {}

@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import os
 import shlex
+import tomllib
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
@@ -27,7 +28,7 @@ import pandas as pd
 from mcjax import results, tables
 from mcjax.tables import FORMATS
 
-__all__ = ["FORMATS", "summary_text", "report", "completeness", "datasets_in", "listing"]
+__all__ = ["FORMATS", "summary_text", "report", "completeness", "datasets_in", "listing", "base_params_from_files"]
 
 #: The sweep's identity file in its output folder (written by :mod:`mcjax.study.store`).
 IDENTITY_FILE = "sweep.json"
@@ -88,6 +89,28 @@ def completeness(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping
     spec = saved.get("spec_file") if isinstance(saved.get("spec_file"), str) else "SPEC"
     return (f"incomplete dataset: {present} of {planned} planned runs present ({planned - present} missing); "
             f"finish it with `mcjax sweep {shlex.quote(spec)} --out {shlex.quote(str(out))} --resume`")
+
+
+def base_params_from_files(out_dir: str | os.PathLike, metadata: Mapping[str, Any]) -> dict | None:
+    """For a dataset that does not record its base Params (no ``base_params`` in its
+    metadata): ``{"values": ..., "path": ...}``, the ``[params]`` table of its spec's base
+    config file (found from ``sweep.json``'s spec file) as that file is now, with the spec's own
+    ``[params]`` (and ``--set`` values) over it; None when the files do not say."""
+    if isinstance(metadata.get("base_params"), Mapping):
+        return None
+    spec = metadata.get("spec") if isinstance(metadata.get("spec"), Mapping) else {}
+    spec_file = (_identity(Path(out_dir)) or {}).get("spec_file")
+    base = spec.get("base")
+    if not isinstance(spec_file, str) or not isinstance(base, str):
+        return None
+    path = Path(os.path.normpath(Path(spec_file).parent / base))
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return None
+    params = data.get("params") if isinstance(data.get("params"), dict) else {}
+    own = spec.get("params") if isinstance(spec.get("params"), Mapping) else {}
+    return {"values": {**params, **own}, "path": str(path)}
 
 
 def datasets_in(folder: str | os.PathLike) -> list[Path]:
@@ -177,5 +200,7 @@ def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
 
     note = incomplete and incomplete.split(";")[0].replace("incomplete", "INCOMPLETE", 1)
     written, skipped = write_plots(df, metadata, out, note=note)
-    page = write_page(out, df, metadata, written, skipped, warning=incomplete)
+    files = base_params_from_files(out, metadata)
+    page = write_page(out, df, {**metadata, "base_params_file": files} if files else metadata, written, skipped,
+                      warning=incomplete)
     return table, [p.path for p in written] + [page]

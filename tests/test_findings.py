@@ -161,3 +161,33 @@ def test_base_params_table():
     table = {r[0]: r for r in rows}
     assert table["comm_radius"][1].startswith("swept") and table["eps"][1] == "0.5"
     assert table["comm_radius"][2] == "m"
+
+
+def test_the_page_shows_the_base_configs_params(tmp_path):
+    """A dataset without recorded base Params: the page reads its base config file's [params]
+    (found from sweep.json's spec file) with the spec's [params] over them, and says so."""
+    import json
+
+    from click.testing import CliRunner
+    from test_html_report import parse
+    from test_tables import write_dataset
+
+    from mcjax.cli import main
+
+    (tmp_path / "configs").mkdir()
+    (tmp_path / "configs" / "base.toml").write_text('scenario = "toy"\n[params]\neps = 0.25\nsigma_wind = 5.0\n')
+    (tmp_path / "sweeps").mkdir()
+    (tmp_path / "sweeps" / "s.toml").write_text("")
+    meta = _meta([50e3, 100e3])
+    meta["spec"].update(base="../configs/base.toml", params={"sigma_wind": 7.0})
+    out = tmp_path / "out"
+    write_dataset(out, _runs({50e3: {"icf": (5.0, 1.0), "cif": (4.0, 1.0)},
+                              100e3: {"icf": (5.0, 1.0), "cif": (4.0, 1.0)}}, seeds=6), meta)
+    (out / "sweep.json").write_text(json.dumps({"spec": meta["spec"], "spec_file": str(tmp_path / "sweeps" / "s.toml")}))
+    assert CliRunner().invoke(main, ["report", str(out)]).exit_code == 0
+    page = parse(out / "report" / "index.html")
+    table = next(t for t in page.tables if t and t[0][:2] == ["Param", "value"])
+    assert {r[0]: r[1] for r in table[1:]} == {"comm_radius": "swept (comm_radius is an axis)", "eps": "0.25",
+                                               "sigma_wind": "7"}
+    assert any(f"base config file {tmp_path / 'configs' / 'base.toml'} as that file is now" in t
+               for t in page.text.get("p", []))
