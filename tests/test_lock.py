@@ -187,6 +187,7 @@ def test_a_sweep_takes_over_a_lock_left_by_a_killed_one_and_force_keeps_its_own(
     r = CliRunner().invoke(main, ["sweep", str(probe), "--out", str(out), "--resume"])
     assert r.exit_code == 0, r.output
     assert "warning: taking over the lock of" in r.output and "no longer runs" in r.output
+    assert f"scenario probe (imported from {probe.with_name('probe.py')}): 3 point(s)" in r.output
     _plant(out, pid=_gone_pid())
     r = CliRunner().invoke(main, ["sweep", str(probe), "--out", str(out), "--force"])
     assert r.exit_code == 0, r.output

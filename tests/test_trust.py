@@ -135,3 +135,25 @@ def test_the_native_kernels_build_into_a_private_folder(tmp_path):
     (lib,) = folder.glob("filters-*.so")
     assert oct(folder.stat().st_mode & 0o777) == "0o700" and oct(lib.stat().st_mode & 0o777) == "0o600"
     assert runtime.trusted_read(lib)[1] == ""
+
+
+def test_where_a_scenario_came_from_is_told(tmp_path, monkeypatch):
+    """A file or module scenario is named with its origin (mcjax sweep / run / tune print it);
+    a built-in one is not."""
+    import dataclasses
+
+    from mcjax import scenarios
+
+    (tmp_path / "trust_probe_module.py").write_text(
+        "import dataclasses\nfrom mcjax.scenarios import leader_follower\n"
+        "SCENARIO = dataclasses.replace(leader_follower.SCENARIO, name='copy')\n")
+    (tmp_path / "probe_file.py").write_text((tmp_path / "trust_probe_module.py").read_text())
+    monkeypatch.syspath_prepend(str(tmp_path))
+    by_module = scenarios.get("trust_probe_module:SCENARIO")
+    by_file = scenarios.get("probe_file.py:SCENARIO", base_dir=tmp_path)
+    assert scenarios.describe(by_module) == (f"copy (imported from module trust_probe_module "
+                                             f"({tmp_path / 'trust_probe_module.py'}))")
+    assert scenarios.describe(by_file) == f"copy (imported from {tmp_path / 'probe_file.py'})"
+    builtin = scenarios.get("leader_follower")
+    assert scenarios.describe(builtin) == "leader_follower" and scenarios.origin(builtin) is None
+    assert scenarios.origin(dataclasses.replace(builtin, name="other")) is None  # not imported by get
