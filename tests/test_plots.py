@@ -124,3 +124,24 @@ def test_figures_errors():
         list(plots.figures(synthetic_runs({}, seeds=1).iloc[:0], meta))
     with pytest.raises(ValueError, match="older mcjax"):
         list(plots.figures(synthetic_runs({}, seeds=1), {"spec": {}}))
+
+
+@pytest.mark.parametrize("scale, expected", [(30.0, "log"), (5.0, "linear")])
+def test_the_error_axis_is_logarithmic_when_its_means_span_more_than_a_decade(scale, expected):
+    """735 m beside 11 m on a linear axis flattens every value but the largest: past a decade
+    (the ratio of the largest to the smallest plotted mean > 10) the y axis is logarithmic."""
+    grid = {"eps": [0.1, 1.0]}
+    df = synthetic_runs(grid, seeds=8, divergence=False)
+    df["rmse"] = 10.0 * (1 + 0.01 * df["seed_index"]) * df["eps"].map({0.1: scale, 1.0: 1.0})
+    figs = dict(plots.figures(df, make_metadata(grid, divergence=False)))
+    assert figs["rmse_vs_eps.png"].axes[0].get_yscale() == expected
+
+
+def test_plots_are_written_at_twice_the_layout_resolution(tmp_path):
+    grid = {"eps": [0.1, 1.0]}
+    written, _ = plots.write_plots(synthetic_runs(grid, seeds=6), make_metadata(grid), tmp_path)
+    for p in written:
+        data = p.path.read_bytes()
+        width = int.from_bytes(data[16:20], "big")
+        fig = dict(plots.figures(synthetic_runs(grid, seeds=6), make_metadata(grid)))[p.path.name]
+        assert abs(width - 2 * fig.get_figwidth() * fig.dpi) <= 2, (p.path.name, width)
