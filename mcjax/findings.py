@@ -299,6 +299,15 @@ def findings(df: pd.DataFrame, metadata: Mapping[str, Any] | tables.Schema,
         if single is not None:
             out.append(Finding("", single.text.replace("at _point = this point ", "").replace("at this point ", ""),
                                tuple((a, b, None) for a, b, _ in single.orders)))
+        if sch.divergence:
+            ax = _Axis("_point", ["this point"], "", 1.0)
+            if int(s["diverged"].sum()):
+                text = f"Divergence rate: {_rates_at(s, ax, 'this point', filters)}."
+            else:
+                hi = wilson_interval(0, int(s["n"].min())).high
+                text = (f"No run of any filter diverged (0 of {int(s['n'].min())} or more runs per filter; the "
+                        f"rate's {PCT} interval ends at {100 * hi:.1f} %).")
+            out.append(Finding("", text, kind="divergence"))
         return out
     for a in plot_axes:
         shown, factor = tables.display(a, sch)

@@ -191,3 +191,13 @@ def test_the_page_shows_the_base_configs_params(tmp_path):
                                                "sigma_wind": "7"}
     assert any(f"base config file {tmp_path / 'configs' / 'base.toml'} as that file is now" in t
                for t in page.text.get("p", []))
+
+
+def test_a_single_point_orders_its_filters_and_gives_their_divergence_rates():
+    df = _runs({100e3: {"icf": (30.0, 1.0), "cif": (10.0, 1.0)}}, seeds=50, divergent={(100e3, "icf"): 1})
+    meta = make_metadata({}, filters=("icf", "cif"))
+    meta["spec"].pop("grid")
+    found = findings.findings(df.drop(columns="comm_radius"), meta)
+    assert found[0].orders == (("cif", "icf", None),) and found[0].text.startswith("Lowest mean rmse: cif (")
+    lo, hi = stats.binomtest(1, 50).proportion_ci(method="wilson")
+    assert found[1].text == f"Divergence rate: icf 2.0 % [{100 * lo:.1f}, {100 * hi:.1f}], cif 0.0 % [0.0, 7.1]."
