@@ -172,6 +172,15 @@ def test_a_pair_turning_inside_a_substep_is_caught_at_its_turning_point(r0, v, w
     assert abs(e_end - (0.5 * v**2 + 2 * psi(r0))) < 1e-4 * e_end  # energy conserved to the tolerance
 
 
+def test_a_capped_step_that_breaks_a_link_is_flagged():
+    """The same pair flying apart at 60 m/s with one sub-step allowed: the step is capped, its
+    one sub-step (the whole 0.1 s) carries the pair past R, and the margin says so (≤ 0 or NaN)."""
+    s, adj, g, ref = _pair(7.6, 60.0)
+    out, margin, dmin, k, capped = dyn.dopri5_adaptive(s, adj, jnp.zeros(2), ref, g, 0.1, 1, 1e-6)
+    assert bool(capped) and int(k) == 1
+    assert not float(margin) > 0
+
+
 def test_tolerance_and_integrator_are_config_fields_with_their_checks():
     assert fl.Config().integrator == "dopri5" and fl.Config().tolerance == 1e-6
     for bad in (0.0, -1e-6, math.inf):

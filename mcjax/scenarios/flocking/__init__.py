@@ -3,7 +3,7 @@ Li 2013 — the scenario ``flocking`` and everything only it uses:
 
 * :mod:`.scenario` — Config, Params, the step, the outputs, ``SCENARIO``;
 * :mod:`.dynamics` — connectivity-preserving flocking of double integrators (eqs. 1, 10–16):
-  potential, controllers, RK4 sub-steps, energy;
+  potential, controllers, the integrators (an error-controlled Dormand–Prince pair; RK4 sub-steps), energy;
 * :mod:`.smoothing` — the smoothing switch: soft links with hysteresis (``mcjax tune``, sensitivities).
 """
 

@@ -18,6 +18,11 @@ and eqs. 14–15 define the energy whose decrease the paper's Theorem 2 proves (
 part φ is :func:`energy`; the estimation term ``k/(2μ) V(η)`` belongs to the continuous-time
 KCF of eq. 6 and is not computed: it is 0 when the controller is fed the true target).
 
+The paper leaves the integration open (ours): :func:`dopri5_adaptive` integrates a sampling
+step by the Dormand–Prince 5(4) pair with step-size control on an absolute tolerance (m, m/s),
+its sub-steps also capped by the pairs' closing speeds so no link event is stepped over;
+:func:`rk4_adaptive` is the RK4 sub-stepping sized for stability used before.
+
 Everything is pure and vmappable; positions are (N, 2), the adjacency (N, N) 0/1.
 """
 

@@ -11,10 +11,12 @@ every link and prevent collisions (Theorem 2). Each step of ``dt``:
 
 1. the type-I nodes measure the target and run the filters over the graph of the nodes
    that run one (``Config.filter_nodes``);
-2. the flock is integrated over ``dt`` at the current topology by RK4 sub-steps sized
-   from its stiffness and closing speeds (:func:`.dynamics.rk4_adaptive`, at
-   most ``Config.max_substeps``), each type-I node steering to its estimate extrapolated at
-   constant velocity within the step;
+2. the flock is integrated over ``dt`` at the current topology by the Dormand–Prince 5(4)
+   pair with step-size control, each 0.1 s step's error within ``Config.tolerance`` (m, m/s;
+   :func:`.dynamics.dopri5_adaptive`; ``Config.integrator = "rk4"``: the RK4 sub-steps sized
+   from the flock's stiffness and closing speeds used before, :func:`.dynamics.rk4_adaptive`),
+   at most ``Config.max_substeps`` sub-steps, each type-I node steering to its estimate
+   extrapolated at constant velocity within the step;
 3. the hysteresis graph is updated; links that broke (never expected) and sub-steps where
    a link reached ``R`` are counted and flag the run.
 
@@ -296,8 +298,8 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
     ``smoothing`` (the smoothing switch, :class:`~.smoothing.Smoothing`; None: the exact
     simulation) makes the graph's links weights in [0, 1] with a soft hysteresis
     (:func:`~.smoothing.soft_hysteresis`) and fades each link's potential out at R
-    (:func:`.dynamics.faded_potential`); the filters, the controllers (eqs. 10–13), the RK4
-    sub-steps and the random draws are the same. The record's graph statistics and link
+    (:func:`.dynamics.faded_potential`); the filters, the controllers (eqs. 10–13), the
+    integrator and the random draws are the same. The record's graph statistics and link
     counts are then those of the weights (``last_change_time`` is not meaningful).
 
     Faults (``Config.faults = "on"``, module docstring "Faults"): a dropped-out or lost node

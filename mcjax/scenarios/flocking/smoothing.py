@@ -14,9 +14,10 @@ The step's discrete switches and what the smooth step puts in their place:
 * the counts of links formed and broken → their soft counts (:func:`soft_link_changes`).
 
 Not switches here: the sensing gate is the node's type (type-I nodes always measure; M is an
-integer Param), the step-0 filter model is a time, and the RK4 sub-steps
-(:func:`~mcjax.scenarios.flocking.dynamics.rk4_adaptive`) are the integrator's — the smooth
-step goes through the same sub-stepping, sized from the links of weight > 1/2. Its while
+integer Param), the step-0 filter model is a time, and the sub-steps
+(:func:`~mcjax.scenarios.flocking.dynamics.dopri5_adaptive`, or ``rk4_adaptive``) are the
+integrator's — the smooth step goes through the same sub-stepping (the error control on the
+smooth flock; the closing-speed cap and the margins over the links of weight > 1/2). Its while
 loop has a data-dependent length, which JAX differentiates in forward mode only.
 """
 
