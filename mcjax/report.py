@@ -152,7 +152,8 @@ def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
     ``OUT/report/`` and then the self-contained page ``OUT/report/index.html``
     (:mod:`mcjax.html_report`: description, spec, provenance, tables, every plot with its
     caption), whose path is the last of the returned paths. The folder of a tune (``tune.json``,
-    ``trace.parquet``) gets :mod:`mcjax.tune_report`'s page instead, and no plots; a folder of
+    ``trace.parquet``) gets :mod:`mcjax.tune_report`'s table (a ``role`` column first) and page
+    instead, and no plots; a folder of
     datasets (e.g. ``results/``) gets :func:`listing` as its text and no files. A dataset with
     fewer runs than its sweep planned (:func:`completeness`)
     gets a ``WARNING:`` line at the top of the table's header (``warn`` is told too: CSV has
@@ -188,12 +189,14 @@ def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
     incomplete = completeness(out, df, metadata)
     if incomplete and warn is not None:
         warn(incomplete)
-    table = summary_text(df, metadata, fmt, warning=incomplete)
-    if not plots:
-        return table, []
     from mcjax import tune_report
 
-    if tune_report.is_tune_folder(out):  # a two-point zip: the tune's own page, no sweep plots
+    tune = tune_report.is_tune_folder(out)
+    table = (tune_report.summary_table(out, df, metadata, fmt, warning=incomplete) if tune
+             else summary_text(df, metadata, fmt, warning=incomplete))
+    if not plots:
+        return table, []
+    if tune:  # a two-point zip: the tune's own page, no sweep plots
         return table, [tune_report.write_page(out, df, metadata, warning=incomplete)]
     from mcjax.html_report import write_page
     from mcjax.plots import write_plots  # matplotlib only when plotting

@@ -7,6 +7,7 @@ evaluation is a two-point zip: a line plot of two points says nothing a table do
   that is known: the dataset's ``role`` column; for a tune written before that column, the
   trace's first and last values matched to the points' values, else the evaluation's own
   description ("point 0 = initial, point 1 = tuned"); nothing else (never the row order alone).
+* :func:`summary_table` -- the summary table with a ``role`` column first, as ``mcjax tune`` prints it.
 * :func:`paired` -- per filter and output, tuned − initial paired by seed with its 95 %
   Student-t interval (what ``mcjax tune`` prints, :func:`mcjax.tune.paired_differences`).
 * :func:`page`, :func:`write_page` -- the HTML page (``OUT/report/index.html``).
@@ -32,8 +33,8 @@ from mcjax import findings, html_report, tables
 from mcjax.files import atomic_write
 from mcjax.statistics import mean_ci, wilson_interval
 
-__all__ = ["TUNE_FILE", "TRACE_FILE", "TRACE_FIGURE", "ROLE_COLUMN", "is_tune_folder", "roles", "paired", "page",
-           "write_page"]
+__all__ = ["TUNE_FILE", "TRACE_FILE", "TRACE_FIGURE", "ROLE_COLUMN", "is_tune_folder", "roles", "summary_table",
+           "paired", "page", "write_page"]
 
 def _e(value: Any) -> str:
     return html.escape(str(value), quote=True)
@@ -113,6 +114,26 @@ def roles(out: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, Any])
     raise ValueError(f"cannot tell which point of the tune in {str(out)!r} ran the initial and which the tuned "
                      f"Params: its runs have no {ROLE_COLUMN!r} column, its {TRACE_FILE} does not match the points' "
                      f"values and its description does not say; run the tune again with --force")
+
+
+def summary_table(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, Any], fmt: str = "text",
+                  warning: str | None = None) -> str:
+    """The summary table of a tune's evaluation with a ``role`` column first (initial, tuned),
+    as ``mcjax tune`` prints it, in ``fmt`` (:data:`mcjax.tables.FORMATS`); without a way to
+    tell the roles (:func:`roles`), the sweep's table grouped by the zipped Params."""
+    sch = tables.schema(metadata, df.columns)
+    axes = tables.swept_axes(metadata, df.columns)
+    try:
+        role_of = roles(out_dir, df, metadata)[0]
+    except ValueError:
+        role_of = None
+    if role_of is not None:
+        df = df.assign(**{ROLE_COLUMN: df["point_id"].map(lambda p: role_of[int(p)])})
+        axes = [ROLE_COLUMN, *[a for a in axes if a != ROLE_COLUMN]]
+    header = ([f"WARNING: {warning}"] if warning else []) + tables.legend_lines(sch, [a for a in axes if a != ROLE_COLUMN])
+    if role_of is not None:
+        header.append(f"{ROLE_COLUMN}: which Params ran — initial (before the tune) or tuned (after it)")
+    return tables.format_table(tables.summarize(df, sch, axes), fmt, header)
 
 
 def paired(df: pd.DataFrame, role_of: Mapping[int, str], columns: list[str],

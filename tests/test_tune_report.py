@@ -53,6 +53,9 @@ def test_a_tune_gets_its_own_page_and_no_sweep_plots(tmp_path):
     df, _ = _tune_folder(out)
     r = CliRunner().invoke(main, ["report", str(out)])
     assert r.exit_code == 0, r.output
+    table = [line.split() for line in r.output.splitlines() if line.split()[:1] in (["role"], ["initial"], ["tuned"])]
+    assert table[0][:3] == ["role", "eps", "filter"] and [row[0] for row in table[1:]] == ["initial"] * 3 + ["tuned"] * 3
+    assert [row[1] for row in table[1:]] == ["0.5"] * 3 + ["0.2"] * 3
     written = sorted(p.name for p in (out / "report").iterdir())
     assert written == ["index.html"]  # no sweep plots of the two-point zip
     page = parse(out / "report" / "index.html")
@@ -92,6 +95,9 @@ def test_which_point_is_initial_comes_from_what_the_folder_records(tmp_path):
     # the trace decides, not the row order: a trace that ran from 0.2 to 0.5 makes point 1 the initial one
     pd.DataFrame({"step": [0, 1], "loss": [1.0, 0.5], "eps": [0.2, 0.5]}).to_parquet(tmp_path / "a" / "trace.parquet")
     assert tune_report.roles(tmp_path / "a", df, meta)[0] == {0: "tuned", 1: "initial"}
+    r = CliRunner().invoke(main, ["report", str(tmp_path / "a"), "--no-plots"])  # the printed table says it too
+    assert [line.split()[:2] for line in r.output.splitlines() if line.split()[:1] in (["initial"], ["tuned"])] == [
+        ["initial", "0.2"]] * 3 + [["tuned", "0.5"]] * 3, r.output
     df, meta = _tune_folder(tmp_path / "b", role=False, trace=False)
     assert tune_report.roles(tmp_path / "b", df, meta)[1].startswith("the evaluation's description")
     df, meta = _tune_folder(tmp_path / "c", role=False, trace=False, description="something else")
