@@ -168,8 +168,21 @@ def check_peers(kinds, numba_peer, run_filter, tol=1e-9):
             err = max_relative_error(xp, Pp, xm, Pm)
             ok &= err <= tol
             print(f"# check {kind:13s} {name:8s} vs mcjax: max relative error {err:.1e} "
-                  f"({'ok' if err <= tol else 'FAIL'}, tolerance {tol:g})")
+                  f"({'ok' if err <= tol else 'FAIL'}, tolerance {tol:g}); largest position difference "
+                  f"{position_difference(xp, xm):.1e} m")
+        if numba_peer is not None and kind in NUMBA_FILTERS:
+            # what the problem itself does with rounding: every measurement moved by one unit in
+            # its last place, the same (numba) code run again
+            xu, _ = numba_peer.run_filter_numba(kind, np.nextafter(z, np.inf), s, a, x0, **common)
+            print(f"# check {kind:13s} numba on measurements moved by one unit in the last place: largest "
+                  f"position change {position_difference(xu, peers['numba'][0]):.1e} m (the floor on any "
+                  f"agreement between two correct float64 codes)")
     return ok
+
+
+def position_difference(est, ref_est):
+    """Largest absolute difference of the estimated positions (components 0 and 2), metres."""
+    return float(np.max(np.abs(np.asarray(est)[..., [0, 2]] - np.asarray(ref_est)[..., [0, 2]])))
 
 
 def main(argv=None) -> None:
