@@ -21,12 +21,17 @@ Honest plots, by rule:
   heatmaps of three or more axes) are runs pooled, and then the title says over what and
   why; a metric that does not depend on the plotted axis at all (equal in every run at
   every value) is not plotted against it (a :class:`Skipped` record says so);
+* a plotted mean spanning more than a decade is drawn on a log axis (the heatmaps' colour
+  scale too: :data:`~mcjax.plots.common.LOG_Y_DECADES`); rates are shown in percent;
 * axes are in the parameter's display unit (km, deg, ...: :func:`mcjax.tables.display`)
   and every number is formatted by :func:`mcjax.tables.format_number`, as in the tables.
 
 Titles and labels come from the dataset's metadata (:mod:`mcjax.tables`). A scenario
 without a divergence flag gets no divergence plots; one without graph statistics (e.g. a
 single agent) gets no connectivity plot.
+
+PNG files are written at :data:`~mcjax.plots.common.DPI` (twice the figures' layout
+resolution), so a page showing them at their layout size stays sharp on high-density screens.
 
 Figures are :class:`matplotlib.figure.Figure` objects drawn on an explicit Agg canvas,
 never :mod:`matplotlib.pyplot`: the global backend and pyplot's figure registry are left
