@@ -88,10 +88,14 @@ class _Axis(NamedTuple):
     factor: float
 
     def text(self, value: Any) -> str:
-        v = value
-        if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_)):
-            v = float(v) * self.factor if self.factor != 1.0 else v
-        return tables.format_number(v, 4) + (f" {self.unit}" if self.unit else "")
+        """A value in the axis' display unit (a per-agent tuple element-wise), as the plots show it."""
+        def scaled(v):
+            if isinstance(v, (tuple, list)):
+                return tuple(scaled(x) for x in v)
+            if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_)):
+                return float(v) * self.factor if self.factor != 1.0 else v
+            return v
+        return tables.format_number(scaled(value), 4) + (f" {self.unit}" if self.unit else "")
 
     def texts(self, values: Sequence[Any]) -> str:
         return _listing([self.text(v) for v in values])

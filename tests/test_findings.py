@@ -201,3 +201,11 @@ def test_a_single_point_orders_its_filters_and_gives_their_divergence_rates():
     assert found[0].orders == (("cif", "icf", None),) and found[0].text.startswith("Lowest mean rmse: cif (")
     lo, hi = stats.binomtest(1, 50).proportion_ci(method="wilson")
     assert found[1].text == f"Divergence rate: icf 2.0 % [{100 * lo:.1f}, {100 * hi:.1f}], cif 0.0 % [0.0, 7.1]."
+
+
+def test_per_agent_axis_values_are_said_in_the_display_unit():
+    spec = {(50e3, 60e3): {"icf": (30.0, 1.0), "cif": (10.0, 1.0)}, (90e3, 100e3): {"icf": (20.0, 1.0), "cif": (5.0, 1.0)}}
+    df = _runs(spec, seeds=10)
+    df["comm_radius"] = df["comm_radius"].map(list)  # as Parquet gives a per-agent column back
+    text = findings.findings(df, _meta([0, 1]))[0].text
+    assert "comm_radius = (50, 60) km and (90, 100) km" in text, text
