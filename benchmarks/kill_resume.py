@@ -4,9 +4,10 @@ Two small studies, each run once uninterrupted (the reference): a sweep of Sun e
 open loop (configs/sun2011.toml: 2 points x 200 seeds, 40 steps, 4 chunks of 100 runs) and a
 tune of Chen & Lu 2013's consensus gain and wind process noise (configs/chen2013.toml, 40 steps,
 6 optimisation steps on 32 training seeds, a held-out evaluation on 128 seeds in 2 chunks).
-Then ``--trials`` processes (half sweeps, half tunes, in turn) are each sent SIGKILL at a moment
-drawn uniformly between 0.2 s after the start and 1.1 times the reference's wall time, and
-resumed with ``--resume`` (run without it when the kill came before the folder's identity
+Then processes (sweeps and tunes in turn) are each sent SIGKILL at a moment drawn uniformly
+between 0.2 s after the start and 1.1 times the reference's wall time, until ``--trials`` of
+them were killed before they ended (half sweeps, half tunes; at most three times as many
+started: one that ended first is checked all the same), and each is resumed with ``--resume`` (run without it when the kill came before the folder's identity
 file was written: there is nothing to resume), the resume again until it ends with exit 0.
 What must hold, for every trial:
 
@@ -136,9 +137,13 @@ def main() -> int:
             return 1
         reference[kind] = (_runs(work / f"ref-{kind}"), _trace(work / f"ref-{kind}") if kind == "tune" else None)
         print(f"reference {kind}: {wall[kind]:.1f} s")
-    failures, rows = 0, []
-    for trial in range(args.trials):
+    failures, rows, kills = 0, [], {"sweep": 0, "tune": 0}
+    for trial in range(3 * args.trials):
         kind = ("sweep", "tune")[trial % 2]
+        if kills[kind] >= (args.trials + (kind == "sweep")) // 2:
+            if all(kills[k] >= (args.trials + (k == "sweep")) // 2 for k in kills):
+                break
+            continue
         spec, out = specs[kind], work / f"trial-{trial:02d}"
         at = float(rng.uniform(0.2, 1.1 * wall[kind]))
         proc = subprocess.Popen([*CLI, kind, str(spec), "--out", str(out)], env=env, stdout=subprocess.DEVNULL,
@@ -147,6 +152,7 @@ def main() -> int:
         killed = proc.poll() is None
         if killed:
             proc.kill()
+            kills[kind] += 1
         proc.wait()
         locked = (out / LOCK).exists()
         identity = out / ("sweep.json" if kind == "sweep" else "tune.json")
@@ -182,7 +188,8 @@ def main() -> int:
               f"{took_over}); {resumes} resume(s): {'ok' if not problems else '; '.join(problems)}", flush=True)
         shutil.rmtree(out, ignore_errors=True)
     killed_n = sum(r[3] == "killed" for r in rows)
-    print(f"{args.trials} trials ({killed_n} killed mid-run), {failures} failed; every resumed dataset and trace "
+    print(f"{len(rows)} trials ({killed_n} killed mid-run: {kills['sweep']} sweeps, {kills['tune']} tunes), {failures} "
+          f"failed; every resumed dataset and trace "
           f"{'bit-identical to the reference' if not failures else 'NOT all identical'}")
     shutil.rmtree(work, ignore_errors=True)
     return 1 if failures else 0
