@@ -103,7 +103,8 @@ def part_metadata(study: Study, chunk_size: int) -> dict:
     meta = study.scenario.metadata(study.config)
     extra = declarations(study.scenario, study.config, study.sensitivity)
     meta["outputs"] = {**meta["outputs"], **{k: o.as_json() for k, o in extra.items()}}
-    return {**meta, "spec": study.source, "config": dataclasses.asdict(study.config),
+    ran = {**study.source, "seeds": study.seeds, "chunk_size": study.chunk_size}  # --seeds merged as --set is
+    return {**meta, "spec": ran, "config": dataclasses.asdict(study.config),
             "seeds": study.seeds, "base_seed": study.base_seed, "chunk_size": chunk_size,
             "n_points": study.n_points, "n_runs": study.n_runs, **results.environment_metadata()}
 

@@ -316,19 +316,14 @@ def build_spec(data: dict, base_dir: str | Path, *, seeds: int | None = None, ch
     base_params = scenario.default_params(cfg, **params)
     # the spec's seeds, else the config file's (the paper's run count), else DEFAULT_SEEDS
     seeds_where = "--seeds" if seeds is not None else "seeds"
-    written = data.get("seeds", base.seeds if base.seeds is not None else DEFAULT_SEEDS)
     if seeds is None:
-        seeds = written
-    elif seeds != written:  # the spec as it runs, --seeds merged into it as --set is (the report's Spec block)
-        data["seeds"] = seeds
+        seeds = data.get("seeds", base.seeds if base.seeds is not None else DEFAULT_SEEDS)
     count(seeds_where, seeds, 1, MAX_SEEDS)
     if n_points * seeds > MAX_RUNS:
         raise SpecError(f"{seeds_where}: {n_points} point(s) x {seeds} seeds = {n_points * seeds} runs; allowed: at "
                         f"most {MAX_RUNS} runs per sweep ({seeds_where} <= {MAX_RUNS // n_points})")
     chunk_where = "--chunk-size" if chunk_size is not None else "chunk_size"
     chunk = count(chunk_where, data.get("chunk_size", 1000) if chunk_size is None else chunk_size, 1, MAX_CHUNK_SIZE)
-    if chunk != data.get("chunk_size", 1000):
-        data["chunk_size"] = chunk  # --chunk-size, merged as --seeds is
     base_seed = count("base_seed", data.get("base_seed", 0), 0, MAX_BASE_SEED)
     timeseries = data.get("timeseries", False)
     if not isinstance(timeseries, bool):
