@@ -439,6 +439,7 @@ class Scenario:
     compiler_options: Mapping[str, Any] | None = None  # XLA options of its programs (optional)
     summary: Summary | None = None       # reduce and outputs in one
     series: Summary | None = None        # timeseries and timeseries_outputs in one
+    filter_words: Mapping[str, str] | None = None  # each filter kind in plain words (the report's glossary)
 
     def __post_init__(self):
         me = f"scenario {self.name!r}"
@@ -487,4 +488,6 @@ class Scenario:
                "params": {k: p.as_json() for k, p in self.params_table.items()}}
         if self.timeseries_outputs is not None:
             out["timeseries_outputs"] = {k: o.as_json() for k, o in self.timeseries_outputs(cfg).items()}
+        words = self.filter_words or {}
+        out["filter_descriptions"] = {f: words[f] for f in cfg.filters if f in words}
         return out

@@ -106,5 +106,7 @@ def part_metadata(study: Study, chunk_size: int) -> dict:
     ran = {**study.source, "seeds": study.seeds, "chunk_size": study.chunk_size}  # --seeds merged as --set is
     return {**meta, "spec": ran, "config": dataclasses.asdict(study.config),
             "seeds": study.seeds, "base_seed": study.base_seed, "chunk_size": chunk_size,
-            "n_points": study.n_points, "n_runs": study.n_runs, **results.environment_metadata()}
+            "n_points": study.n_points, "n_runs": study.n_runs,
+            "base_params": {k: np.asarray(v).tolist() for k, v in study.base_params._asdict().items()},
+            **results.environment_metadata()}
 

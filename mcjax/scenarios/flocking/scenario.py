@@ -471,7 +471,11 @@ SCENARIO = Scenario(
     name=NAME, title="Lou, Cui & Li 2013: a flocking sensor network tracks a target with the Kalman-consensus "
     "filter", Config=Config, Params=Params, init=init, step=step, summary=summary, series=series,
     check_params=check_params, smooth=Smooth(Smoothing, training_errors, training_weights, ROUGH),
-    compiler_options=FAST_COMPILE)
+    compiler_options=FAST_COMPILE,
+    filter_words={
+        "kcf": "Kalman-consensus filter of Lou, Cui & Li 2013 (Alg. 1): a local update with the neighbours' "
+               "measurements plus a step towards their estimates",
+        "local": "each node's own Kalman filter on its own measurements, nothing shared"})
 default_params = SCENARIO.default_params
 #: The record's derived functions (from :func:`summary` and :func:`series`), by their usual names.
 reduce, outputs = SCENARIO.reduce, SCENARIO.outputs

@@ -450,7 +450,17 @@ SCENARIO = Scenario(
     "receding-horizon planning", Config=Config, Params=Params, init=init, step=step, summary=summary,
     series=series, check_params=check_params,
     smooth=Smooth(Smoothing, training_errors, training_weights, ROUGH),
-    compiler_options=FAST_COMPILE)
+    compiler_options=FAST_COMPILE,
+    filter_words={
+        "cif": "centralised information filter: one filter fuses every UAV's measurements (the bound the "
+               "distributed filters aim at)",
+        "icf": "information consensus filter (Casbeer & Beard 2009): the UAVs average their new measurement "
+               "information by consensus with their neighbours, then update",
+        "modified_icf": "Sun et al. 2011's modified information consensus filter: each UAV adds its own "
+                        "measurement information, then averages the whole information pair with its neighbours",
+        "kcf": "Kalman-consensus filter (Olfati-Saber 2009): a local update with the neighbours' measurements "
+               "plus a step towards their estimates",
+        "local": "each UAV's own extended Kalman filter on its own measurements, nothing shared"})
 default_params = SCENARIO.default_params
 #: The record's derived functions (from :func:`summary` and :func:`series`), by their usual names.
 reduce, outputs = SCENARIO.reduce, SCENARIO.outputs

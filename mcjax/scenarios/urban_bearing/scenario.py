@@ -462,7 +462,11 @@ SCENARIO = Scenario(
     # gradient planner's smooth objective reads it; the smooth system's soft grid does not)
     smooth=Smooth(Smoothing, lambda cfg, params, record: record.error, training_weights,
                   ("max_hold_steps", "plan_temperature")),
-    compiler_options=FAST_COMPILE)
+    compiler_options=FAST_COMPILE,
+    filter_words={
+        "imm": "Chen & Hao 2022's IMM-EKF over three measurement modes (line of sight, and reflected paths "
+               "biased either way); the planner steers by it",
+        "ekf": "a single extended Kalman filter that assumes every bearing has line of sight (what the IMM buys)"})
 default_params = SCENARIO.default_params
 #: The record's derived functions (from :func:`summary` and :func:`series`), by their usual names.
 reduce, outputs = SCENARIO.reduce, SCENARIO.outputs

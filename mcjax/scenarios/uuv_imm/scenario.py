@@ -379,7 +379,12 @@ ROUGH = (*faults.ROUGH, "ct_start", "ct_stop", "target_transition")
 SCENARIO = Scenario(
     name=NAME, title="Ren & Lv 2017: six UUVs track a manoeuvring target by consensus IMM-UKF",
     Config=Config, Params=Params, init=init, step=step, summary=summary, series=series,
-    check_params=check_params, smooth=Smooth(Smoothing, training_errors, training_weights, ROUGH))
+    check_params=check_params, smooth=Smooth(Smoothing, training_errors, training_weights, ROUGH),
+    filter_words={
+        "imm": "Ren & Lv 2017's consensus IMM-UKF: two motion models (constant velocity, coordinated turn) "
+               "mixed by their probabilities, fused across UUVs by consensus",
+        "cv": "the same consensus unscented Kalman filter with the constant-velocity model only",
+        "ct": "the same consensus unscented Kalman filter with the coordinated-turn model only"})
 default_params = SCENARIO.default_params
 #: The record's derived functions (from :func:`summary` and :func:`series`), by their usual names.
 reduce, outputs = SCENARIO.reduce, SCENARIO.outputs

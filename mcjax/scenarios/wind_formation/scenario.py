@@ -483,7 +483,12 @@ SCENARIO = Scenario(
     name=NAME, title="Chen & Lu 2013: three UAVs estimate the wind by consensus Kalman filtering and hold a "
     "formation on a sine path", Config=Config, Params=Params, init=init, step=step, summary=summary,
     series=series, check_params=check_params, smooth=Smooth(Smoothing, training_errors, training_weights, ROUGH),
-    compiler_options=FAST_COMPILE)
+    compiler_options=FAST_COMPILE,
+    filter_words={
+        "kcf": "Chen & Lu 2013's consensus Kalman filter: each UAV fuses its neighbours' wind measurements and "
+               "moves towards their estimates",
+        "local": "each UAV's own Kalman filter on its own wind measurements, nothing shared",
+        "cif": "one Kalman filter on every UAV's measurements (the centralised reference)"})
 default_params = SCENARIO.default_params
 #: The record's derived functions (from :func:`summary` and :func:`series`), by their usual names.
 reduce, outputs = SCENARIO.reduce, SCENARIO.outputs
