@@ -192,7 +192,7 @@ def test_readme_example_scenario_runs_through_sweep_and_report(tmp_path):
     df = read_table(out)
     assert len(df) == 3 * 20 * 2 and set(df["filter"]) == {"local", "pooled"}
     assert not any(c.startswith("lambda2") for c in df.columns)  # no comm graph, no graph columns
-    # the physics: pooling every sensor's fixes beats one's own, most when ranges are short
+    # the physics: pooling every sensor's fixes beats one's own at every sensing radius
     m = df.groupby(["sensing_radius", "filter"])["rmse"].mean().unstack()
     assert (m["pooled"] < m["local"]).all()
     # a random-walk KF's steady error is of the order of the measurement noise (2 m), not 0 or 100
