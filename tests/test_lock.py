@@ -193,3 +193,36 @@ def test_a_sweep_takes_over_a_lock_left_by_a_killed_one_and_force_keeps_its_own(
     assert r.exit_code == 0, r.output
     pd.testing.assert_frame_equal(read_table(out), reference, check_exact=True)
     assert not (out / lock.LOCK_FILE).exists()
+
+
+@pytest.mark.parametrize("presses", [1, 2])
+def test_the_lock_goes_on_ctrl_c_once_or_twice(probe, tmp_path, presses):
+    """The first Ctrl-C stops after the chunk in flight, the second at once (os._exit, which
+    skips every `finally`): the lock goes either way (mcjax.interrupt.AT_EXIT)."""
+    import signal
+
+    out = tmp_path / "out"
+    slow = probe.with_name("slow")
+    slow.touch()
+    proc = subprocess.Popen([sys.executable, "-m", "mcjax.cli", "sweep", str(probe), "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        t0 = time.time()
+        while not (out / lock.LOCK_FILE).exists():
+            assert proc.poll() is None and time.time() - t0 < 120, proc.communicate()
+            time.sleep(0.05)
+        time.sleep(0.5)  # in the first chunk, held by the flag file
+        proc.send_signal(signal.SIGINT)
+        time.sleep(0.5)
+        if presses == 2:
+            proc.send_signal(signal.SIGINT)
+        else:
+            slow.unlink()  # the chunk in flight ends
+        _, stderr = proc.communicate(timeout=120)
+    finally:
+        slow.unlink(missing_ok=True)
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, stderr
+    assert "--resume" in stderr.strip().splitlines()[-1]
+    assert not (out / lock.LOCK_FILE).exists()
