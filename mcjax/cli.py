@@ -384,7 +384,9 @@ def tune(spec, out_dir, resume, force):
         from mcjax.study import default_out_dir
 
         state["out"] = out_dir = out_dir or default_out_dir(spec)
-        _tune(spec, out_dir, resume, force, state, stop, hint, held)
+        from mcjax.tune import write_failures_end_the_command
+        with write_failures_end_the_command(out_dir):  # a full disk: one line, exit 1
+            _tune(spec, out_dir, resume, force, state, stop, hint, held)
 
 
 def _tune(spec_path, out_dir, resume, force, state, stop, hint, held):

@@ -69,3 +69,31 @@ def test_enospc_on_the_kth_part_stops_cleanly_and_resume_is_bit_identical(probe,
     assert r.exit_code == 0, r.output
     assert f"resuming: {k - 1} of 5 chunk(s) already written" in r.output
     pd.testing.assert_frame_equal(read_table(out), reference, check_exact=True)
+
+
+@pytest.mark.parametrize("failure", ["trace", "evaluation part"])
+def test_a_full_disk_ends_a_tune_with_one_line_and_frees_the_folder(tmp_path, monkeypatch, failure):
+    """mcjax tune: an OSError while saving its trace or state, or a part of its held-out
+    evaluation that cannot be written (the sweep's WriteError), ends the command with exit 1 and
+    one line saying what failed and to --resume — no traceback — and the folder's lock is gone."""
+    from mcjax import tune
+    from mcjax.study.execute import WriteError
+    from mcjax.study.lock import LOCK_FILE
+    from tests.test_tune import SPEC, _write
+
+    out = tmp_path / "out"
+
+    def full(spec, out_dir, **kwargs):
+        if failure == "trace":
+            raise OSError(errno.ENOSPC, "No space left on device", str(out_dir / tune.TRACE_FILE))
+        raise WriteError("writing the parts of chunk 1 failed: No space left on device; no partial part is "
+                         "left; once there is room, finish with --resume")
+
+    monkeypatch.setattr(tune, "optimise", full)
+    r = CliRunner().invoke(main, ["tune", str(_write(tmp_path, SPEC)), "--out", str(out)])
+    assert r.exit_code == 1, r.output
+    errors = [line for line in r.output.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "Traceback" not in r.output, r.output
+    assert "No space left on device" in errors[0] and "--resume" in errors[0]
+    assert (failure == "trace") == (tune.TRACE_FILE in errors[0])
+    assert not (out / LOCK_FILE).exists()

@@ -61,7 +61,7 @@ from mcjax.study.store import prepare_evaluation
 from mcjax.tune.optimise import (ROLE_COLUMN, ROLES, STATE_FILE, TRACE_FILE, RoleExecutor, evaluation_spec,
                                  final_values, finished, identity, load_state, make_optimizer, optimise,
                                  paired_differences, plot_trace, prepare_tune_output, run_evaluation, save_state,
-                                 summary_text, trace_columns, with_role)
+                                 summary_text, trace_columns, with_role, write_failures_end_the_command)
 from mcjax.tune.spec import (BOUND_KEYS, GRADIENT_MODES, LOSS_KEYS, MAX_STEPS, MAX_TRAIN_SEEDS, NONFINITE_ERROR,
                              OPTIMIZERS, SCALES, SHARED_KEYS, TUNE_KEYS, Bound, Loss, TuneSpec, build_tune_spec,
                              continuous_params, from_unconstrained, load_tune_spec, to_unconstrained)
@@ -72,7 +72,7 @@ __all__ = [
     "evaluation_spec", "final_values", "finished", "identity", "load_state", "make_optimizer", "optimise",
     "paired_differences", "plot_trace", "prepare_evaluation", "prepare_tune_output", "run_evaluation", "save_state",
     "summary_text",
-    "trace_columns", "with_role", "BOUND_KEYS", "GRADIENT_MODES", "LOSS_KEYS", "MAX_STEPS",
+    "trace_columns", "with_role", "write_failures_end_the_command", "BOUND_KEYS", "GRADIENT_MODES", "LOSS_KEYS", "MAX_STEPS",
     "MAX_TRAIN_SEEDS", "NONFINITE_ERROR", "OPTIMIZERS", "SCALES", "SHARED_KEYS", "TUNE_KEYS", "Bound", "Loss",
     "TuneSpec", "build_tune_spec", "continuous_params", "from_unconstrained", "load_tune_spec", "to_unconstrained",
 ]

@@ -5,7 +5,9 @@ sweep (:func:`evaluation_spec`) whose rows say their ``role``, initial or tuned
 
 from __future__ import annotations
 
+import contextlib
 import json
+import sys
 import time
 from pathlib import Path
 from typing import Callable
@@ -14,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from mcjax.files import atomic_write
-from mcjax.study import LocalExecutor, Study, build_spec, run_sweep, store
+from mcjax.study import ChunkError, LocalExecutor, Study, build_spec, run_sweep, store
 from mcjax.tune.loss import Evaluator
 from mcjax.tune.spec import TuneSpec, from_unconstrained, to_unconstrained
 
@@ -278,3 +280,23 @@ def prepare_tune_output(spec: TuneSpec, out_dir: str | Path, *, resume: bool = F
     """Make ``out_dir`` ready for the tune ``spec`` (:func:`mcjax.study.store.prepare_tune_output`,
     with the tune's :func:`identity`)."""
     store.prepare_tune_output(identity(spec), out_dir, resume=resume, force=force, spec_file=spec_file, keep=keep)
+
+
+@contextlib.contextmanager
+def write_failures_end_the_command(out_dir: Path):
+    """A tune that cannot write (a full disk, a lost mount: any OSError while saving its trace or
+    state, or a part of its held-out evaluation) ends with one line on stderr and exit code 1:
+    what failed and how to finish. Nothing partial is left visible (every file is written
+    atomically), so ``--resume`` completes the tune once there is room."""
+    try:
+        yield
+    except ChunkError as exc:  # a part of the evaluation: the message says what was written
+        message = str(exc)
+    except OSError as exc:
+        where = f" ({exc.filename})" if exc.filename else ""
+        message = (f"writing the tune's files in {out_dir} failed: {exc.strerror or exc}{where}; nothing partial "
+                   f"is left; once there is room, finish with --resume")
+    else:
+        return
+    print("error: " + " ".join(message.split()), file=sys.stderr)
+    raise SystemExit(1)
