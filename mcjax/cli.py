@@ -485,12 +485,12 @@ def list_scenarios(scenario, config_file):
             file = read_config_file(config_file)
         except SpecError as exc:
             _fail(str(exc))
-    from mcjax.listing import did_you_mean, scenario_text
+    from mcjax.listing import scenario_text
 
     try:
         sc = scenarios.get(scenario, base_dir=Path.cwd()) if scenario is not None else file.scenario
     except (ValueError, ImportError) as exc:
-        _fail(f"{exc}{did_you_mean(scenario, scenarios.known())}")
+        _fail(str(exc))  # an unknown name's message suggests the nearest known one
     if file is not None and file.scenario.name != sc.name:
         _fail(f"{config_file} is a config of scenario {file.scenario.name!r}, not {sc.name!r}: "
               f"`mcjax list {file.scenario.name} --config {shlex.quote(str(config_file))}`")

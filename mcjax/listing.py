@@ -5,7 +5,6 @@ it sets to the default). No JAX."""
 
 from __future__ import annotations
 
-import difflib
 import math
 import tomllib
 from decimal import Decimal
@@ -15,15 +14,6 @@ import numpy as np
 
 from mcjax.contract import Scenario, ceiling
 from mcjax.tables import format_number
-
-
-def did_you_mean(name: str | None, known: list[str]) -> str:
-    """``"; did you mean 'NAME'?"`` for a scenario name one typo away from a known
-    one (:func:`difflib.get_close_matches`), else ``""``."""
-    if not name or name in known:
-        return ""
-    close = difflib.get_close_matches(name, known, n=1, cutoff=0.75)
-    return f"; did you mean {close[0]!r}? (`mcjax list {close[0]}`)" if close else ""
 
 
 def _rounded(default: float, written: float) -> bool:

@@ -218,6 +218,14 @@ def test_list_suggests_the_scenario_one_typo_away(typed, meant):
     assert far.exit_code == 2 and "did you mean" not in far.output  # nothing close: no guess
 
 
+def test_a_config_with_a_misspelt_scenario_gets_the_suggestion_too(tmp_path):
+    config = tmp_path / "typo.toml"
+    config.write_text('scenario = "leader_folower"\nseeds = 2\n')
+    r = CliRunner().invoke(main, ["run", str(config)])
+    assert r.exit_code == 2 and len(r.output.strip().splitlines()) == 1, r.output
+    assert "did you mean 'leader_follower'?" in r.output
+
+
 def test_list_with_a_config_marks_every_field_it_sets_to_the_default():
     """docs/cli.md: `(FILE: the same)` where the file sets a field to the default — Config fields
     too — and a value the file writes with fewer decimals (546.41 for 546.41016) is not a change."""

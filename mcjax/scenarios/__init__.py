@@ -17,6 +17,7 @@ which file or module a scenario came from (``mcjax sweep`` / ``run`` / ``tune`` 
 
 from __future__ import annotations
 
+import difflib
 import importlib
 import importlib.util
 import sys
@@ -113,4 +114,14 @@ def get(name: str, base_dir: str | Path | None = None) -> Scenario:
         return _note_origin(obj, f"plugin {point.value}{_module_file(sys.modules.get(point.module))}")
     if ":" in name:
         return _from_reference(name, None if base_dir is None else Path(base_dir))
-    raise ValueError(f"scenario must be one of {', '.join(known())} (or 'file.py:ATTRIBUTE'); got {name!r}")
+    raise ValueError(f"scenario must be one of {', '.join(known())} (or 'file.py:ATTRIBUTE'); got {name!r}"
+                     f"{did_you_mean(name, known())}")
+
+
+def did_you_mean(name: str | None, known_names: list[str]) -> str:
+    """``"; did you mean 'NAME'?"`` for a scenario name one typo away from a known
+    one (:func:`difflib.get_close_matches`), else ``""``."""
+    if not isinstance(name, str) or not name or name in known_names:
+        return ""
+    close = difflib.get_close_matches(name, known_names, n=1, cutoff=0.75)
+    return f"; did you mean {close[0]!r}? (`mcjax list {close[0]}`)" if close else ""
