@@ -337,11 +337,12 @@ def dopri5_substep(f, s: FlockState, k1: FlockState, tau, h):
     return new, ks[6], err
 
 
-def closing_step(state: FlockState, adj, R, moving=None):
+def closing_step(state: FlockState, adj, R, moving=None, to_radius=True):
     """``½ min (R − r_ij)/|ṙ_ij|`` over links and ``½ min r_ij/|ṙ_ij|`` over pairs (of nodes
     ``moving``, if given) at this state (ours): the longest step in which no linked pair closes
     half its gap to R, and no pair half its distance, at its current closing speed (+∞ if none
-    closes)."""
+    closes). ``to_radius`` False: the distances only (the smoothing switch's faded potential
+    lets a pair cross R, which the cap would approach in ever shorter steps)."""
     _, r, eye = _pair_vectors(state.q)
     linked = (adj > 0.5) & ~eye
     pairs = ~eye if moving is None else ~eye & moving[:, None] & moving[None, :]
@@ -349,7 +350,7 @@ def closing_step(state: FlockState, adj, R, moving=None):
     dv = state.p[:, None, :] - state.p[None, :, :]
     rs = jnp.where(eye, 1.0, r)
     rate = jnp.sum(dq * dv, -1) / rs                                   # ṙ_ij
-    to_r = jnp.where(linked & (rate > 0), (R - r) / jnp.where(rate > 0, rate, 1.0), jnp.inf)
+    to_r = jnp.where(linked & (rate > 0) & to_radius, (R - r) / jnp.where(rate > 0, rate, 1.0), jnp.inf)
     to_0 = jnp.where(pairs & (rate < 0), r / jnp.where(rate < 0, -rate, 1.0), jnp.inf)
     return 0.5 * jnp.minimum(jnp.min(to_r), jnp.min(to_0))
 
@@ -369,14 +370,16 @@ def hermite_extremes(r0, v0, r1, v1, h):
     a = 2.0 * (r0 - r1) + h * (v0 + v1)
     b = 3.0 * (r1 - r0) - h * (2.0 * v0 + v1)
     c = h * v0                                       # r(s) = a s³ + b s² + c s + r0, s ∈ [0, 1]
-    disc = jnp.maximum(b * b - 3.0 * a * c, 0.0)
-    qq = -(b + jnp.where(b >= 0, 1.0, -1.0) * jnp.sqrt(disc))
+    disc = b * b - 3.0 * a * c
+    root = jnp.where(disc > 0, jnp.sqrt(jnp.where(disc > 0, disc, 1.0)), 0.0)   # finite derivatives at 0
+    qq = -(b + jnp.where(b >= 0, 1.0, -1.0) * root)
     safe_q = jnp.where(qq == 0, 1.0, qq)
     s1 = jnp.where(a == 0, 0.0, qq / jnp.where(a == 0, 1.0, 3.0 * a))
     s2 = jnp.where(qq == 0, 0.0, c / safe_q)          # the stable pair of roots of 3a s² + 2b s + c
     lo, hi = jnp.minimum(r0, r1), jnp.maximum(r0, r1)
     for s in (s1, s2):
-        s = jnp.clip(jnp.where(jnp.isfinite(s), s, 0.0), 0.0, 1.0)
+        # the extreme's derivative does not depend on where it lies (zero slope there, or an end)
+        s = jax.lax.stop_gradient(jnp.clip(jnp.where(jnp.isfinite(s), s, 0.0), 0.0, 1.0))
         v = ((a * s + b) * s + c) * s + r0
         lo, hi = jnp.minimum(lo, v), jnp.maximum(hi, v)
     return lo, hi
@@ -391,14 +394,18 @@ def dopri5_adaptive(state: FlockState, adj, sensing, reference, g: Gains, dt, ma
     whole step's error stays within ``tolerance``), and the next size is
     ``h · clip(0.9 (bound/err)^{1/5}, 0.2, 5)`` (no growth right after a rejection). A
     sub-step is also at most :func:`closing_step` (no linked pair closes half its gap to R,
-    no pair half its distance, at its closing speed), and one whose stages meet a link at or
+    no pair half its distance, at its closing speed; with ``barrier``, whose faded potential
+    lets a link cross R, the distances only), and one whose stages meet a link at or
     beyond R or two nodes at one point (the potential's slope is NaN there) is rejected and
     retried at a fifth of its size, so a link event is not stepped over. Over each accepted
     sub-step the smallest pair distance and link margin ``R − r_ij`` are taken from the cubic
     Hermite interpolant of each pair's distance (:func:`hermite_extremes`). The first size is
     ``first_step`` or :func:`stable_step`'s. At most ``max_substeps`` attempts (rejections
     count); the last allowed one takes whatever time is left (and the step is reported as
-    capped). ``moving``, ``barrier``: as :func:`rk4_adaptive`. Returns ``(state,
+    capped). The sizes follow the error estimate's value, not its derivative (which turned
+    NaN under XLA's unoptimised code): forward-mode derivatives are those of the sub-steps
+    taken, within O(tolerance) of the derivative of the adaptive result. ``moving``,
+    ``barrier``: as :func:`rk4_adaptive`. Returns ``(state,
     min_link_margin, min_distance, attempts, capped)``."""
     def f(s, tau):
         rq, rp = reference(tau)
@@ -416,14 +423,14 @@ def dopri5_adaptive(state: FlockState, adj, sensing, reference, g: Gains, dt, ma
     def body(carry):
         s, tau, h, k, margin, dmin, k1, r0, v0 = carry
         last = k == max_substeps - 1
-        h = jnp.minimum(jnp.minimum(h, closing_step(s, adj, g.R, moving)), dt - tau)
+        h = jnp.minimum(jnp.minimum(h, closing_step(s, adj, g.R, moving, barrier is None)), dt - tau)
         h = jnp.where(last | ~(h > 0), dt - tau, h)
         final = h >= dt - tau
         new, k_new, err = dopri5_substep(f, s, k1, tau, h)
-        e = jnp.max(jnp.stack([jnp.max(jnp.abs(x)) for x in jax.tree.leaves(err)])) / tol
+        e = jnp.max(jnp.stack([jnp.max(jnp.abs(x)) for x in jax.tree.leaves(jax.lax.stop_gradient(err))])) / tol
         ok = jnp.isfinite(e) & jnp.all(jnp.isfinite(k_new.q)) & jnp.all(jnp.isfinite(k_new.p))
         accept = (ok & (e <= 1.0)) | last
-        factor = jnp.where(ok, jnp.clip(0.9 * jnp.maximum(e, 1e-10) ** -0.2, 0.2, 5.0), 0.2)
+        factor = jnp.where(ok, jnp.clip(0.9 * jnp.maximum(jnp.where(ok, e, 1.0), 1e-10) ** -0.2, 0.2, 5.0), 0.2)
         factor = jnp.where(accept, factor, jnp.minimum(factor, 1.0))
         r1, v1 = _pair_rates(new)
         lo, hi = hermite_extremes(r0, v0, r1, v1, h)
