@@ -15,19 +15,23 @@ speed/scaling section (from a lattice start; section 8).
 
 How to run::
 
-    python benchmarks/flocking_lou2013.py                    # 1,000 runs (~30–40 min on 2 shared cores)
+    python benchmarks/flocking_lou2013.py                    # 1,000 runs (~45 min on 2 loaded shared cores)
     python benchmarks/flocking_lou2013.py --runs 20          # a quick look
     python benchmarks/flocking_lou2013.py --scaling-only     # the scaling section alone (~13 min on 2 shared cores)
     python benchmarks/flocking_lou2013.py [--runs 1000] [--out DIR] [--no-figures] [--no-check]
                                           [--scaling | --no-scaling] [--scaling-only] [--scaling-runs 20]
                                           [--scaling-steps 30] [--scaling-full-steps 300]
                                           [--scaling-full-runs 20 20 4] [--scaling-sizes 20 50 100]
-                                          [--ideal-runs 100] [--nx-runs 5] [--nx-init 200]
+                                          [--ideal-runs 100] [--rk4-runs 100] [--nx-runs 5] [--nx-init 200]
 
 What it prints.
 
 1. Wall time of the N runs (compilation included), the first batch's time (which holds the
-   compilation), runs/s, and the RK4 sub-steps per 0.1 s step.
+   compilation), runs/s, and the sub-steps per 0.1 s step (the config's integrator: the
+   error-controlled Dormand–Prince pair, attempts counted). Then the extremes — smallest
+   distance, smallest link margin R − r, largest rise of Q — with their change when the 10
+   runs nearest each are re-run at 100x tighter tolerance, and (``--rk4-runs``, 100) the first
+   runs again with the RK4 sub-steps used before: their cost and extremes.
 2. Connectivity (Theorem 2, Fig. 5): the smallest λ2 over every step of every run, runs that
    broke a link (``edges_removed``), had a link reach R inside a step (``link_reached_R``),
    ran from a failed initial draw (``start_failed``), or hit the sub-step cap, and the runs
