@@ -97,8 +97,9 @@ def load_library(folder: Path, prefix: str):
         try:
             if hashlib.sha256(os.pread(fd, len(data) + 1, 0)).digest() != hashlib.sha256(data).digest():
                 continue  # replaced since it was checked
-            target = f"/proc/self/fd/{fd}" if Path("/proc/self/fd").is_dir() else str(path)
-            return ctypes.cdll.LoadLibrary(target)
+            # by its own, content-hashed name in the checked private folder: the dynamic loader keeps a
+            # library per name, so a reused /proc/self/fd/N name could hand back another library
+            return ctypes.cdll.LoadLibrary(str(path))
         finally:
             os.close(fd)
     return None
