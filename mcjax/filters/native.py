@@ -87,7 +87,7 @@ def load_library(folder: Path, prefix: str):
     """The built library of ``prefix`` in ``folder``, loaded, or None when there is none that
     passes :func:`mcjax.runtime.trusted_read` (a shared library runs code when it is loaded: one
     yours alone, unaltered since it was built); a file that fails is named in one warning line
-    and not loaded. The library is loaded from the file descriptor that was checked."""
+    and not loaded. The library is loaded by its content-hashed name once its bytes are checked again."""
     for path in sorted(folder.glob(f"{prefix}-*.so")):
         data, why = runtime.trusted_read(path)
         if data is None:
