@@ -95,3 +95,22 @@ def wilson_interval(k: int, n: int, confidence: float = CONFIDENCE) -> Interval:
     low = 0.0 if k == 0 else max(0.0, float(ci.low))  # exact ends (scipy's can be off by round-off)
     high = 1.0 if k == n else min(1.0, float(ci.high))
     return Interval(low, high)
+
+
+def paired_by_seed(runs, columns: list[str], initial: int, tuned: int, filters) -> list[dict]:
+    """Per filter (in the order ``filters``) and column, the mean over seeds of the run at point
+    ``tuned`` minus the run at point ``initial`` of the same seed, with its 95 % Student-t
+    interval (:func:`mean_ci`), beside each point's mean. ``runs``: a DataFrame with
+    ``filter``, ``point_id``, ``seed_index`` and the columns."""
+    rows = []
+    for f in filters:
+        g = runs[runs["filter"] == f]
+        a = g[g["point_id"] == initial].set_index("seed_index")
+        b = g[g["point_id"] == tuned].set_index("seed_index")
+        for c in columns:
+            d = (b[c].astype(float) - a[c].astype(float)).dropna()
+            m = mean_ci(d.to_numpy())
+            rows.append({"filter": f, "output": c, "initial": float(a[c].astype(float).mean()),
+                         "tuned": float(b[c].astype(float).mean()), "paired_difference": m.mean,
+                         "ci_low": m.low, "ci_high": m.high, "n": len(d)})
+    return rows

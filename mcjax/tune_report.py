@@ -31,7 +31,7 @@ import pandas as pd
 
 from mcjax import findings, html_report, tables
 from mcjax.files import atomic_write
-from mcjax.statistics import mean_ci, wilson_interval
+from mcjax.statistics import mean_ci, paired_by_seed, wilson_interval
 
 __all__ = ["TUNE_FILE", "TRACE_FILE", "TRACE_FIGURE", "ROLE_COLUMN", "is_tune_folder", "roles", "summary_table",
            "paired", "page", "write_page"]
@@ -142,21 +142,11 @@ def paired(df: pd.DataFrame, role_of: Mapping[int, str], columns: list[str],
     with its 95 % Student-t interval (a flag's difference is one of rates), beside each role's
     mean: the comparison :func:`mcjax.tune.paired_differences` prints; filters in the order
     ``metadata_filters`` (the dataset's ``filters``) gives."""
-    rows = []
     point = {r: p for p, r in role_of.items()}
     if set(point) != {"initial", "tuned"}:
-        return pd.DataFrame(rows)
-    for f in tables.ordered_filters(df["filter"], metadata_filters):
-        g = df[df["filter"] == f]
-        a = g[g["point_id"] == point["initial"]].set_index("seed_index")
-        b = g[g["point_id"] == point["tuned"]].set_index("seed_index")
-        for c in columns:
-            d = (b[c].astype(float) - a[c].astype(float)).dropna()
-            m = mean_ci(d.to_numpy())
-            rows.append({"filter": f, "output": c, "initial": float(a[c].astype(float).mean()),
-                         "tuned": float(b[c].astype(float).mean()), "paired_difference": m.mean,
-                         "ci_low": m.low, "ci_high": m.high, "n": len(d)})
-    return pd.DataFrame(rows)
+        return pd.DataFrame([])
+    return pd.DataFrame(paired_by_seed(df, columns, point["initial"], point["tuned"],
+                                       tables.ordered_filters(df["filter"], metadata_filters)))
 
 
 def _stat(values: pd.Series, flag: bool, unit: str) -> str:

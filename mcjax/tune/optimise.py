@@ -219,21 +219,11 @@ def paired_differences(runs: pd.DataFrame, columns: list[str]) -> pd.DataFrame:
     """The held-out comparison, paired: per filter and column, the mean over seeds of tuned
     (point 1) − initial (point 0) with its 95 % Student-t interval (a flag's difference is
     one of rates). Empty if the evaluation has one point (nothing changed)."""
-    from mcjax.statistics import mean_ci
+    from mcjax.statistics import paired_by_seed
 
-    rows = []
     if runs["point_id"].nunique() < 2:
-        return pd.DataFrame(rows)
-    for f, g in runs.groupby("filter", sort=False):
-        a = g[g["point_id"] == 0].set_index("seed_index")
-        b = g[g["point_id"] == 1].set_index("seed_index")
-        for c in columns:
-            d = (b[c].astype(float) - a[c].astype(float)).dropna()
-            m = mean_ci(d.to_numpy())
-            rows.append({"filter": f, "output": c, "initial": float(a[c].astype(float).mean()),
-                         "tuned": float(b[c].astype(float).mean()), "paired_difference": m.mean,
-                         "ci_low": m.low, "ci_high": m.high, "n": len(d)})
-    return pd.DataFrame(rows)
+        return pd.DataFrame([])
+    return pd.DataFrame(paired_by_seed(runs, columns, 0, 1, list(dict.fromkeys(runs["filter"]))))
 
 
 def plot_trace(spec: TuneSpec, trace: pd.DataFrame, path: Path) -> Path:
