@@ -62,7 +62,8 @@ def test_hermite_extremes_are_those_of_the_sampled_cubic():
     r0, r1 = rng.uniform(0.5, 3, 200), rng.uniform(0.5, 3, 200)
     v0, v1 = rng.uniform(-20, 20, 200), rng.uniform(-20, 20, 200)
     h = rng.uniform(0.01, 0.3, 200)
-    lo, hi = (np.asarray(x) for x in dyn.hermite_extremes(*(jnp.asarray(a) for a in (r0, v0, r1, v1, h))))
+    extremes = jax.jit(dyn.hermite_extremes)  # one program per shape (op by op costs more)
+    lo, hi = (np.asarray(x) for x in extremes(*(jnp.asarray(a) for a in (r0, v0, r1, v1, h))))
     s = np.linspace(0, 1, 20001)[:, None]
     cubic = ((2 * s**3 - 3 * s**2 + 1) * r0 + (s**3 - 2 * s**2 + s) * h * v0 + (-2 * s**3 + 3 * s**2) * r1
              + (s**3 - s**2) * h * v1)
@@ -70,7 +71,7 @@ def test_hermite_extremes_are_those_of_the_sampled_cubic():
     np.testing.assert_allclose(hi, cubic.max(0), atol=1e-6)
     assert np.all(lo <= cubic.min(0) + 1e-12) and np.all(hi >= cubic.max(0) - 1e-12)
     # a quadratic r(t) = 1 − 4 t + 10 t² (its own Hermite cubic): the minimum 0.6 at t = 0.2
-    lo, hi = dyn.hermite_extremes(1.0, -4.0, 1.0 - 4.0 * 0.5 + 10 * 0.25, -4.0 + 20 * 0.5, 0.5)
+    lo, hi = extremes(*(jnp.asarray(a) for a in (1.0, -4.0, 1.0 - 4.0 * 0.5 + 10 * 0.25, -4.0 + 20 * 0.5, 0.5)))
     assert abs(float(lo) - 0.6) < 1e-14 and abs(float(hi) - 1.5) < 1e-14
 
 
@@ -95,21 +96,32 @@ def paper_states():
     return p, out
 
 
+@jax.jit
+def _rhs(t, y, adj, h, rq0, rp0, g):
+    """The flock's derivative on a flat vector (one program for every state of the test)."""
+    n = adj.shape[0]
+    s = dyn.FlockState(y[:2 * n].reshape(n, 2), y[2 * n:4 * n].reshape(n, 2), y[4 * n:].reshape(n, n))
+    d = dyn.derivative(s, adj, h, rq0 + t * rp0, rp0, g)
+    return jnp.concatenate([d.q.ravel(), d.p.ravel(), d.b.ravel()])
+
+
 def _dop853(p, flock, adj, est, h, g):
     n = flock.q.shape[0]
     rq0, rp0 = est[:, jnp.array([0, 2])], est[:, jnp.array([1, 3])]
-
-    @jax.jit
-    def rhs(t, y):
-        s = dyn.FlockState(y[:2 * n].reshape(n, 2), y[2 * n:4 * n].reshape(n, 2), y[4 * n:].reshape(n, n))
-        d = dyn.derivative(s, adj, h, rq0 + t * rp0, rp0, g)
-        return jnp.concatenate([d.q.ravel(), d.p.ravel(), d.b.ravel()])
-
     y0 = np.concatenate([np.asarray(x).ravel() for x in (flock.q, flock.p, flock.b)])
-    sol = solve_ivp(lambda t, y: np.asarray(rhs(t, y)), (0.0, float(p.dt)), y0, method="DOP853", rtol=1e-11,
-                    atol=1e-12)
+    sol = solve_ivp(lambda t, y: np.asarray(_rhs(t, y, adj, h, rq0, rp0, g)), (0.0, float(p.dt)), y0,
+                    method="DOP853", rtol=1e-11, atol=1e-12)
     y = sol.y[:, -1]
     return y[:2 * n].reshape(n, 2), y[2 * n:4 * n].reshape(n, 2), y[4 * n:].reshape(n, n)
+
+
+@jax.jit
+def _adaptive(flock, adj, h, est, g, dt):
+    """The scenario's integrator over one step (the config's), following the KCF's estimate
+    ``est`` as the reference (one program for every state of the test)."""
+    rq0, rp0 = est[:, jnp.array([0, 2])], est[:, jnp.array([1, 3])]
+    return dyn.dopri5_adaptive(flock, adj, h, lambda tau: (rq0 + tau * rp0, rp0), g, dt, CFG.max_substeps,
+                               CFG.tolerance)
 
 
 def test_one_step_is_within_the_tolerance_of_dop853_in_the_transient_and_steady_flight(paper_states):
@@ -121,17 +133,16 @@ def test_one_step_is_within_the_tolerance_of_dop853_in_the_transient_and_steady_
     h = fl.sensing_mask(CFG, p, jnp.float64)
     g = dyn.Gains(p.c1, p.c2, p.k, p.R)
     for t, (flock, adj, est, nxt) in states.items():
-        rq0, rp0 = est[:, jnp.array([0, 2])], est[:, jnp.array([1, 3])]
-        ref = lambda tau: (rq0 + tau * rp0, rp0)  # noqa: E731
-        s, margin, dmin, k, capped = dyn.dopri5_adaptive(flock, adj, h, ref, g, p.dt, CFG.max_substeps,
-                                                         CFG.tolerance)
+        s, margin, dmin, k, capped = _adaptive(flock, adj, h, est, g, p.dt)
         assert not bool(capped) and float(margin) > 0 and float(dmin) > 0
         np.testing.assert_allclose(np.asarray(s.q), np.asarray(nxt.q), atol=1e-9)
         q, v, b = _dop853(p, flock, adj, est, h, g)
         errors = [np.max(np.abs(np.asarray(x) - y)) for x, y in ((s.q, q), (s.p, v), (s.b, b))]
         assert max(errors) <= CFG.tolerance, (t, errors)
         if t == 0:
-            old = dyn.rk4_adaptive(flock, adj, h, ref, g, p.dt, 200, 1.0)[0]
+            rq0, rp0 = est[:, jnp.array([0, 2])], est[:, jnp.array([1, 3])]
+            ref = lambda tau: (rq0 + tau * rp0, rp0)  # noqa: E731
+            old = jax.jit(lambda: dyn.rk4_adaptive(flock, adj, h, ref, g, p.dt, 200, 1.0)[0])()
             assert np.max(np.abs(np.asarray(old.p) - v)) > 100 * CFG.tolerance
 
 
@@ -146,6 +157,16 @@ def _pair(r0, v, R=8.4):
     return s, adj, g, lambda tau: (zero, zero)
 
 
+@jax.jit
+def _pair_step(s, adj, g, max_substeps=1000):
+    """One 0.1 s step of a lone pair (no reference, no sensing) at tolerance 1e-6, started with
+    a sub-step of the whole 0.1 s: one program for the three pairs below (their states and the
+    number of sub-steps allowed are its arguments)."""
+    zero = jnp.zeros((2, 2), s.q.dtype)
+    return dyn.dopri5_adaptive(s, adj, jnp.zeros(2), lambda tau: (zero, zero), g, 0.1, max_substeps, 1e-6,
+                               first_step=jnp.asarray(0.1))
+
+
 @pytest.mark.parametrize("r0, v, which", [(7.6, 6.0, "margin"), (1.0, -12.0, "distance")])
 def test_a_pair_turning_inside_a_substep_is_caught_at_its_turning_point(r0, v, which):
     """A pair flying apart towards R (or together towards 0) turns where ψ(r*) = ψ(r0) + v²/4
@@ -153,14 +174,12 @@ def test_a_pair_turning_inside_a_substep_is_caught_at_its_turning_point(r0, v, w
     to 1e-6: the closing-speed cap keeps it from stepping over R, and the turn, inside a
     sub-step, is found by the Hermite interpolant."""
     R = 8.4
-    s, adj, g, ref = _pair(r0, v, R)
+    s, adj, g, _ = _pair(r0, v, R)
     psi = lambda r: 1 / r**2 + r**2 / (R - r)  # noqa: E731
     level = psi(r0) + v**2 / 4
     r_star = brentq(lambda r: psi(r) - level, r0, R - 1e-12) if which == "margin" else \
         brentq(lambda r: psi(r) - level, 1e-3, r0)
-    sensing = jnp.zeros(2)
-    out, margin, dmin, k, capped = jax.jit(lambda: dyn.dopri5_adaptive(
-        s, adj, sensing, ref, g, 0.1, 1000, 1e-6, first_step=jnp.asarray(0.1)))()
+    out, margin, dmin, k, capped = _pair_step(s, adj, g)
     assert not bool(capped)
     got = float(margin) if which == "margin" else float(dmin)
     want = R - r_star if which == "margin" else r_star
@@ -175,8 +194,10 @@ def test_a_pair_turning_inside_a_substep_is_caught_at_its_turning_point(r0, v, w
 def test_a_capped_step_that_breaks_a_link_is_flagged():
     """The same pair flying apart at 60 m/s with one sub-step allowed: the step is capped, its
     one sub-step (the whole 0.1 s) carries the pair past R, and the margin says so (≤ 0 or NaN)."""
-    s, adj, g, ref = _pair(7.6, 60.0)
-    out, margin, dmin, k, capped = dyn.dopri5_adaptive(s, adj, jnp.zeros(2), ref, g, 0.1, 1, 1e-6)
+    s, adj, g, _ = _pair(7.6, 60.0)
+    # the one allowed sub-step takes the whole step whatever its first size (the last one
+    # allowed takes the time left), so the pairs' program above serves
+    out, margin, dmin, k, capped = _pair_step(s, adj, g, 1)
     assert bool(capped) and int(k) == 1
     assert not float(margin) > 0
 

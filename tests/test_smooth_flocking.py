@@ -29,19 +29,25 @@ LOW, HIGH = np.array([0.05, 0.1, 0.01]), np.array([20.0, 40.0, 1.0])
 def test_faded_potential_is_eq12_inside_zero_beyond_R_and_its_slope_is_its_derivative():
     R, w = 8.4, 0.05
     r = jnp.linspace(0.5, 9.0, 341)
-    psi_w, slope = dyn.faded_potential(r, R, w), dyn.faded_potential_slope(r, R, w)
+
+    @jax.jit  # one small program (op by op, each operation compiles on its own: more CPU)
+    def pieces(r):
+        return (dyn.faded_potential(r, R, w), dyn.faded_potential_slope(r, R, w), dyn.potential(r, R),
+                dyn.potential_slope(r, R), jax.vmap(jax.grad(lambda x: dyn.faded_potential(x, R, w)))(r))
+
+    delta = np.array([1e-3, 1e-4])  # for the check at R below: the same program, two more points
+    out = [np.asarray(a) for a in pieces(jnp.concatenate([r, R - delta]))]
+    psi_w, slope, psi, psi_slope, auto = (a[:341] for a in out)
+    near_psi, near_slope = out[0][341:], out[1][341:]
     far = np.asarray(R - r > 2.5 * w)
-    np.testing.assert_array_equal(np.asarray(psi_w)[far], np.asarray(dyn.potential(r, R))[far])
-    np.testing.assert_array_equal(np.asarray(slope)[far], np.asarray(dyn.potential_slope(r, R))[far])
-    assert np.all(np.asarray(psi_w)[np.asarray(r >= R)] == 0.0)
+    np.testing.assert_array_equal(psi_w[far], psi[far])
+    np.testing.assert_array_equal(slope[far], psi_slope[far])
+    assert np.all(psi_w[np.asarray(r >= R)] == 0.0)
     # the slope is the derivative (autodiff of the value), and both tend to 0 at R from inside (C1 there)
-    auto = jax.vmap(jax.grad(lambda x: dyn.faded_potential(x, R, w)))(r)
-    np.testing.assert_allclose(np.asarray(slope), np.asarray(auto), rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(slope, auto, rtol=1e-10, atol=1e-10)
     # at R: ψ_w ≈ R² δ³ / w⁴ and ψ_w′ ≈ −3 R² δ² / w⁴ at δ = R − r → 0 (twice differentiable, 0 beyond)
-    delta = np.array([1e-3, 1e-4])
-    np.testing.assert_allclose(np.asarray(dyn.faded_potential(R - delta, R, w)), R**2 * delta**3 / w**4, rtol=1e-3)
-    np.testing.assert_allclose(np.asarray(dyn.faded_potential_slope(R - delta, R, w)), -3 * R**2 * delta**2 / w**4,
-                               rtol=1e-3)
+    np.testing.assert_allclose(near_psi, R**2 * delta**3 / w**4, rtol=1e-3)
+    np.testing.assert_allclose(near_slope, -3 * R**2 * delta**2 / w**4, rtol=1e-3)
 
 
 def test_soft_forces_are_minus_the_gradient_of_the_weighted_faded_potential():
@@ -56,8 +62,9 @@ def test_soft_forces_are_minus_the_gradient_of_the_weighted_faded_potential():
         r = jnp.sqrt(jnp.sum(d * d, -1) + jnp.eye(7))
         return 0.5 * jnp.sum(a * dyn.faded_potential(r, R, w))
 
-    np.testing.assert_allclose(np.asarray(dyn.potential_forces(q, a, R, w)), -np.asarray(jax.grad(potential)(q)),
-                               rtol=1e-9, atol=1e-9)
+    # one small program (op by op, each operation compiles on its own: more CPU)
+    forces, grad = jax.jit(lambda q: (dyn.potential_forces(q, a, R, w), jax.grad(potential)(q)))(q)
+    np.testing.assert_allclose(np.asarray(forces), -np.asarray(grad), rtol=1e-9, atol=1e-9)
 
 
 def test_soft_hysteresis_tends_to_the_exact_rule_and_counts_to_the_exact_counts():
@@ -115,8 +122,11 @@ def loss_and_grad():
                                                           0, False)[0])(keys))
         return value, value
 
-    f = jax.jit(jax.jacfwd(mean_loss, has_aux=True), compiler_options=engine.compiler_options(fl.SCENARIO))
-    return lambda x: tuple(np.asarray(v) for v in f(jnp.asarray(x, jnp.float64)))
+    # vmapped over points: the test evaluates its 3 points and their 18 shifted copies in one call.
+    # Running costs here as much as compiling (the integrator's sub-steps at tolerance 1e-9): one
+    # point a call took ~1 s of CPU, 21 calls ~20 s; the 21 points in one call ~17 s (2026-12-03)
+    f = jax.jit(jax.vmap(jax.jacfwd(mean_loss, has_aux=True)), compiler_options=engine.compiler_options(fl.SCENARIO))
+    return lambda xs: tuple(np.asarray(v) for v in f(jnp.asarray(xs, jnp.float64)))
 
 
 def test_tune_loss_gradient_matches_central_differences_at_three_random_points(loss_and_grad):
@@ -127,13 +137,16 @@ def test_tune_loss_gradient_matches_central_differences_at_three_random_points(l
     the two errors, with both far below the 1e-4 asked."""
     rng = np.random.default_rng(2013)
     points = np.exp(rng.uniform(np.log(LOW), np.log(HIGH), (3, 3)))
-    for x in points:
-        g, value = loss_and_grad(x)
+    steps = [np.diag(1e-3 * x) for x in points]  # row i: h in the i-th gain
+    # every point, then its copies x + h_i and x − h_i, evaluated in one call
+    grads, values = loss_and_grad(np.concatenate([points] + [x + h for x, h in zip(points, steps)]
+                                                 + [x - h for x, h in zip(points, steps)]))
+    for p, x in enumerate(points):
+        g, value = grads[p], values[p]
         assert np.isfinite(value) and np.all(np.abs(g) > 1e-9), (x, g)  # the gains move the loss
         for i in range(3):
-            h = np.zeros(3)
-            h[i] = 1e-3 * x[i]
-            fd = (loss_and_grad(x + h)[1] - loss_and_grad(x - h)[1]) / (2 * h[i])
+            plus, minus = values[3 + 3 * p + i], values[12 + 3 * p + i]
+            fd = (plus - minus) / (2 * steps[p][i, i])
             assert abs(fd - g[i]) <= 1e-4 * abs(g[i]), (TUNED[i], x, g[i], fd)
 
 
