@@ -1,6 +1,7 @@
 """The multi-UUV IMM scenario (Ren & Lv 2017) against filterpy, the CT geometry and the Markov chain."""
 
 import dataclasses
+import functools
 from pathlib import Path
 
 import jax
@@ -19,19 +20,37 @@ from mcjax.scenarios import uuv_imm as S
 from mcjax.study import load_config_file
 
 CONFIG = str((Path(__file__).parents[1] / "configs" / "ren2017.toml").resolve())
+#: The Config of the tests that drive init/step by hand: one compiled step for all of them (the
+#: Params are its arguments). The IMM and the CV UKF; 30 consensus iterations, which the
+#: complete-graph test needs (with no links, as in the filterpy test, iterating changes nothing).
+CFG = S.Config(n_steps=60, filters=("imm", "cv"), consensus_steps=30)
 
 
-def simulate(cfg, params, seed=0):
-    """Drive init/step by hand; returns the records and every step's combined estimates
-    per filter, (T, F, n, 4)."""
-    step = jax.jit(lambda p, s, k: S.step(cfg, p, s, k))
+@functools.cache
+def _step(cfg):
+    return jax.jit(lambda p, s, k: S.step(cfg, p, s, k))
+
+
+@functools.cache
+def _init(cfg):
+    return jax.jit(lambda p, k: S.init(cfg, p, k))
+
+
+#: Each filter's combined estimate per UUV, compiled (not run op by op at every step).
+_combined = jax.jit(lambda f: jax.vmap(combine)(f)[0])
+
+
+def simulate(cfg, params, seed=0, steps=None):
+    """Drive init/step by hand for ``steps`` steps (default cfg.n_steps); returns the records and
+    every step's combined estimates per filter, (T, F, n, 4)."""
+    step = _step(cfg)
     key = engine.run_key(0, seed)
-    state = S.init(cfg, params, key)
+    state = _init(cfg)(params, key)
     recs, ests = [], []
-    for t in range(cfg.n_steps):
+    for t in range(cfg.n_steps if steps is None else steps):
         state, rec = step(params, state, jax.random.fold_in(key, t))
         recs.append(rec)
-        ests.append([jax.vmap(combine)(f)[0] for f in state.filters])
+        ests.append([_combined(f) for f in state.filters])
     recs = jax.tree.map(lambda *xs: np.stack(xs), *recs)
     return recs, np.asarray(ests)
 
@@ -72,13 +91,14 @@ def filterpy_ukf(F, Q, R, sensor, x0, P0):
     return f
 
 
+@pytest.mark.xdist_group("test_uuv_imm_step")  # one worker compiles _step(CFG) once
 def test_isolated_uuv_filters_match_filterpy_ukf_and_imm():
     """With no communication (comm radius 0) each UUV's "cv" filter is a UKF and its "imm"
     filter an IMM of a CV and a CT UKF on its own measurements: the same as filterpy's
     UnscentedKalmanFilter and IMMEstimator fed those measurements. Ours updates in
     information form with the pseudo-measurement H̃ = (P̄⁻¹P_xz)ᵀ, which equals the moment
     form up to the UT's linearisation residual P_zz − H̃P̄H̃ᵀ = O(σ²/r²) (a few 1e-3 m here)."""
-    cfg = S.Config(n_steps=60, filters=("imm", "cv"))
+    cfg = CFG
     p = S.default_params(cfg, comm_radius=0.0, ct_start=20, ct_stop=40)
     recs, est = simulate(cfg, p)
     F_cv = np.asarray(cv_matrices(1.0, jnp.float64)[0])
@@ -108,12 +128,12 @@ def test_isolated_uuv_filters_match_filterpy_ukf_and_imm():
     assert np.ptp(est[:, 0, 0, 0]) > 100
 
 
+@pytest.mark.xdist_group("test_uuv_imm_step")  # one worker compiles _step(CFG) once
 def test_true_target_follows_the_schedule_and_the_ct_geometry():
     """Noise-free truth: straight at constant speed in CV; in CT the speed is kept and the
     heading turns by exactly ω·dt per step (Bar-Shalom et al. §11.7)."""
-    cfg = S.Config(n_steps=40, filters=("cv",))
-    p = S.default_params(cfg, target_sigma_accel=0.0, ct_start=10, ct_stop=25, turn_rate=0.1)
-    recs, _ = simulate(cfg, p)
+    p = S.default_params(CFG, target_sigma_accel=0.0, ct_start=10, ct_stop=25, turn_rate=0.1)
+    recs, _ = simulate(CFG, p, steps=40)
     mode = recs.mode
     np.testing.assert_array_equal(mode, (np.arange(40) >= 10) & (np.arange(40) < 25))
     v = recs.target[:, [1, 3]]
@@ -128,7 +148,8 @@ def test_true_target_follows_the_schedule_and_the_ct_geometry():
 
 def test_markov_schedule_has_the_chain_statistics():
     """Over many runs the drawn modes switch with the target_transition frequencies."""
-    cfg = S.Config(n_steps=60, filters=("cv",), schedule="markov")
+    # two UUVs and the CV filter: the target's chain depends on neither, and the program is small
+    cfg = S.Config(n_steps=60, n_agents=2, filters=("cv",), schedule="markov")
     P = np.array([[0.9, 0.1], [0.3, 0.7]])
     p = engine.stack_points([S.default_params(cfg, target_transition=P)])
     params, keys = engine.chunk_inputs(p, 300, 0, 0, 300, 300)
@@ -142,25 +163,35 @@ def test_markov_schedule_has_the_chain_statistics():
         assert abs(freq - P[l, 1]) < 4 * np.sqrt(P[l, 1] * (1 - P[l, 1]) / n), (l, freq, n)
 
 
+@pytest.mark.xdist_group("test_uuv_imm_step")  # one worker compiles _step(CFG) once
 def test_consensus_agrees_on_a_complete_graph():
     """Comm radius above the hexagon's diameter links every pair; with many consensus
     iterations every UUV holds the same estimate (the consensus invariant), and sharing
     measurements beats tracking alone."""
-    cfg = S.Config(n_steps=30, filters=("imm",), consensus_steps=30)
-    recs, est = simulate(cfg, S.default_params(cfg, comm_radius=1000.0))
+    steps, turn = 30, dict(ct_start=10, ct_stop=20)  # 30 steps, the turn in the middle third
+    recs, est = simulate(CFG, S.default_params(CFG, comm_radius=1000.0, **turn), steps=steps)
     assert np.all(recs.lambda2 > 5.999)  # complete graph of 6: λ2 = 6
+    est = est[:, :1]  # the IMM (CFG.filters[0])
     spread = np.max(np.abs(est - est[:, :, :1]))
     assert spread < 1e-6, spread
-    _, alone = simulate(cfg, S.default_params(cfg, comm_radius=0.0))
+    _, alone = simulate(CFG, S.default_params(CFG, comm_radius=0.0, **turn), steps=steps)
+    alone = alone[:, :1]
     assert np.max(np.abs(alone - alone[:, :, :1])) > 0.1
 
 
+#: The steps of the IMM test's 32 runs and of the sweep test's 4 points x 8 seeds, both of
+#: ren2017.toml's Config with timeseries: one compiled program.
+SWEEP_STEPS = 75
+
+
+@pytest.mark.xdist_group("test_uuv_imm_sweep")  # one worker compiles their program once
 def test_imm_beats_both_single_models_and_mismatch_costs_during_the_manoeuvre():
-    """Ren & Lv 2017's qualitative claims over 30 runs (the benchmark shows them over 1,000)."""
+    """Ren & Lv 2017's qualitative claims over 32 runs (the benchmark shows them over 1,000).
+    (The Config, the 32-run batch and the timeseries flag of the sweep test below: one program.)"""
     scenario, cfg, params = load_config_file(CONFIG)
-    cfg = dataclasses.replace(cfg, n_steps=75)
+    cfg = dataclasses.replace(cfg, n_steps=SWEEP_STEPS)
     p = engine.stack_points([scenario.default_params(cfg, **{**params, "ct_start": 25, "ct_stop": 50})])
-    out = next(engine.run_chunks(S.SCENARIO, cfg, p, 30))[3]
+    out = next(engine.run_chunks(S.SCENARIO, cfg, p, 32, timeseries=True))[3][0]
     imm, cv, ct = (cfg.filters.index(f) for f in ("imm", "cv", "ct"))
     for i in range(1, 7):
         m = out[f"uuv{i}_mean_error"].mean(0)
@@ -171,41 +202,42 @@ def test_imm_beats_both_single_models_and_mismatch_costs_during_the_manoeuvre():
 
 
 @pytest.mark.parametrize("sigma", [100.0, 1e4])
+@pytest.mark.xdist_group("test_uuv_imm_step")  # one worker compiles _step(CFG) once
 def test_mode_probabilities_stay_valid_for_a_far_outlier(sigma):
     """A measurement ``sigma`` σ off in range at every UUV at once: the IMM's mode
     probabilities stay finite, in [0, 1] and sum to 1 (log-space likelihoods)."""
-    cfg = S.Config(n_steps=5, warmup_steps=1, filters=("imm",))
-    p = S.default_params(cfg)
-    state = S.init(cfg, p, jax.random.PRNGKey(0))
-    step = jax.jit(lambda s, k: S.step(cfg, p, s, k))
+    p = S.default_params(CFG, ct_start=1, ct_stop=3)  # a turn in steps 1-2 (the defaults of 5 steps)
+    state = _init(CFG)(p, jax.random.PRNGKey(0))
+    step = _step(CFG)
     for t in range(3):
-        state, _ = step(state, jax.random.PRNGKey(t))
-    # push the filters' belief far off: every UUV's estimate shifted by sigma·σ_r
+        state, _ = step(p, state, jax.random.PRNGKey(t))
+    # push the IMM's belief far off: every UUV's estimate shifted by sigma·σ_r
     f = state.filters[0]
     shifted = f._replace(x=f.x.at[..., 0].add(sigma * float(p.sigma_range)))
-    state, rec = step(state._replace(filters=(shifted,)), jax.random.PRNGKey(9))
+    state, rec = step(p, state._replace(filters=(shifted, *state.filters[1:])), jax.random.PRNGKey(9))
     mu = np.asarray(state.filters[0].mu)
     assert np.all(np.isfinite(mu)) and np.all((mu >= 0) & (mu <= 1))
     np.testing.assert_allclose(mu.sum(-1), 1.0, atol=1e-12)
     assert np.all(np.isfinite(rec.error))
 
 
+@pytest.mark.xdist_group("test_uuv_imm_sweep")  # one worker compiles their program once
 def test_sweep_over_comm_radius_and_turn_rate(tmp_path):
     """The scenario runs through the sweep CLI: hive dataset with points × seeds × filters rows,
     timeseries with the true mode and the IMM's CT probability."""
     spec = tmp_path / "spec.toml"
-    spec.write_text(f'base = "{CONFIG}"\nseeds = 3\nchunk_size = 4\ntimeseries = true\n'
-                    '[config]\nn_steps = 12\nwarmup_steps = 2\n[params]\nct_start = 4\nct_stop = 8\n'
+    spec.write_text(f'base = "{CONFIG}"\nseeds = 8\nchunk_size = 4\ntimeseries = true\n'
+                    f'[config]\nn_steps = {SWEEP_STEPS}\n[params]\nct_start = 4\nct_stop = 8\n'
                     '[grid]\ncomm_radius = [0.0, 450.0]\nturn_rate = [0.02, 0.1]\n')
     out = tmp_path / "o"
     r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out)])
     assert r.exit_code == 0, r.output
     df = pd.read_parquet(out / "runs")
-    assert len(df) == 4 * 3 * 3 and set(df["filter"]) == {"imm", "cv", "ct"}
+    assert len(df) == 4 * 8 * 3 and set(df["filter"]) == {"imm", "cv", "ct"}
     assert {"uuv6_max_error", "error_ct", "mode_accuracy"} <= set(df.columns)
     assert np.all(df["ct_steps"] == 4)
     ts = pd.read_parquet(out / "timeseries")
-    assert len(ts) == 4 * 3 * 12 * 3 and set(ts["mode"]) == {0, 1}
+    assert len(ts) == 4 * 8 * SWEEP_STEPS * 3 and set(ts["mode"]) == {0, 1}
     assert ts["mu_ct"].between(0, 1).all()
     r = CliRunner().invoke(main, ["report", str(out), "--no-plots"])
     assert r.exit_code == 0 and "turn_rate" in r.output
