@@ -14,20 +14,27 @@ from click.testing import CliRunner
 from scipy.stats import binomtest
 
 from mcjax.cli import main
-from mcjax.scenarios import faults
 from mcjax.scenarios import leader_follower as lf
 from mcjax.scenarios import uuv_imm
 from mcjax.study import build_spec, run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 
-SEEDS, STEPS = 3, 25
+STEPS = 25
+#: Seeds of the two-point sweeps below. Ren & Lv 2017's 2 x 50 runs fill the engine's compiled
+#: batch (engine.BATCH_SIZE = 100 runs), as FAULTY's sweep and test_measured_rates_are_the_params'
+#: do, with the same Config: one compiled program for every sweep of that scenario in this file
+#: (running 100 runs of it costs a fraction of a second; compiling it, seconds).
+SEEDS = {"sun2011": 3, "ren2017": 50}
 #: The error outputs every filter has (kit.error_items) and the NEES each scenario adds.
 ERRORS = ("rmse", "mean_error", "final_error", "max_error", "diverged", "nonfinite", "anees")
-CASES = {"sun2011": {"planner": "none"}, "ren2017": {}}
+#: Ren & Lv 2017 with the IMM (two modes) and the CV UKF (one): the CT UKF is the same one-mode
+#: consensus step as the CV one with another model matrix, left out of these programs.
+CASES = {"sun2011": {"planner": "none"}, "ren2017": {"filters": ["imm", "cv"]}}
 
 
-def _sweep(name, zipped, config=None, params=None, seeds=SEEDS, steps=STEPS):
+def _sweep(name, zipped, config=None, params=None, seeds=None, steps=STEPS):
+    seeds = SEEDS[name] if seeds is None else seeds
     spec = build_spec({"base": str(ROOT / "configs" / f"{name}.toml"),
                        "config": {"faults": "on", "n_steps": steps, **CASES[name], **(config or {})},
                        "params": params or {}, "zip": zipped}, ROOT, seeds=seeds)
@@ -42,6 +49,7 @@ def _points(df, columns):
 
 
 @pytest.mark.parametrize("name", CASES)
+@pytest.mark.xdist_group("test_faults_tracking")  # the Ren & Lv sweeps' one program (SEEDS): one worker
 def test_every_link_lost_is_an_empty_comm_graph(name):
     """link_loss = 1 (open loop): every filter's errors are exactly those of the same runs with
     comm_radius = 0 — no message arrives, whatever carries it (one program for both points)."""
@@ -54,6 +62,7 @@ def test_every_link_lost_is_an_empty_comm_graph(name):
 
 
 @pytest.mark.parametrize("name", CASES)
+@pytest.mark.xdist_group("test_faults_tracking")  # the Ren & Lv sweeps' one program (SEEDS): one worker
 def test_every_sensor_dropped_is_a_team_without_sensors(name):
     """sensor_dropout = 1: no agent ever updates from a measurement — the errors are exactly
     those of the same runs with sensing_radius = 0 (prediction only)."""
@@ -107,7 +116,7 @@ def test_a_lost_agents_nan_state_reaches_no_neighbour_sun2011(planner, k):
 
 
 def test_a_lost_uuvs_nan_state_reaches_no_neighbour_ren2017():
-    cfg = uuv_imm.Config(faults="on", n_steps=30)
+    cfg = uuv_imm.Config(faults="on", n_steps=30, filters=tuple(CASES["ren2017"]["filters"]))
     params = uuv_imm.default_params(cfg)
     key = jax.random.PRNGKey(5)
     state = uuv_imm.init(cfg, params, key)
@@ -123,9 +132,11 @@ def test_a_lost_uuvs_nan_state_reaches_no_neighbour_ren2017():
 
 def test_faults_change_no_other_random_number():
     """With every fault on, the true target and every measurement an agent still takes are
-    those of the run without faults (their own key stream)."""
-    cfg_off = lf.Config(n_steps=30)
-    cfg_on = lf.Config(n_steps=30, faults="on")
+    those of the run without faults (their own key stream). (One filter, the local one, in
+    both runs: in the open loop the target and the measurements do not depend on the filters,
+    and the two programs compile 3x faster than with all five.)"""
+    cfg_off = lf.Config(n_steps=30, filters=("local",))
+    cfg_on = lf.Config(n_steps=30, filters=("local",), faults="on")
     on = lf.default_params(cfg_on)._replace(link_loss=0.4, link_burst=3.0, sensor_dropout=0.3, agent_loss_rate=0.02)
     key = jax.random.PRNGKey(11)
 
@@ -147,6 +158,7 @@ def _within(k, n, p):
     assert ci.low <= p <= ci.high, (k / n, p, ci)
 
 
+@pytest.mark.xdist_group("test_faults_tracking")  # the Ren & Lv sweeps' one program (SEEDS): one worker
 def test_measured_rates_are_the_params():
     """Over a sweep's runs, the fraction of link-steps lost, of agent-steps with a dropout and
     of agents lost by the end match the Params (binomial intervals); losses stop at min_alive."""
@@ -186,11 +198,12 @@ def test_bad_fault_input_exits_2_with_one_line_naming_the_field(tmp_path, lines,
 
 
 FAULTY = """base = "{base}"
-seeds = 6
+seeds = 50
 chunk_size = 4
 [config]
 faults = "on"
 n_steps = 25
+filters = ["imm", "cv"]
 [params]
 link_burst = 3.0
 agent_loss_rate = 0.03
@@ -201,12 +214,15 @@ link_loss = [0.1, 0.4]
 
 
 def faulty_spec(folder: Path) -> Path:
-    """A small Ren & Lv 2017 sweep with every fault drawn (two points, 6 seeds, chunks of 4 runs)."""
+    """A small Ren & Lv 2017 sweep with every fault drawn (two points, 50 seeds: one batch of the
+    engine's 100 runs; chunks of 4 runs asked for, rounded up to the batch): the Config and the
+    compiled program of the other Ren & Lv sweeps of this file (CASES)."""
     path = folder / "faulty.toml"
     path.write_text(FAULTY.format(base=ROOT / "configs" / "ren2017.toml"))
     return path
 
 
+@pytest.mark.xdist_group("test_faults_tracking")  # the Ren & Lv sweeps' one program (SEEDS): one worker
 def test_same_faults_on_one_or_two_devices(tmp_path):
     """The fault draws follow the run keys: the dataset of a faulty sweep is the same in this
     process (one device) and in a CLI process with two CPU devices (and another chunk size)."""
@@ -246,8 +262,9 @@ def test_the_docs_faulty_sensors_example(tmp_path):
     np.testing.assert_array_equal(rm[(1.0, "shared")], rm[(1.0, "local")])
     assert rm[(0.0, "shared")].mean() < 0.8 * rm[(0.0, "local")].mean()
     assert (df[df.link_loss == 1.0].links_lost == 1.0).all()
+    # 80 seeds: the 4 x 20 runs of the sweep above, so the same compiled batch program
     blind = build_spec({"base": str(tmp_path / "faulty_sensors.toml"), "params": {"sensor_dropout": 1.0}},
-                       tmp_path, seeds=3)
+                       tmp_path, seeds=80)
     none = run_sweep(blind)
     by = {f: g.sort_values("seed_index").rmse.to_numpy() for f, g in none.groupby("filter")}
     np.testing.assert_array_equal(by["shared"], by["local"])  # no fix: both only predict, from the same prior
