@@ -100,17 +100,23 @@ TRANSITION = np.array([[0.95, 0.05], [0.10, 0.90]])
 QS = (0.05, 2.0)
 
 
+@jax.jit
+def imm_ukf_step(state, z):
+    """One step of the IMM of two linear-model UKFs (process noises QS), compiled once for the tests below."""
+    Qs = jnp.stack([cv_process_noise(DT, q, jnp.float64) for q in QS])
+    return imm_step(state, jnp.asarray(TRANSITION), ukf_mode, Qs, z)
+
+
+@pytest.mark.xdist_group("test_ukf_imm")  # one worker compiles imm_ukf_step once
 def test_imm_equals_filterpy():
     filters = [kf(q) for q in QS]
     ref = IMMEstimator(filters, np.array([0.6, 0.4]), TRANSITION)
     state = IMMState(jnp.array([0.6, 0.4]), jnp.stack([jnp.asarray(f.x[:, 0]) for f in filters]),
                      jnp.stack([jnp.asarray(f.P) for f in filters]))
-    Qs = jnp.stack([cv_process_noise(DT, q, jnp.float64) for q in QS])
-    step = jax.jit(lambda s, z: imm_step(s, jnp.asarray(TRANSITION), ukf_mode, Qs, z))
     for z in data():
         ref.predict()
         ref.update(z)
-        state, (x, P) = step(state, jnp.asarray(z))
+        state, (x, P) = imm_ukf_step(state, jnp.asarray(z))
         np.testing.assert_allclose(np.asarray(x), ref.x[:, 0], rtol=1e-8, atol=1e-8)
         np.testing.assert_allclose(np.asarray(P), ref.P, rtol=1e-8, atol=1e-10)
         np.testing.assert_allclose(np.asarray(state.mu), ref.mu, rtol=1e-8, atol=1e-12)
@@ -125,16 +131,17 @@ def test_imm_of_ekfs_equals_filterpy_on_range_bearing():
     Fs = [np.asarray(F), np.asarray(ct_matrix(DT, 0.1, jnp.float64))]
     Q = np.asarray(cv_process_noise(DT, 0.1, jnp.float64))
     rng = np.random.default_rng(3)
+    rb, rb_jacobian = jax.jit(range_bearing), jax.jit(jax.jacfwd(range_bearing))  # compiled once, not op by op
     x, zs = np.array([0.0, 5.0, 0.0, 5.0]), []
     for k in range(40):
         x = Fs[1 if 15 <= k < 30 else 0] @ x
-        zs.append(np.asarray(range_bearing(jnp.asarray(x), jnp.asarray(sensor))) + rng.normal(0, np.sqrt(np.diag(R))))
+        zs.append(np.asarray(rb(jnp.asarray(x), jnp.asarray(sensor))) + rng.normal(0, np.sqrt(np.diag(R))))
 
     def hx(s):
-        return np.asarray(range_bearing(jnp.asarray(s), jnp.asarray(sensor)))
+        return np.asarray(rb(jnp.asarray(s), jnp.asarray(sensor)))
 
     def jac(s):
-        return np.asarray(jax.jacfwd(range_bearing)(jnp.asarray(s), jnp.asarray(sensor)))
+        return np.asarray(rb_jacobian(jnp.asarray(s), jnp.asarray(sensor)))
 
     def residual(a, b):
         d = a - b
@@ -177,11 +184,11 @@ def test_imm_of_ekfs_equals_filterpy_on_range_bearing():
 
 
 @pytest.mark.parametrize("sigmas", [100.0, 1e4])
+@pytest.mark.xdist_group("test_ukf_imm")  # one worker compiles imm_ukf_step once
 def test_mode_probabilities_survive_an_outlier(sigmas):
     state = IMMState(jnp.array([0.5, 0.5]), jnp.zeros((2, 4)), jnp.stack([jnp.eye(4)] * 2))
-    Qs = jnp.stack([cv_process_noise(DT, q, jnp.float64) for q in QS])
     z = jnp.array([sigmas * 2.0, -sigmas * 3.0])  # σ of z is ≥ 2 (R) in each component
-    new, (x, P) = jax.jit(lambda s: imm_step(s, jnp.asarray(TRANSITION), ukf_mode, Qs, z))(state)
+    new, (x, P) = imm_ukf_step(state, z)
     mu = np.asarray(new.mu)
     assert np.all(np.isfinite(mu)) and np.all((mu >= 0) & (mu <= 1))
     np.testing.assert_allclose(mu.sum(), 1.0, rtol=1e-12)
@@ -240,13 +247,15 @@ def test_consensus_imm_ukf_approaches_the_centralised_imm_ukf():
     central = np.array(central)
     rmse = np.sqrt(np.mean(np.sum((central - np.array(truth)[:, [0, 2]]) ** 2, -1)))
 
+    @jax.jit  # the graph and L are arguments: one compiled step for both graphs
+    def consensus_step(s, z, adj, L):
+        return consensus_imm_ukf_step(s, Pi, Fm, Qm, z, sensors, range_bearing, Rrb, adj, steps=L, angle_mask=am)
+
     def distributed(adj, L):
         s = IMMState(jnp.tile(jnp.array([0.5, 0.5]), (n, 1)), jnp.tile(x0, (n, 2, 1)), jnp.tile(P0, (n, 2, 1, 1)))
-        f = jax.jit(lambda s, z: consensus_imm_ukf_step(s, Pi, Fm, Qm, z, sensors, range_bearing, Rrb,
-                                                        jnp.asarray(adj), steps=L, angle_mask=am))
         out = []
         for z in zs:
-            s, (xc, _) = f(s, jnp.asarray(z))
+            s, (xc, _) = consensus_step(s, jnp.asarray(z), jnp.asarray(adj), L)
             mu = np.asarray(s.mu)
             assert np.all(np.isfinite(mu)) and np.allclose(mu.sum(-1), 1.0)
             out.append(np.asarray(xc)[:, [0, 2]])
