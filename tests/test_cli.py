@@ -21,15 +21,19 @@ def _spec(tmp_path, body):
     return p
 
 
+# The sweeps of this file have 12 runs each (the compiled batch is the sweep's run count, up to
+# the engine's batch size): one compiled program serves them all, the timeseries one apart.
+
+
 def test_sweep_writes_tidy_parquet(tmp_path):
     spec = _spec(tmp_path, "[grid]\ncomm_radius = [60e3, 100e3]\n")
     out = tmp_path / "out"
-    r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out)])
+    r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out), "--seeds", "6"])
     assert r.exit_code == 0, r.output
     df = pd.read_parquet(out / "runs")
-    assert len(df) == 2 * 3 * 5  # points x seeds x filters
+    assert len(df) == 2 * 6 * 5  # points x seeds x filters
     table = ds.dataset(out / "runs", partitioning="hive").to_table()  # hive: runs/point_id=P/
-    assert table.num_rows == 30 and sorted(set(table.column("point_id").to_pylist())) == [0, 1]
+    assert table.num_rows == 60 and sorted(set(table.column("point_id").to_pylist())) == [0, 1]
     assert sorted(p.parent.name for p in (out / "runs").glob("*/*.parquet")) == ["point_id=0", "point_id=1"]
     assert set(df["comm_radius"]) == {60e3, 100e3}
     assert sorted(df.groupby(["point_id", "seed_index"]).size().unique()) == [5]
@@ -37,7 +41,7 @@ def test_sweep_writes_tidy_parquet(tmp_path):
     assert meta["config"]["n_steps"] == 15 and "jax" in meta and "git_revision" in meta
     assert "modified_icf" in r.output
     # a second run into the same folder refuses, writing nothing
-    r2 = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out)])
+    r2 = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out), "--seeds", "6"])
     assert r2.exit_code == 2 and "not empty" in r2.output
 
 
@@ -80,13 +84,15 @@ def test_killed_sweep_resumes_to_identical_rows(tmp_path):
     written = sorted(str(p) for p in (out / "runs").glob("*/*.parquet"))  # one chunk = one file here
     assert 2 <= len(written) < 15, written  # killed mid-way
 
-    r = subprocess.run(_sweep_cmd(spec, out), capture_output=True, text=True)
-    assert r.returncode == 2 and "--resume" in r.stderr  # refuses without --resume
+    # the refusal and the uninterrupted reference sweep run in this process (a fresh Python
+    # would import JAX again); the resume is a new process, as after a real kill
+    r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out)])
+    assert r.exit_code == 2 and "--resume" in r.output  # refuses without --resume
     r = subprocess.run(_sweep_cmd(spec, out, "--resume"), capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert f"{len(written)} of 15 chunk(s) already written" in r.stdout
-    r = subprocess.run(_sweep_cmd(spec, tmp_path / "whole"), capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
+    r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / "whole")])
+    assert r.exit_code == 0, r.output
     resumed = pd.read_parquet(out / "runs").sort_values(["point_id", "seed_index", "filter"]).reset_index(drop=True)
     whole = pd.read_parquet(tmp_path / "whole" / "runs").sort_values(["point_id", "seed_index", "filter"]).reset_index(drop=True)
     assert len(resumed) == 3 * 500 * 2
@@ -113,7 +119,9 @@ def test_timeseries_dataset(tmp_path):
 
 
 def test_resume_refuses_a_different_sweep(tmp_path):
-    spec = _spec(tmp_path, "[grid]\ncomm_radius = [60e3]\n")
+    # 4 points x 3 seeds, as the report test's sweep (a one-point sweep, a batch of 3 runs,
+    # compiled a program of its own)
+    spec = _spec(tmp_path, "[grid]\ncomm_radius = [60e3, 100e3]\nsigma_bearing = [0.01, 0.02]\n")
     out = tmp_path / "out"
     assert CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out)]).exit_code == 0
     r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out), "--seeds", "4", "--resume"])
@@ -125,7 +133,7 @@ def test_resume_refuses_a_different_sweep(tmp_path):
 def test_zip_and_range_axes(tmp_path):
     spec = _spec(tmp_path, "[grid]\nsigma_bearing = {linspace = [0.01, 0.03, 3]}\n"
                            "[zip]\nuav_speed = [600.0, 800.0]\nturn_rate_max = [0.1, 0.2]\n")
-    r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / "o"), "--seeds", "1"])
+    r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / "o"), "--seeds", "2"])
     assert r.exit_code == 0, r.output
     df = pd.read_parquet(tmp_path / "o" / "runs")
     pts = df.drop_duplicates("point_id")[["sigma_bearing", "uav_speed", "turn_rate_max"]].to_numpy()

@@ -9,12 +9,20 @@ import numpy as np
 import pytest
 
 from mcjax import engine
+from mcjax.contract import FAST_COMPILE
 from mcjax.scenarios import leader_follower as lf
 
 # One filter (the leader's): a smaller program. The paper's config in closed loop, with its Table 1
 # claims, runs in benchmarks/divergence_sun2011.py (1,000 runs per case).
 CFG = lf.Config(planner="gradient", filters=("modified_icf",), n_steps=24, warmup_steps=4,
                 plan_iterations=3)
+
+
+def jit(fun, **kw):
+    """``jax.jit`` with the scenarios' XLA options (:data:`mcjax.contract.FAST_COMPILE`: XLA's older
+    CPU fusion code generator, which compiles with much less CPU time; the engine compiles the
+    scenarios' programs so). What these tests check does not depend on the code generator."""
+    return jax.jit(fun, compiler_options=dict(FAST_COMPILE), **kw)
 
 
 def batch(cfg, points, seeds):
@@ -90,9 +98,11 @@ def test_fixed_plan_period_plans_only_when_due_and_gives_the_same_bits(mixed):
     _, a, b = mixed
     cfg = lf.Config(**{**{k: getattr(CFG, k) for k in CFG.SETTINGS}, "plan_period": 3})
     fast = engine.compiled(lf.SCENARIO, cfg, records=True)
-    jaxpr = str(jax.make_jaxpr(fast)(*batch(cfg, [dict(horizon=5, replan_every=3, alpha_I=1000.0)] * 3, [5, 1, 7])))
+    inputs = batch(cfg, [dict(horizon=5, replan_every=3, alpha_I=1000.0)] * 3, [5, 1, 7])
+    # the program's own trace (the call below reuses it: make_jaxpr would trace the loop again)
+    jaxpr = str(fast.trace(*inputs).jaxpr)
     assert "cond[" in jaxpr  # a real branch, not a select over both sides
-    c = jax.tree.map(np.asarray, fast(*batch(cfg, [dict(horizon=5, replan_every=3, alpha_I=1000.0)] * 3, [5, 1, 7])))
+    c = jax.tree.map(np.asarray, fast(*inputs))
     for name in ("positions", "error", "plan_cost", "lambda2"):
         np.testing.assert_array_equal(getattr(c, name), getattr(b, name), err_msg=name)
     assert lf.check_params(cfg, {"replan_every": 2}) == [
@@ -122,7 +132,7 @@ def test_float32_planner_flies_the_float64_plans_and_keeps_the_filters_positive_
 
         return jax.lax.scan(body, state, jnp.arange(cfg.n_steps))[1]
 
-    recs, Y = jax.jit(jax.vmap(run))(params, keys)
+    recs, Y = jit(jax.vmap(run))(params, keys)
     assert np.asarray(recs.plan_cost).dtype == np.float64
     assert np.all(np.isfinite(np.asarray(recs.plan_cost)))
     gap = np.abs(np.asarray(recs.positions) - b.positions)

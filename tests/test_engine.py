@@ -9,7 +9,9 @@ import pytest
 from mcjax import engine
 from mcjax.scenarios import leader_follower as lf
 
-CFG = lf.Config(n_steps=40, warmup_steps=5)
+# 20 steps: what these tests check (chunking, keys, NaN isolation, bit-identity) does not
+# depend on the length of a run, and the 1000-run test runs 2,600 of them
+CFG = lf.Config(n_steps=20, warmup_steps=5)
 
 
 def _points(*overrides):
@@ -392,17 +394,17 @@ def test_scenario_compiler_options_apply_and_unknown_ones_are_dropped():
     assert engine.compiler_options(plain) is None
     cfg = dataclasses.replace(CFG, filters=("modified_icf",), n_steps=12)
     params, keys = engine.chunk_inputs(_points({}), 3, 0, 0, 3, 3)
-    a = engine.compiled(lf.SCENARIO, cfg, records=True)(params, keys)
-    b = engine.compiled(plain, cfg, records=True)(params, keys)
+    fn = engine.compiled(lf.SCENARIO, cfg, records=True)
+    a = fn(params, keys)
+    # inside a transformation of the caller's (where JAX allows no compiler options) the same
+    # function runs without them: XLA's default emitters, the program the plain scenario
+    # compiles (one compilation for both checks; a third, of the plain scenario's own jit,
+    # compiled the same function again)
+    b = jax.jit(lambda p, k: fn(p, k))(params, keys)
     for name in ("error", "positions", "lambda2", "robustness"):
         x, y = np.asarray(getattr(a, name)), np.asarray(getattr(b, name))
         assert np.all(np.isfinite(x)), name
         np.testing.assert_allclose(x, y, rtol=1e-9, atol=1e-9, err_msg=name)
-    # inside a transformation of the caller's (where JAX allows no compiler options) the same
-    # function runs without them
-    fn = engine.compiled(lf.SCENARIO, cfg, records=True)
-    nested = jax.jit(lambda p, k: fn(p, k))(params, keys)
-    np.testing.assert_allclose(np.asarray(nested.error), np.asarray(a.error), rtol=1e-9, atol=1e-9)
 
 
 def test_the_program_store_keeps_under_its_limit_dropping_the_least_recently_used(tmp_path, monkeypatch):

@@ -13,15 +13,25 @@ import numpy as np
 import pytest
 
 from mcjax import engine, graph
+from mcjax.contract import FAST_COMPILE
 from mcjax.planning import PlannerOptions, solve
 from mcjax.scenarios.leader_follower.horizon import Dynamics, Problem, horizon_cost, horizon_plan_cost
 from mcjax.scenarios.leader_follower.objectives import TREE_ABOVE, CostParams, resolve_paths
 from mcjax.study import load_config_file
 
-FAST = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True}
-exact_pairs = jax.jit(graph.connectivity_robustness, compiler_options=FAST)
-exact_tree = jax.jit(graph.tree_connectivity_robustness, compiler_options=FAST)
-smooth_tree = jax.jit(graph.smooth_tree_connectivity_robustness, compiler_options=FAST)
+# Every program of this file compiles with the scenarios' XLA options (FAST_COMPILE: XLA's older
+# CPU fusion code generator, much less compile time; the engine compiles the scenarios' programs
+# so) and the cheapest backend ones.
+FAST = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True, **FAST_COMPILE}
+
+
+def jit(fun):
+    return jax.jit(fun, compiler_options=FAST)
+
+
+exact_pairs = jit(graph.connectivity_robustness)
+exact_tree = jit(graph.tree_connectivity_robustness)
+smooth_tree = jit(graph.smooth_tree_connectivity_robustness)
 
 
 def _cases(count, seed=0):
@@ -79,22 +89,27 @@ def test_smooth_tree_robustness_gradient_matches_central_differences():
         r = graph.smooth_tree_connectivity_robustness(p, radius, 0.5, alive)
         return jnp.sum(jnp.where(jnp.asarray(alive), r, 0.0) * jnp.arange(1.0, 9.0))
 
-    g = np.asarray(jax.jit(jax.grad(f))(jnp.asarray(pos)))
-    assert np.all(np.isfinite(g)) and np.any(g != 0)
     h = 1e-6
+    steps = h * np.eye(16).reshape(16, 8, 2)  # step e_(i, d) = h in entry (i, d), (i, d) row-major
+    # one jitted program: the gradient at pos, and f at pos ± every step (32 eager calls of f
+    # cost most of the test's time)
+    g, up, down = jit(lambda p, e: (jax.grad(f)(p), jax.vmap(f)(p + e), jax.vmap(f)(p - e)))(
+        jnp.asarray(pos), jnp.asarray(steps))
+    g, up, down = np.asarray(g), np.asarray(up), np.asarray(down)
+    assert np.all(np.isfinite(g)) and np.any(g != 0)
     for i in range(8):
         for d in range(2):
-            e = np.zeros_like(pos)
-            e[i, d] = h
-            fd = (float(f(pos + e)) - float(f(pos - e))) / (2 * h)
+            fd = (float(up[2 * i + d]) - float(down[2 * i + d])) / (2 * h)
             assert abs(fd - g[i, d]) <= 1e-5 * max(1.0, abs(fd)), (i, d, fd, g[i, d])
 
 
 def test_smooth_tree_gradient_finite_for_coincident_agents_and_lone_agent():
     pos = jnp.asarray([[0.0, 0.0], [0.0, 0.0], [3.0, 1.0]])
-    g = jax.grad(lambda p: jnp.sum(graph.smooth_tree_connectivity_robustness(p, 2.0, 0.3)))(pos)
+    # one jitted program (eager, the tree's many small operations cost most of the test's time)
+    g, alone = jit(lambda p: (
+        jax.grad(lambda q: jnp.sum(graph.smooth_tree_connectivity_robustness(q, 2.0, 0.3)))(p),
+        graph.smooth_tree_connectivity_robustness(p, 2.0, 0.3, np.array([True, False, False]))))(pos)
     assert np.all(np.isfinite(np.asarray(g)))
-    alone = graph.smooth_tree_connectivity_robustness(pos, 2.0, 0.3, np.array([True, False, False]))
     assert np.all(np.isinf(np.asarray(alone)))
 
 
@@ -122,10 +137,17 @@ def _team(n, seed):
 def test_exact_planning_cost_is_the_same_on_both_paths():
     """The exact horizon cost (what every planner reports and keeps plans by) is the same to rounding."""
     dyn = Dynamics(1.0, 1.0, np.deg2rad(10.0), 5, 50.0)
+
+    # one program per team size, both paths in it (the teams are arguments, not constants:
+    # the two teams of twelve share it)
+    @jit
+    def both(problem, cost, v):
+        return (horizon_cost(problem, v, dyn, cost, paths="all_pairs"),
+                horizon_cost(problem, v, dyn, cost, paths="spanning_tree"))
+
     for n, seed in ((12, 0), (12, 1), (16, 2)):
         problem, cost, u = _team(n, seed)
-        a = jax.jit(lambda v: horizon_cost(problem, v, dyn, cost, paths="all_pairs"))(u)
-        b = jax.jit(lambda v: horizon_cost(problem, v, dyn, cost, paths="spanning_tree"))(u)
+        a, b = both(problem, cost, u)
         # R_I is bit-identical (above); the sums around it may round differently (XLA fuses them
         # in another order): one or two ulps
         np.testing.assert_allclose(float(b), float(a), rtol=1e-14)
@@ -136,10 +158,15 @@ def test_planner_on_the_tree_improves_on_its_warm_start():
     problem, cost, _ = _team(12, 5)
     warm = jnp.zeros((5, 12))
     pc = horizon_plan_cost(problem, dyn, cost, penalty="barrier", paths="spanning_tree")
-    plan = jax.jit(lambda w: solve(pc, w, jax.random.key(0), PlannerOptions("gradient", 10)))(warm)
-    assert np.isfinite(float(plan.cost)) and float(plan.cost) < float(pc.exact(warm))
-    np.testing.assert_allclose(float(plan.cost), float(horizon_cost(problem, plan.u, dyn, cost, paths="all_pairs")),
-                               rtol=1e-14)
+
+    @jit  # one program: the plan, the warm start's exact cost and the plan's on all pairs (eager is slow)
+    def go(w):
+        plan = solve(pc, w, jax.random.key(0), PlannerOptions("gradient", 10))
+        return plan, pc.exact(w), horizon_cost(problem, plan.u, dyn, cost, paths="all_pairs")
+
+    plan, at_warm, all_pairs = go(warm)
+    assert np.isfinite(float(plan.cost)) and float(plan.cost) < float(at_warm)
+    np.testing.assert_allclose(float(plan.cost), float(all_pairs), rtol=1e-14)
 
 
 def test_closed_loop_of_twelve_uavs_runs_on_the_tree():
@@ -152,5 +179,5 @@ def test_closed_loop_of_twelve_uavs_runs_on_the_tree():
     points = engine.stack_points([sc.default_params(cfg, **values)])
     [(_, _, _, rec)] = list(engine.run_chunks(sc, cfg, points, 2, chunk_size=2, records=True))
     assert np.all(np.isfinite(rec.plan_cost)) and np.all(np.isfinite(rec.positions))
-    ref = np.asarray(jax.jit(jax.vmap(jax.vmap(lambda p: graph.connectivity_robustness(p, 100e3))))(rec.positions))
+    ref = np.asarray(jit(jax.vmap(jax.vmap(lambda p: graph.connectivity_robustness(p, 100e3))))(rec.positions))
     np.testing.assert_array_equal(rec.robustness, ref)

@@ -14,6 +14,7 @@ from filterpy.kalman import ExtendedKalmanFilter, IMMEstimator
 
 from mcjax import engine
 from mcjax.cli import main
+from mcjax.contract import FAST_COMPILE
 from mcjax.filters.imm import IMMState, imm_step
 from mcjax.scenarios.urban_bearing import environment as env
 from mcjax.models.platforms import braking_climb, fixed_wing_step
@@ -27,6 +28,13 @@ WEIGHTS = [(0.2, 0.5, -0.3), (0.2, 0.0, 0.0)]
 #: The first building layout (configs/chen2022_wide_prior.toml), [x_lo, y_lo, x_hi, y_hi, height]: the
 #: planner and closed-loop states below are placed by hand around its tall building.
 BOXES = np.array([[4750.0, 5050.0, 4850.0, 5150.0, 200.0], [5100.0, 4800.0, 5250.0, 4900.0, 100.0]])
+
+
+def jit(fun, **kw):
+    """``jax.jit`` with the scenarios' XLA options (:data:`mcjax.contract.FAST_COMPILE`: XLA's older
+    CPU fusion code generator, which compiles with much less CPU time; the engine compiles the
+    scenarios' programs so). What these tests check does not depend on the code generator."""
+    return jax.jit(fun, compiler_options=dict(FAST_COMPILE), **kw)
 
 
 def wrap(a):
@@ -85,7 +93,7 @@ class BiasedAzimuthEKF(ExtendedKalmanFilter):
         super().update(z, self.jacobian, self.hx, residual=lambda a, b: wrap(a - b))
 
 
-_imm_jit = jax.jit(lambda st, tr, bias, sigma, z, uav, q: imm_step(st, tr, S.mode_filter, (bias, sigma), z, uav, q))
+_imm_jit = jit(lambda st, tr, bias, sigma, z, uav, q: imm_step(st, tr, S.mode_filter, (bias, sigma), z, uav, q))
 
 
 @pytest.mark.parametrize("transition", [
@@ -153,7 +161,7 @@ def test_accumulated_fim_det_has_the_closed_form():
     target = np.array([1200.0, -300.0])
     uavs = np.concatenate([rng.uniform(-3000, 3000, (9, 2)), rng.uniform(50, 400, (9, 1))], 1)
     sigma = 0.7 * DEG
-    info = jax.jit(urban.bearing_information)
+    info = jit(urban.bearing_information)
     fim = np.zeros((2, 2))
     for u in uavs:
         fim = fim + np.asarray(info(jnp.asarray(target), jnp.asarray(u), sigma))
@@ -187,8 +195,8 @@ def test_accumulated_fim_det_has_the_closed_form():
 
 CFG = S.Config()
 P64 = kit.cast(S.default_params(CFG, buildings=BOXES), jnp.float64)
-_plan_jit = jax.jit(lambda p, uav, prev, belief: S.plan_command(CFG, p, S.buildings_of(p), uav, prev, belief,
-                                                                 jax.random.PRNGKey(0)))
+_plan_jit = jit(lambda p, uav, prev, belief: S.plan_command(CFG, p, S.buildings_of(p), uav, prev, belief,
+                                                             jax.random.PRNGKey(0)))
 
 
 def np_axis(prev, bound, rate, dt, step):
@@ -212,7 +220,7 @@ def np_brake(theta, v, dt, delta):
     return np.sign(theta) * v * dt * total
 
 
-@jax.jit
+@jit
 def _indicators(emitter, pos):
     """Shadow (eqs. 7–8) and reflection-region (eqs. 9–10) membership of points (..., 3):
     the environment's own geometry (tested in tests/test_environment.py)."""
@@ -454,7 +462,7 @@ def test_closed_loop_shadow_flag_is_the_blocked_segment(closed_loop):
 @pytest.mark.xdist_group("test_urban")  # one worker builds the module fixture once
 def test_closed_loop_reduce_counts(closed_loop):
     cfg, params, r = closed_loop
-    out = jax.jit(jax.vmap(lambda rec, p: S.reduce(cfg, rec, p)))(S.Record(*r), params)
+    out = jit(jax.vmap(lambda rec, p: S.reduce(cfg, rec, p)))(S.Record(*r), params)
     assert np.all(np.asarray(out["building_steps"]) == 0)
     assert np.all(np.asarray(out["limit_violations"]) == 0)
     np.testing.assert_array_equal(np.asarray(out["shadow_steps"]), r.shadow.sum(1))
@@ -587,8 +595,8 @@ def test_gradient_planner_falls_back_to_an_admissible_grid_command():
                           jnp.broadcast_to(1e-6 * jnp.eye(2), (3, 2, 2)), jnp.array([0.2, 1.0, 1.0]) * DEG)
     straight = urban.predicted_track(uav, jnp.zeros(2), p.speed, cfg.dt, cfg.horizon)
     assert bool(jnp.any(env.inside(b, straight[:, :3])))  # the previous command is inadmissible
-    command, score, ok = jax.jit(lambda u: S.plan_command(cfg, p, b, u, jnp.zeros(2), belief,
-                                                          jax.random.PRNGKey(0)))(uav)
+    command, score, ok = jit(lambda u: S.plan_command(cfg, p, b, u, jnp.zeros(2), belief,
+                                                      jax.random.PRNGKey(0)))(uav)
     assert bool(ok) and np.isfinite(float(score))
     track = np.asarray(urban.predicted_track(uav, command, p.speed, cfg.dt, cfg.horizon))
     boxes = np.asarray(p.buildings)

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from mcjax import configure, engine
+from mcjax.contract import FAST_COMPILE
 from mcjax.filters.imm import combine
 from mcjax.models.platforms import fixed_wing_step
 from mcjax.scenarios import kit
@@ -28,6 +29,13 @@ from mcjax.study.spec import build_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 TOL = 1e-12
+
+
+def jit(fun, **kw):
+    """``jax.jit`` with the scenarios' XLA options (:data:`mcjax.contract.FAST_COMPILE`: XLA's older
+    CPU fusion code generator, which compiles with much less CPU time; the engine compiles the
+    scenarios' programs so). What these tests check does not depend on the code generator."""
+    return jax.jit(fun, compiler_options=dict(FAST_COMPILE), **kw)
 
 
 @pytest.fixture(scope="module")
@@ -60,22 +68,34 @@ def states(setup):
         return jax.lax.scan(body, s0, jnp.arange(cfg.n_steps))[1]
 
     keys = jax.vmap(lambda i: engine.run_key(0, i))(jnp.arange(2, dtype=jnp.uint32))
-    loop = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), jax.jit(jax.vmap(run))(keys))
+    loop = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), jit(jax.vmap(run))(keys))
     start = jax.tree.map(lambda a: a[0], loop)
     corners = [start._replace(command=jnp.array([a * p.theta_max, b * p.omega_max])) for a in (-1, 1) for b in (-1, 1)]
     return jax.tree.map(lambda *xs: jnp.concatenate([xs[0], jnp.stack(xs[1:])]), loop, *corners)
 
 
 @pytest.fixture(scope="module")
-def plans(setup, states):
+def planned(setup, states):
+    """One compiled program over every state: ``step`` with one key, the plan made with the plan
+    key ``step`` draws from that key, and eq. 1 flown with the plan's first command (the plans
+    and the step in one program: a program of its own for the plans compiled the planner once more)."""
     cfg, p = setup
+    key = engine.run_key(0, 5)
+    k_plan, _ = jax.random.split(key)
 
-    def plan(state, key):
+    def both(state):
+        new, rec = ub.step(cfg, p, state, key)
         b, belief = _inputs(cfg, p, state)
-        return ub.plan_sequence(cfg, p, b, state.uav, state.command, belief, key)
-    n = states.t.shape[0]
-    keys = jax.vmap(lambda i: jax.random.PRNGKey(i))(jnp.arange(n))
-    return jax.jit(jax.vmap(plan))(states, keys)
+        plan = ub.plan_sequence(cfg, p, b, state.uav, state.command, belief, k_plan)
+        flown = fixed_wing_step(state.uav, plan.commands[0, 0], plan.commands[0, 1], p.speed, cfg.dt)
+        return plan, (new.uav, rec, flown)
+
+    return jit(jax.vmap(both))(states)
+
+
+@pytest.fixture(scope="module")
+def plans(planned):
+    return planned[0]
 
 
 def _flyable(seq, previous, p, cfg):
@@ -144,7 +164,7 @@ def test_plan_is_scored_exactly_and_never_worse_than_its_warm_start(setup, state
             return jnp.where(ok, urban.track_score(urban.score_terms(b, belief, t, cfg.fim_score), w), -jnp.inf)
         return own, jnp.max(jax.vmap(constant)(urban.candidate_commands(state.command, lim, cfg.dt, steps, counts)))
 
-    own, best = (np.asarray(x) for x in jax.jit(jax.vmap(check))(states, plans.commands))
+    own, best = (np.asarray(x) for x in jit(jax.vmap(check))(states, plans.commands))
     score, improved = np.asarray(plans.score), np.asarray(plans.improved)
     assert np.all(np.isfinite(best))
     np.testing.assert_allclose(score, own, rtol=1e-12, atol=1e-12)
@@ -163,22 +183,12 @@ def test_a_constant_sequence_flies_the_constant_track(setup, states):
                                   np.asarray(urban.predicted_track(uav, c, p.speed, cfg.dt, cfg.horizon)))
 
 
-def test_the_first_command_of_the_plan_flies(setup, states):
+def test_the_first_command_of_the_plan_flies(states, planned):
     """``step`` with the sequence planner flies the first command of the plan made from the same
     state and plan key (on re-plan steps: the last step measured), and moves the UAV by eq. 1
     with it; no command breaks a limit and no step enters a building."""
-    cfg, p = setup
-    key = engine.run_key(0, 5)
-
-    def both(state):
-        new, rec = ub.step(cfg, p, state, key)
-        b, belief = _inputs(cfg, p, state)
-        k_plan, _ = jax.random.split(key)
-        plan = ub.plan_sequence(cfg, p, b, state.uav, state.command, belief, k_plan)
-        flown = fixed_wing_step(state.uav, plan.commands[0, 0], plan.commands[0, 1], p.speed, cfg.dt)
-        return new.uav, rec, plan.commands[0], flown
-
-    uav, rec, first, flown = jax.jit(jax.vmap(both))(states)
+    plan, (uav, rec, flown) = planned
+    first = plan.commands[:, 0]
     replan = np.asarray(states.measured)
     assert replan.sum() >= 8 and not np.any(np.asarray(rec.held)[replan])
     np.testing.assert_array_equal(np.asarray(rec.command)[replan], np.asarray(first)[replan])
@@ -195,5 +205,5 @@ def test_other_planners_are_untouched_by_the_sequence_settings(setup, states):
     b, belief = _inputs(cfg, p, state)
 
     def plan(c):
-        return jax.jit(lambda: ub.plan_command(c, p, b, state.uav, state.command, belief, jax.random.PRNGKey(0)))()
+        return jit(lambda: ub.plan_command(c, p, b, state.uav, state.command, belief, jax.random.PRNGKey(0)))()
     assert all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(plan(grid), plan(other)))

@@ -13,10 +13,18 @@ from click.testing import CliRunner
 
 from mcjax import engine
 from mcjax.cli import main
+from mcjax.contract import FAST_COMPILE
 from mcjax.scenarios import urban_bearing as S
 
 DEG = np.pi / 180.0
 CONFIG = str((Path(__file__).parents[1] / "configs" / "chen2022.toml").resolve())
+
+
+def jit(fun, **kw):
+    """``jax.jit`` with the scenarios' XLA options (:data:`mcjax.contract.FAST_COMPILE`: XLA's older
+    CPU fusion code generator, which compiles with much less CPU time; the engine compiles the
+    scenarios' programs so). What these tests check does not depend on the code generator."""
+    return jax.jit(fun, compiler_options=dict(FAST_COMPILE), **kw)
 
 
 @pytest.mark.parametrize("bearing_deg", [-170.0, -45.0, 0.0, 30.0, 90.0, 135.0])
@@ -38,7 +46,7 @@ def test_first_bearing_prior_is_range_and_cross_range(bearing_deg):
 
 def _inits(cfg, params, n):
     keys = jax.vmap(lambda s: engine.init_key(engine.run_key(0, s)))(jnp.arange(n, dtype=jnp.uint32))
-    return jax.jit(jax.vmap(lambda k: S.init(cfg, params, k)))(keys)
+    return jit(jax.vmap(lambda k: S.init(cfg, params, k)))(keys)
 
 
 def test_first_bearing_start_statistics():
