@@ -525,8 +525,10 @@ def test_builtin_reduce_and_timeseries_give_exactly_the_declared_outputs(name):
     sc = scenarios.BUILTIN[name]
     cfg = sc.Config(n_steps=3, warmup_steps=0)
     p = sc.default_params(cfg)
-    state = sc.init(cfg, p, jax.random.PRNGKey(0))
-    _, records = jax.lax.scan(lambda s, k: sc.step(cfg, p, s, k), state, jax.random.split(jax.random.PRNGKey(1), 3))
+    # shapes only (traced, not compiled): the records of three steps, then what reduce and timeseries make of them
+    state = jax.eval_shape(lambda: sc.init(cfg, p, jax.random.PRNGKey(0)))
+    keys = jax.random.split(jax.random.PRNGKey(1), 3)
+    records = jax.eval_shape(lambda s: jax.lax.scan(lambda s, k: sc.step(cfg, p, s, k), s, keys)[1], state)
     out = jax.eval_shape(lambda r: sc.reduce(cfg, r, p), records)
     series = jax.eval_shape(lambda r: sc.timeseries(cfg, r, p), records)
     F = len(cfg.filters)
