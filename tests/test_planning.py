@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from mcjax import graph
+from mcjax.contract import FAST_COMPILE
 from mcjax.models.sensors import range_bearing
 from mcjax.planning import PlanCost, PlannerOptions, solve
 from mcjax.scenarios.leader_follower.horizon import (
@@ -22,6 +23,13 @@ N = 5
 LAYOUT = np.array([[20, 150], [80, 150], [130, 200], [130, 100], [180, 150]]) * 1e3
 TARGET = np.array([200e3, 200.0, 180e3, -1000.0])
 DYN = Dynamics(1.0, 1.0, np.deg2rad(10.0), 5, 50.0)
+
+
+def jit(fun, **kw):
+    """``jax.jit`` with the scenarios' XLA options (:data:`mcjax.contract.FAST_COMPILE`: XLA's older
+    CPU fusion code generator, which compiles with much less CPU time; the engine compiles the
+    scenarios' programs so). What these tests check does not depend on the code generator."""
+    return jax.jit(fun, compiler_options=dict(FAST_COMPILE), **kw)
 
 
 def cost_params(n=N, **kw):
@@ -46,8 +54,9 @@ def test_position_information_is_jacobian_form():
     x = np.array([3e3, 100.0, -7e3, 5.0])
     R_inv = np.diag([1 / 10.0**2, 1 / 0.017**2])
     got = position_information(jnp.asarray(sensors), jnp.asarray(x[[0, 2]]), 10.0, 0.017)
+    jacobian = jit(jax.jacfwd(range_bearing))  # compiled once for the six sensors
     for s, I in zip(sensors, np.asarray(got)):
-        H = np.asarray(jax.jacfwd(range_bearing)(jnp.asarray(x), jnp.asarray(s)))[:, [0, 2]]
+        H = np.asarray(jacobian(jnp.asarray(x), jnp.asarray(s)))[:, [0, 2]]
         np.testing.assert_allclose(I, H.T @ R_inv @ H, rtol=1e-6)  # ε = 1 m in r: 1e-10 relative
 
 
@@ -80,9 +89,12 @@ def test_robustness_penalties():
 
 def test_smooth_cost_tends_to_exact():
     prob, u = problem(), jnp.asarray(np.random.default_rng(2).uniform(-1, 1, (8, N)))
-    exact = horizon_terms(prob, u, DYN, cost_params(), penalty="barrier", smooth=False)
+    # one jitted program for both temperatures (the temperature is data; eager horizon terms are slow)
+    terms = jit(lambda cp_exact, cp_smooth, v: (
+        horizon_terms(prob, v, DYN, cp_exact, penalty="barrier", smooth=False),
+        horizon_terms(prob, v, DYN, cp_smooth, penalty="barrier", smooth=True)))
     for T, tol in ((100.0, 0.1), (1.0, 1e-3)):
-        smooth = horizon_terms(prob, u, DYN, cost_params(temperature=T), penalty="barrier", smooth=True)
+        exact, smooth = terms(cost_params(), cost_params(temperature=T), u)
         for e, s in zip(exact, smooth):
             np.testing.assert_allclose(float(s), float(e), rtol=tol, atol=tol)
 
@@ -110,7 +122,7 @@ def test_horizon_masks_steps_beyond_t_r():
     cp = cost_params()
     # one compiled program for every t_r (t_r is data, not shape): the gradient of the smooth cost
     # and the exact cost of the plan and of its tail flipped
-    @jax.jit
+    @jit
     def go(v, t_r):
         dyn = DYN._replace(horizon=t_r)
         g = jax.grad(lambda w: horizon_cost(prob, w, dyn, cp, smooth=True))(v)
@@ -161,22 +173,28 @@ def test_horizon_cost_depends_on_relative_positions_only():
     moved = Problem(probs.uavs.at[..., :2].add(off[:, None]),
                     probs.target_mean.at[:, 0].add(off[:, 0]).at[:, 2].add(off[:, 1]), probs.Y)
     cp = cost_params()
-    for smooth in (False, True):
-        cost = jax.jit(jax.vmap(lambda q, v: horizon_cost(q, v, DYN, cp, smooth=smooth)))
-        a, b = np.asarray(cost(probs, u)), np.asarray(cost(moved, u))
+    # one program: the exact and the smooth cost
+    cost = jit(jax.vmap(lambda q, v: (horizon_cost(q, v, DYN, cp, smooth=False),
+                                      horizon_cost(q, v, DYN, cp, smooth=True))))
+    for smooth, a, b in zip((False, True), cost(probs, u), cost(moved, u)):
+        a, b = np.asarray(a), np.asarray(b)
         assert np.all(np.isfinite(a))
         np.testing.assert_allclose(b, a, rtol=1e-9, err_msg=f"smooth={smooth}")
 
 
-@pytest.mark.parametrize("penalty", ["barrier", "inverse"])
-def test_gradient_finite_in_degenerate_geometry(penalty):
+def test_gradient_finite_in_degenerate_geometry():
+    """Both penalties (barrier, inverse), their gradients in one compiled program."""
     probs, u = degenerate_batch(400)
     q = 100  # runs per kind of degeneracy
     cp = cost_params()
-    grads = jax.jit(jax.vmap(jax.grad(lambda q, v: horizon_cost(q, v, DYN, cp, penalty=penalty, smooth=True),
-                                      argnums=1)))(probs, u)
-    g = np.asarray(grads)
-    assert np.all(np.isfinite(g)), np.argwhere(~np.isfinite(g))[:5]
+
+    def grads(penalty):
+        return jax.vmap(jax.grad(lambda q, v: horizon_cost(q, v, DYN, cp, penalty=penalty, smooth=True),
+                                 argnums=1))
+    both = jit(lambda probs, u: [grads(penalty)(probs, u) for penalty in ("barrier", "inverse")])(probs, u)
+    for penalty, g in zip(("barrier", "inverse"), both):
+        g = np.asarray(g)
+        assert np.all(np.isfinite(g)), (penalty, np.argwhere(~np.isfinite(g))[:5])
     # and the geometry really is degenerate: coincident UAVs, no sensing, broken graphs
     xy = np.asarray(probs.uavs[..., :2])
     assert np.all(np.linalg.norm(xy[:q, 0] - xy[:q, 1], axis=-1) == 0.0)
@@ -195,9 +213,11 @@ def test_gradient_planner_turns_towards_an_unseen_target():
     warm = jnp.zeros((8, 1))
     plan_cost = horizon_plan_cost(prob, DYN, cp, penalty="barrier")
     opts = PlannerOptions("gradient", iterations=30)
-    plan = jax.jit(lambda w: solve(plan_cost, w, jax.random.PRNGKey(0), opts))(warm)
+    # one jitted program: the plan and the warm start's exact cost (eager horizon costs are slow)
+    plan, at_warm = jit(lambda w: (solve(plan_cost, w, jax.random.PRNGKey(0), opts),
+                                   horizon_cost(prob, w, DYN, cp)))(warm)
     assert np.all(np.asarray(plan.u)[:5, 0] > 0.9)  # full left turn over the horizon
-    assert float(plan.cost) < float(horizon_cost(prob, warm, DYN, cp))
+    assert float(plan.cost) < float(at_warm)
 
 
 def test_gradient_solver_reports_exact_cost_and_never_loses_to_the_warm_start():
@@ -209,7 +229,7 @@ def test_gradient_solver_reports_exact_cost_and_never_loses_to_the_warm_start():
     keys = jax.random.split(jax.random.PRNGKey(0), 64)
     exact = jax.vmap(lambda q, v: horizon_cost(q, v, DYN, cp))
 
-    @jax.jit
+    @jit
     def go(probs, warm, keys):
         plans = jax.vmap(lambda q, w, k: solve(horizon_plan_cost(q, DYN, cp, penalty="barrier"), w, k, opts))(
             probs, warm, keys)
@@ -244,7 +264,7 @@ def test_solvers_report_exact_cost_and_never_lose_to_the_warm_start(kind):
     opts = PlannerOptions(kind, iterations=4, samples=32)
     keys = jax.random.split(jax.random.PRNGKey(0), 64)
 
-    @jax.jit
+    @jit
     def go(targets, warm, keys):
         plans = jax.vmap(lambda c, w, k: solve(_toy_cost(c), w, k, opts))(targets, warm, keys)
         exact = jax.vmap(lambda c, v: _toy_cost(c).exact(v))
@@ -282,7 +302,7 @@ def test_horizon_plan_cost_is_horizon_cost():
     prob, u = problem(), jnp.asarray(np.random.default_rng(13).uniform(-1, 1, (8, N)))
     cp = cost_params()
     pc = horizon_plan_cost(prob, DYN, cp, penalty="inverse")
-    got = jax.jit(lambda v: jnp.stack([
+    got = jit(lambda v: jnp.stack([
         pc.exact(v), horizon_cost(prob, v, DYN, cp, penalty="inverse", smooth=False),
         pc.smooth(v), horizon_cost(prob, v, DYN, cp, penalty="inverse", smooth=True),
         horizon_cost(prob, v, DYN, cp, penalty="barrier", smooth=False)]))(u)
@@ -333,13 +353,13 @@ def test_grid_returns_the_known_minimiser_among_the_candidates():
     def one(w, c, centre):
         return solve(PlanCost(quadratic(centre, weights, 1.5)), w, jax.random.PRNGKey(0), opts, candidates=c)
 
-    plans = jax.jit(jax.vmap(one))(jnp.asarray(warm), jnp.asarray(cands), jnp.asarray(centres))
+    plans = jit(jax.vmap(one))(jnp.asarray(warm), jnp.asarray(cands), jnp.asarray(centres))
     np.testing.assert_array_equal(np.asarray(plans.u), centres)  # exactly candidate #k, unclipped
     np.testing.assert_array_equal(np.asarray(plans.cost), np.full(B, 1.5))
     assert np.any(np.abs(centres) > 1.0)
     # and against brute force for a cost whose minimiser is not a candidate
     off = np.array([0.3, -0.2])
-    plans = jax.jit(jax.vmap(lambda w, c: solve(PlanCost(quadratic(off, weights)), w, None, opts, candidates=c)))(
+    plans = jit(jax.vmap(lambda w, c: solve(PlanCost(quadratic(off, weights)), w, None, opts, candidates=c)))(
         jnp.asarray(warm), jnp.asarray(cands))
     every = np.concatenate([warm[:, None], cands], 1)
     scores = np.sum(weights * (every - off) ** 2, -1)
@@ -357,7 +377,7 @@ def test_grid_nan_cost_never_wins(nan_at):
     centre = jnp.asarray(nan_c)
     exact = lambda u: jnp.where(jnp.all(u == centre), jnp.nan, jnp.sum((u - centre) ** 2))
     warm = jnp.array([9.0, 9.0])
-    plan = jax.jit(lambda w, c: solve(PlanCost(exact), w, None, PlannerOptions("grid"), candidates=c))(
+    plan = jit(lambda w, c: solve(PlanCost(exact), w, None, PlannerOptions("grid"), candidates=c))(
         warm, jnp.asarray(cands))
     scores = np.sum((cands - nan_c) ** 2, -1)
     scores[nan_at] = np.inf
@@ -413,7 +433,7 @@ def test_planners_on_a_generic_cost(kind):
     opts = PlannerOptions(kind, iterations=30 if kind == "gradient" else 4, samples=64, learning_rate=0.1)
     warms = jnp.asarray(np.random.default_rng(23).uniform(-1, 1, (8, 3, 2)))
     keys = jax.random.split(jax.random.PRNGKey(3), 8)
-    plans = jax.jit(jax.vmap(lambda w, k: solve(cost, w, k, opts)))(warms, keys)
+    plans = jit(jax.vmap(lambda w, k: solve(cost, w, k, opts)))(warms, keys)
     warm_cost = np.asarray(jax.vmap(exact)(warms))
     assert np.all(np.asarray(plans.cost) < warm_cost)
     np.testing.assert_allclose(np.asarray(plans.cost), np.asarray(jax.vmap(exact)(plans.u)), rtol=1e-14)
@@ -440,10 +460,16 @@ def test_plan_derivative_through_the_unrolled_adam_matches_central_differences()
         return solve(horizon_plan_cost(prob, DYN, cp, penalty="barrier"), warm, key, opts).u
 
     w0 = jnp.log(jnp.array([1000.0, 1e-4, 1.0]))
-    jac = jax.jit(jax.jacfwd(plan_of))(w0)                     # (5, N, 3)
     h = 1e-5
-    shifts = jnp.concatenate([w0 + h * jnp.eye(3), w0 - h * jnp.eye(3)])
-    plans = jax.jit(jax.vmap(plan_of))(shifts)
+    # One compiled program, one vmapped forward-mode pass (a jitted jacfwd and a jitted vmap of
+    # the plan traced and compiled the unrolled Adam twice): lanes 0-2 push the unit tangents
+    # through at w0 (the derivative's columns, as jacfwd does); lanes 3-8 give the plans at
+    # w0 ± h e_k (their primal values, not derivatives) for the central differences.
+    points = jnp.concatenate([jnp.broadcast_to(w0, (3, 3)), w0 + h * jnp.eye(3), w0 - h * jnp.eye(3)])
+    tangents = jnp.concatenate([jnp.eye(3), jnp.zeros((6, 3))])
+    values, columns = jit(jax.vmap(lambda w, t: jax.jvp(plan_of, (w,), (t,))))(points, tangents)
+    jac = jnp.moveaxis(columns[:3], 0, -1)                     # (5, N, 3)
+    plans = values[3:]
     fd = jnp.moveaxis((plans[:3] - plans[3:]) / (2 * h), 0, -1)
     jac, fd = np.asarray(jac), np.asarray(fd)
     assert np.all(np.isfinite(jac))
