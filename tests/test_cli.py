@@ -71,7 +71,7 @@ def test_killed_sweep_resumes_to_identical_rows(tmp_path):
     import time
 
     spec = tmp_path / "spec.toml"
-    spec.write_text(f'base = "{BASE}"\nseeds = 500\nchunk_size = 100\n[config]\nn_steps = 20\n'
+    spec.write_text(f'base = "{BASE}"\nseeds = 500\nchunk_size = 100\n[config]\nn_steps = 10\n'
                     f'warmup_steps = 2\nplanner = "none"\nfilters = ["cif", "modified_icf"]\n'
                     f'[grid]\ncomm_radius = [60e3, 80e3, 100e3]\n')
     out = tmp_path / "killed"

@@ -9,9 +9,9 @@ import pytest
 from mcjax import engine
 from mcjax.scenarios import leader_follower as lf
 
-# 20 steps: what these tests check (chunking, keys, NaN isolation, bit-identity) does not
+# 10 steps: what these tests check (chunking, keys, NaN isolation, bit-identity) does not
 # depend on the length of a run, and the 1000-run test runs 2,600 of them
-CFG = lf.Config(n_steps=20, warmup_steps=5)
+CFG = lf.Config(n_steps=10, warmup_steps=5)
 
 
 def _points(*overrides):
