@@ -1,8 +1,9 @@
 """The smoothing switch of Lou, Cui & Li 2013's flock (``flocking``, mcjax/scenarios/flocking/smoothing.py).
 
-Small sizes, float64. Three compiled programs: the tune loss and its forward-mode gradient on
-6 nodes x 8 steps x 3 runs; the exact and the smooth simulation (temperatures traced, so one
-program serves every level) of 10 nodes x 40 steps x 4 runs.
+Small sizes, float64. Three compiled programs of the flock (besides small ones of its pieces):
+the tune loss and its forward-mode gradient on 6 nodes x 8 steps x 3 runs (vmapped over the
+test's points); the exact and the smooth simulation (temperatures traced, so one program serves
+every level) of 10 nodes x 40 steps x 4 runs.
 """
 
 from __future__ import annotations
