@@ -135,8 +135,11 @@ def test_batched_kernel_matches_the_general_path(kind, monkeypatch):
     assert not x.flags.writeable and not P.flags.writeable
     monkeypatch.setattr(recorded, "BATCHED_KINDS", ())
     xg, Pg = run_filter(kind, **batch, **rest, consensus_steps=2)
+    # round-off of two algebras over 25 steps: measured 4.5e-10 … 1.19e-9 (x) and 1.1e-11 … 5.8e-11
+    # (P) under XLA's defaults, its older CPU emitters, the suite's flags and both together (the
+    # modified ICF's x: 1.11e-9 with XLA's defaults), so x's bound is 5e-9, not 1e-9
     scale = np.abs(xg).reshape(-1, 4).max(axis=0)
-    assert np.max(np.abs(x - xg) / scale) < 1e-9
+    assert np.max(np.abs(x - xg) / scale) < 5e-9
     d = np.sqrt(np.diagonal(Pg, axis1=-2, axis2=-1).reshape(-1, 4).max(axis=0))
     assert np.max(np.abs(P - Pg) / np.outer(d, d)) < 1e-9
     np.testing.assert_array_equal(P, np.swapaxes(P, -1, -2))

@@ -49,7 +49,10 @@ def _spec(tmp_path, text, name="s.toml"):
 @functools.cache
 def _smooth_program(study):
     sm = study.sensitivity.smoothing
-    return jax.jit(lambda q, k: engine.simulate(study.scenario, study.config, q, k, smoothing=sm))
+    # compiled with XLA's newer CPU emitters, named (the suite's flags pick the older ones, which
+    # the engine's own program uses): the reference is a program of its own, as a user's jit is
+    return jax.jit(lambda q, k: engine.simulate(study.scenario, study.config, q, k, smoothing=sm),
+                   compiler_options={"xla_cpu_use_fusion_emitters": True})
 
 
 def _central(study, name, outputs, h):
