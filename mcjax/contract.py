@@ -440,6 +440,8 @@ class Scenario:
     summary: Summary | None = None       # reduce and outputs in one
     series: Summary | None = None        # timeseries and timeseries_outputs in one
     filter_words: Mapping[str, str] | None = None  # each filter kind in plain words (the report's glossary)
+    #: its programs run on one CPU device (True where two running at once deadlock in XLA's CPU runtime)
+    one_device: bool = False
 
     def __post_init__(self):
         me = f"scenario {self.name!r}"

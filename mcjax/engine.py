@@ -219,11 +219,11 @@ def compiler_options(scenario: Scenario) -> dict | None:
     return runtime.known_compiler_options(scenario.compiler_options)
 
 
-def devices() -> list:
+def devices(scenario: Scenario | None = None) -> list:
     """The devices a sweep's batches are spread over: JAX's default backend's (on the CPU, one
-    per core: :mod:`mcjax.runtime`)."""
+    per core: :mod:`mcjax.runtime`); the first alone for a scenario that declares ``one_device``."""
     runtime.configure()
-    return jax.local_devices()
+    return jax.local_devices()[:1] if scenario is not None and scenario.one_device else jax.local_devices()
 
 
 #: The in-process cache (:func:`cached`): ``("jit", scenario, cfg, flags…)``, ``("programs", fn,
@@ -463,7 +463,7 @@ def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed
     b = batch_size_for(n_runs)
     plan = chunk_plan(n_runs, chunk_size)
     # as many devices as the largest chunk has batches (a one-batch sweep compiles once)
-    devs = devices()[:max(1, min(len(devices()), max(-(-(e - s) // b) for s, e in plan)))]
+    devs = devices(scenario)[:max(1, min(len(devices(scenario)), max(-(-(e - s) // b) for s, e in plan)))]
     fns = [compiled(scenario, cfg, records, timeseries)] + (
         [] if sensitivity is None else [compiled(scenario, cfg, sensitivity=sensitivity)])
     programs = None

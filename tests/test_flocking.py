@@ -1023,3 +1023,21 @@ def test_rk4_adaptive_matches_solve_ivp_and_resizes_mid_step():
     assert np.isfinite(float(dmin)) and 0 < float(dmin) < 1.0 and np.all(np.isfinite(np.asarray(s.q)))
     # the pair bounced: they end moving apart
     assert float((s.q[1, 0] - s.q[0, 0]) * (s.p[1, 0] - s.p[0, 0])) > 0
+
+
+def test_the_flock_runs_on_one_device_where_there_are_two():
+    """Lou, Cui & Li 2013's flock declares ``one_device`` (two of its programs running at once on
+    two CPU devices deadlocked in XLA's CPU runtime): a process with two CPU devices (the count is
+    fixed when JAX starts: a subprocess) gives its sweeps and tunes one, the other scenarios two."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import mcjax; mcjax.configure(); from mcjax import engine; "
+            "from mcjax.scenarios import flocking, leader_follower; "
+            "print(len(engine.devices()), len(engine.devices(flocking.SCENARIO)), "
+            "len(engine.devices(leader_follower.SCENARIO)))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                       env={**os.environ, "MCJAX_CPU_DEVICES": "2"})
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.split() == ["2", "1", "2"], r.stdout

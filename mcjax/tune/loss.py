@@ -160,7 +160,8 @@ class Evaluator:
         keys = train_keys(spec)
         n = spec.train_seeds
         # one device per RUNS_PER_DEVICE runs at least (a small batch compiles once)
-        self.devs = engine.devices()[:max(1, min(len(engine.devices()), n // RUNS_PER_DEVICE))]
+        devs = engine.devices(spec.study.scenario)  # one for a scenario that declares one_device
+        self.devs = devs[:max(1, min(len(devs), n // RUNS_PER_DEVICE))]
         size = -(-n // len(self.devs))
         self.slices = [(i * size, min(n, (i + 1) * size)) for i in range(len(self.devs)) if i * size < n]
         self.devs = self.devs[:len(self.slices)]
