@@ -473,7 +473,7 @@ SCENARIO = Scenario(
     check_params=check_params, smooth=Smooth(Smoothing, training_errors, training_weights, ROUGH),
     compiler_options=FAST_COMPILE,
     # two of its programs running at once on two CPU devices wait for each other for good (XLA's CPU
-    # runtime, its sub-steps in a data-dependent while loop): a sweep of two 100-run batches hung
+    # runtime, its sub-steps in a data-dependent while loop): a sweep of four 100-run batches hung
     one_device=True,
     filter_words={
         "kcf": "Kalman-consensus filter of Lou, Cui & Li 2013 (Alg. 1): a local update with the neighbours' "
