@@ -16,8 +16,8 @@ os.environ.setdefault("MCJAX_CPU_DEVICES", "1")
 # XLA's older CPU fusion emitters too, for every program (the built-in scenarios but Ren & Lv 2017's
 # already ask for them, mcjax.contract.FAST_COMPILE): the tests' own jitted functions compile with
 # ~30 % less CPU time (measured on 5 test files: 116 -> 83 s); Ren & Lv 2017's golden rows moved by
-# round-off (< 5e-12 relative) and were written again. tests/test_engine.py asks for the newer
-# emitters by name where they are what it checks.
+# round-off (< 5e-12 relative) and were written again. tests/test_engine.py and the reference
+# program of tests/test_sensitivity.py ask for the newer emitters by name.
 _FAST_COMPILE = "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true --xla_cpu_use_fusion_emitters=false"
 if _FAST_COMPILE not in os.environ.get("XLA_FLAGS", ""):  # xdist workers inherit it from the controller
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_FAST_COMPILE}".strip()
