@@ -463,7 +463,7 @@ def run_chunks(scenario: Scenario, cfg, point_params, n_seeds: int, *, base_seed
     b = batch_size_for(n_runs)
     plan = chunk_plan(n_runs, chunk_size)
     # as many devices as the largest chunk has batches (a one-batch sweep compiles once)
-    devs = devices(scenario)[:max(1, min(len(devices(scenario)), max(-(-(e - s) // b) for s, e in plan)))]
+    devs = devices(scenario)[:max(1, max(-(-(e - s) // b) for s, e in plan))]
     fns = [compiled(scenario, cfg, records, timeseries)] + (
         [] if sensitivity is None else [compiled(scenario, cfg, sensitivity=sensitivity)])
     programs = None

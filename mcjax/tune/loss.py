@@ -160,8 +160,7 @@ class Evaluator:
         keys = train_keys(spec)
         n = spec.train_seeds
         # one device per RUNS_PER_DEVICE runs at least (a small batch compiles once)
-        devs = engine.devices(spec.study.scenario)  # one for a scenario that declares one_device
-        self.devs = devs[:max(1, min(len(devs), n // RUNS_PER_DEVICE))]
+        self.devs = engine.devices(spec.study.scenario)[:max(1, n // RUNS_PER_DEVICE)]  # one_device: one
         size = -(-n // len(self.devs))
         self.slices = [(i * size, min(n, (i + 1) * size)) for i in range(len(self.devs)) if i * size < n]
         self.devs = self.devs[:len(self.slices)]
