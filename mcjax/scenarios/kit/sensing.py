@@ -12,6 +12,7 @@ import jax.numpy as jnp
 from mcjax import graph
 from mcjax.models.sensors import measure_range_bearing, range_bearing
 from mcjax.scenarios import faults
+from mcjax.scenarios.kit.settings import per_run
 
 
 def team_measurements(key, target, sensors, sigma_range, sigma_bearing, sensing_radius, alive):
@@ -80,3 +81,10 @@ def hold_filters(fault, kinds, new, old, exempt=("cif",)) -> tuple:
     """The filters' states after a step under faults: a lost agent's stay as they were
     (:func:`mcjax.scenarios.faults.hold`), but for the kinds ``exempt``."""
     return tuple(s if k in exempt else faults.hold(fault, s, o) for k, s, o in zip(kinds, new, old))
+
+
+def kcf_mailbox(cfg, params, x0):
+    """The KCF's consensus messages in flight before step 0 (:func:`mcjax.scenarios.faults.mailbox`;
+    None without a message delay or without a ``"kcf"`` filter), per-run from the start (:func:`per_run`)."""
+    box = faults.mailbox(cfg, x0) if "kcf" in cfg.filters else None
+    return None if box is None else faults.Mailbox(*per_run(params.dt, *box))

@@ -1,14 +1,19 @@
 """Six UUVs tracking a manoeuvring (CV <-> CT) target by consensus IMM-UKF, Ren & Lv 2017 — the
-scenario ``uuv_imm`` (:mod:`.scenario`) and its smoothing switch (:mod:`.smoothing`: the sonar's
+scenario ``uuv_imm`` (:mod:`.params`: Config, Params and their checks; :mod:`.step`: the state, the step,
+the record; :mod:`.scenario`: the outputs and ``SCENARIO``) and its smoothing switch (:mod:`.smoothing`: the sonar's
 range gate, the comm links, the component sizes, the likelier-mode indicator). Its filters
 (:mod:`mcjax.filters.consensus_imm`) and motion models (:mod:`mcjax.models.motion`) live in the
 shared folders."""
 
-from mcjax.scenarios.uuv_imm.scenario import (
-    CT, CV, FILTER_KINDS, FILTER_MODES, NAME, SCENARIO, SCHEDULES, WEIGHT_KINDS, Config, Params, Record, State,
-    check_params, default_params, default_positions, init, outputs, reduce, series, step, summary, timeseries,
-    timeseries_outputs, training_errors, training_weights, unscented,
+from mcjax.scenarios.kit import training_errors, training_weights
+from mcjax.scenarios.uuv_imm.params import (
+    CT, CV, FILTER_KINDS, FILTER_MODES, NAME, SCHEDULES, WEIGHT_KINDS, Config, Params, check_params, default_positions,
+    unscented,
 )
+from mcjax.scenarios.uuv_imm.scenario import (
+    SCENARIO, default_params, outputs, reduce, series, summary, timeseries, timeseries_outputs,
+)
+from mcjax.scenarios.uuv_imm.step import Record, State, init, step
 from mcjax.scenarios.uuv_imm.smoothing import Smoothing, mode_hits
 
 __all__ = ["CT", "CV", "Config", "FILTER_KINDS", "FILTER_MODES", "NAME", "Params", "Record", "SCENARIO", "SCHEDULES",
