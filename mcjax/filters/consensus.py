@@ -286,9 +286,11 @@ def init_states(kinds, x0, P0, n_agents):
     return tuple(single if k == "cif" else per_agent for k in kinds)
 
 
-def filter_step(kinds, opts: FilterOptions, h, angle_mask, states, meas: Measurements, F, Q, kcf_epsilon):
+def filter_step(kinds, opts: FilterOptions, h, angle_mask, states, meas: Measurements, F, Q, kcf_epsilon,
+                formation=None):
     """Advance every filter in ``kinds`` by one step. Returns the new states (same
-    structure as ``states``)."""
+    structure as ``states``). ``formation``: eq. 12's formation term of Chen & Lu 2013's
+    consensus Kalman filter (:func:`prior_consensus_kcf_step`), if any."""
     out = []
     for kind, post in zip(kinds, states):
         if kind == "cif":
@@ -300,7 +302,7 @@ def filter_step(kinds, opts: FilterOptions, h, angle_mask, states, meas: Measure
         elif kind == "icf":
             out.append(icf_step(h, angle_mask, opts, post, meas, F, Q))
         elif kind == "kcf" and opts.kcf_gain == "prior_consensus":
-            out.append(prior_consensus_kcf_step(h, angle_mask, opts, post, meas, F, Q))
+            out.append(prior_consensus_kcf_step(h, angle_mask, opts, post, meas, F, Q, formation))
         elif kind == "kcf":
             out.append(kcf_step(h, angle_mask, opts, kcf_epsilon, post, meas, F, Q))
         else:

@@ -111,11 +111,13 @@ def error_series_outputs(unit: str = "m", what: str = "position error") -> dict[
     return declarations(error_series_items(None, None, unit, what))
 
 
-def team_weights(cfg, params, r):
+def team_weights(cfg, params, r, switched_on=None):
     """``(switched_on, alive)``: functions of no arguments (each computed once) giving the weights
-    (n,) of the agents the spec switched on (``params.alive``) and, per step (T, n), of those
-    not yet lost to faults (:func:`mcjax.scenarios.faults.weights` of the records ``r``)."""
-    switched_on = cache(lambda: metrics.alive_weights(params.alive, cfg.n_agents, r.error.dtype))
+    (n,) of the agents the spec switched on (``params.alive``, unless a ``switched_on`` function
+    is given) and, per step (T, n), of those not yet lost to faults
+    (:func:`mcjax.scenarios.faults.weights` of the records ``r``)."""
+    if switched_on is None:
+        switched_on = cache(lambda: metrics.alive_weights(params.alive, cfg.n_agents, r.error.dtype))
     return switched_on, cache(lambda: faults.weights(switched_on(), r.faults))
 
 

@@ -59,15 +59,24 @@ def sense_and_link(key, target, sensors, params, sensing, comm, alive, fault, sm
     if smoothing is None:
         z = faults.measurements(team_measurements(key, target, sensors, params.sigma_range, params.sigma_bearing,
                                                   sensing, alive), fault)
-        comm_graph = graph.adjacency(sensors, comm, alive)
         gates = sizes = None
     else:
         z, gates = soft_team_measurements(key, target, sensors, params.sigma_range, params.sigma_bearing,
                                           sensing, alive, smoothing.sensing)
         z = faults.measurements(z, fault)
-        comm_graph = graph.soft_adjacency(sensors, comm, smoothing.comm, alive)
         sizes = graph.soft_component_sizes(sensors, comm, smoothing.comm, alive & faults.alive(fault, sensors.shape[0]))
-    return Sensed(z, comm_graph, faults.messages(comm_graph, fault), gates, sizes)
+    return Sensed(z, *link(sensors, comm, fault, smoothing, alive), gates, sizes)
+
+
+def link(positions, comm, fault, smoothing=None, alive=None) -> tuple:
+    """``(comm_graph, carried)``: the comm graph of radius ``comm`` (scalar or (n,)) among the agents
+    ``alive`` (all if None) — Sun et al. 2011 eq. 13, or its soft links at ``smoothing.comm``
+    (:func:`mcjax.graph.soft_adjacency`) — and its links whose message the step's ``fault`` did not lose."""
+    if smoothing is None:
+        comm_graph = graph.adjacency(positions, comm, alive)
+    else:
+        comm_graph = graph.soft_adjacency(positions, comm, smoothing.comm, alive)
+    return comm_graph, faults.messages(comm_graph, fault)
 
 
 def shield_filters(fault, kinds, states, exempt=("cif",)) -> tuple:

@@ -1,17 +1,24 @@
 """Three UAVs estimate a constant wind by consensus Kalman filtering and hold a formation on a sine
 path, Chen & Lu 2013 — the scenario ``wind_formation`` and everything only it uses:
 
-* :mod:`.scenario` — Config, Params, the step, the outputs, ``SCENARIO``;
+* :mod:`.params` — Config, Params and their checks;
+* :mod:`.step` — the state, the step (measure, filter, correct the path, fly), the record;
+* :mod:`.scenario` — the outputs and ``SCENARIO``;
 * :mod:`.guidance` — the path correction of eqs. 13–16 (forward root, approach rule, capped
   air step, centre offsets);
 * :mod:`.smoothing` — the smoothing switch (soft comm links, eq. 13's path point, eq. 15's cap) for
   ``mcjax tune`` and sensitivities.
 """
 
+from mcjax.scenarios.wind_formation.params import (
+    CAP_TOL, CLOSURE_TOL, FILTER_KINDS, FORMATION_SIGNS, NAME, NOISES, PAPER_OFFSETS, PAPER_START, Config, Params,
+    check_params,
+)
 from mcjax.scenarios.wind_formation.scenario import (
-    CAP_TOL, CLOSURE_TOL, FILTER_KINDS, FORMATION_SIGNS, NAME, NOISES, PAPER_OFFSETS, PAPER_START, SCENARIO, Config,
-    Params, Record, State, check_params, default_params, formation_term, init, noise_variance, outputs, pairs, reduce,
-    reference_distances, series, step, summary, timeseries, timeseries_outputs, wind,
+    SCENARIO, default_params, outputs, reduce, series, summary, timeseries, timeseries_outputs,
+)
+from mcjax.scenarios.wind_formation.step import (
+    Record, State, formation_term, init, noise_variance, pairs, reference_distances, step, wind,
 )
 from mcjax.scenarios.wind_formation.smoothing import (
     ROUGH, Smoothing, smooth_cap, smooth_next_centre, soft_capped, training_errors, training_weights,

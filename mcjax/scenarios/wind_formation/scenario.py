@@ -55,304 +55,17 @@ over the steps it had a measurement.
 from __future__ import annotations
 
 from functools import cache
-from itertools import combinations
-from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcjax import graph, metrics
-from mcjax.contract import FAST_COMPILE, Output, Param, Scenario, Setting, config_type, declare, params_type
-from mcjax.filters.consensus import (
-    WEIGHT_KINDS,
-    FilterOptions,
-    Measurements,
-    cif_step,
-    local_step,
-    prior_consensus_kcf_step,
-)
-from mcjax.filters.gaussian import Gaussian, first_step_model
-from mcjax.numerics import spd_inverse, symmetrize
+from mcjax import metrics
+from mcjax.contract import FAST_COMPILE, Output, Scenario, declare
 from mcjax.scenarios import faults, kit
-from mcjax.scenarios.wind_formation import guidance
-from mcjax.scenarios.wind_formation.smoothing import (
-    ROUGH, Smoothing, smooth_cap, smooth_next_centre, soft_capped, training_errors, training_weights,
-)
+from mcjax.scenarios.wind_formation.params import NAME, Config, Params, check_params
+from mcjax.scenarios.wind_formation.smoothing import ROUGH, Smoothing, training_errors, training_weights
+from mcjax.scenarios.wind_formation.step import Record, init, pairs, reference_distances, step
 from mcjax.smoothing import Smooth
-
-NAME = "wind_formation"
-FILTER_KINDS = ("kcf", "local", "cif")
-NOISES = ("uniform", "gaussian")
-FORMATION_SIGNS = ("corrective", "printed")
-#: Closing tolerance of the offsets (m): the last row must equal the sum of the chain.
-CLOSURE_TOL = 1e-6
-#: An air step counts as capped (eq. 15) when the wanted one is longer than l by this fraction:
-#: on the path the centre's wanted step is l itself, up to rounding.
-CAP_TOL = 1e-9
-
-
-def _check(cfg) -> None:
-    kit.check_common(cfg)
-    if cfg.n_agents < 2:
-        raise ValueError(f"n_agents must be an integer >= 2 (a formation); got {cfg.n_agents}")
-    if cfg.report_agent > cfg.n_agents:
-        raise ValueError(f"report_agent must be an integer in [1, n_agents = {cfg.n_agents}]; "
-                         f"got {cfg.report_agent}")
-
-
-Config = config_type("Config", dict(
-    **kit.common_settings(filter_kinds=FILTER_KINDS, n_agents=3, n_steps=100, min_steps=2, warmup_steps=0,
-                          divergence_threshold=20.0, error_unit="m/s"),
-    wind_noise=Setting("uniform", "wind measurement noise: uniform on [-noise_scale, noise_scale] or "
-                       "gaussian with std noise_scale (ours)", choices=NOISES),
-    weights=Setting("max_degree", "consensus weights of the kcf: max_degree = Chen & Lu 2013 eq. 7",
-                    choices=WEIGHT_KINDS),
-    formation_sign=Setting("corrective", "sign of eq. 12's formation term: corrective (ours: pulls a UAV "
-                           "towards its slot) or printed", choices=FORMATION_SIGNS),
-    report_agent=Setting(2, "the UAV (1-based) whose per-axis wind errors are reported (paper: UAV2)",
-                         low=1, integer=True),
-    root_grid=Setting(128, "grid cells that bracket eq. 13's roots before bisection (ours)", low=2,
-                      integer=True),
-    **faults.SETTINGS,
-), __name__, _check)
-
-#: The paper's starting positions of its three UAVs (m).
-PAPER_START = np.array([[10000.0, 7000.0], [10000.0, 12000.0], [12000.0, 9000.0]])
-#: The paper's reference vectors as the chain d_12, d_23 and the closing d_13 (configs/chen2013.toml).
-PAPER_OFFSETS = np.array([[0.0, 3200.0], [1300.0, -1600.0], [1300.0, 1600.0]])
-
-
-def _default_start(cfg):
-    if cfg.n_agents == 3:
-        return PAPER_START.copy()
-    return np.stack([np.full(cfg.n_agents, 10000.0), 7000.0 + 2500.0 * np.arange(cfg.n_agents)], axis=1)
-
-
-def _default_offsets(cfg):
-    if cfg.n_agents == 3:
-        return PAPER_OFFSETS.copy()
-    n = cfg.n_agents
-    chain = np.tile([[0.0, 1000.0]], (n, 1))
-    chain[-1] = [0.0, 1000.0 * (n - 1)]
-    return chain
-
-
-_POS = dict(low=0.0, low_open=True)
-Params = params_type("Params", dict(
-    dt=Param(10.0, "s", "measurement and guidance interval (paper: 10 s)", **_POS),
-    step_length=Param(1000.0, "m", "l: the look-ahead of eq. 13 and the longest air step of eq. 15 "
-                      "(paper: V dt = 1000 m)", **_POS),
-    wind_speed=Param(40.0, "m/s", "the constant wind's speed (paper)", low=0.0),
-    wind_direction=Param(np.pi / 4, "rad", "the wind's direction from the x axis (paper: 45 deg)"),
-    noise_scale=Param(10.0, "m/s", "wind measurement noise: the uniform bound or the Gaussian std (ours)", **_POS),
-    sigma_wind_process=Param(0.5, "m/s", "the filters' random-walk wind model, std per step (ours)", **_POS),
-    sigma_wind_prior=Param(50.0, "m/s", "the filters' prior std about zero wind (ours)", **_POS),
-    eta=Param(0.01, "1/s", "formation factor eta of eq. 12 (ours)", low=0.0),
-    comm_radius=Param(1.0e5, "m", "UAVs within this distance exchange estimates (ours: complete graph)", **_POS,
-                      display="km"),
-    path_amplitude=Param(2000.0 / 3.0, "m", "path y = amplitude sin(x / scale) (paper: 2000/3)"),
-    path_scale=Param(1200.0, "m", "path y = amplitude sin(x / scale) (paper: 1200)", **_POS),
-    formation_tolerance=Param(50.0, "m", "pairwise distances count as in formation within this of the "
-                              "reference (ours)", **_POS),
-    start=Param(_default_start, "m", "starting positions (paper: (10000, 7000), (10000, 12000), (12000, 9000))",
-                shape=("n", 2)),
-    offsets=Param(_default_offsets, "m", "pairwise formation offsets d_ij = p_j - p_i: rows d_12, d_23, ..., "
-                  "then the closing d_1n (= their sum)", shape=("n", 2)),
-    **faults.PARAMS,
-), __name__)
-
-
-def check_params(cfg, values: dict) -> list[tuple[str, str]]:
-    offsets = kit.param_value(Params, cfg, values, "offsets")
-    bad = []
-    if offsets.shape[-2:] == (cfg.n_agents, 2):   # one formation, or one per sweep point
-        gaps = np.linalg.norm(np.sum(offsets[..., : cfg.n_agents - 1, :], axis=-2) - offsets[..., -1, :], axis=-1)
-        if np.any(gaps > CLOSURE_TOL * (1.0 + np.max(np.abs(offsets)))):
-            bad.append(("offsets", f"pairwise offsets that close: the last row d_1n must equal the sum of the "
-                        f"rows d_12 ... d_(n-1)n (they are {float(np.max(gaps)):g} m apart)"))
-    return bad + faults.check(cfg, values, Params)
-
-
-class State(NamedTuple):
-    t: jax.Array
-    positions: jax.Array    # (n, 2) ground positions
-    filters: tuple          # one Gaussian per filter (cif: single, else a UAV axis first)
-    centre: Gaussian        # the centre Kalman filter's wind estimate
-    faults: faults.State | None  # lost links and UAVs (mcjax.scenarios.faults; None: off)
-
-
-class Record(NamedTuple):
-    error: jax.Array         # (F, n) |wind estimate - wind| per filter and UAV
-    axis_error: jax.Array    # (F, 2) |estimate - wind| per axis, report agent
-    raw_error: jax.Array     # (2,) |measurement - wind| per axis, report agent (NaN: no measurement, faults)
-    distances: jax.Array     # (pairs,) pairwise distances after the step
-    path_error: jax.Array    # () |Y - psi(X)| of the centroid after the step
-    on_path: jax.Array       # () eq. 13 had a forward root (smoothing: a weight in [0, 1])
-    capped: jax.Array        # () some UAV's air step was capped at l (smoothing: a weight in [0, 1])
-    air_max: jax.Array       # () longest air step
-    lambda2: jax.Array       # () algebraic connectivity of the links that carried a message
-    positions: jax.Array     # (n, 2) after the step
-    faults: faults.Record | None  # the step's faults (None: off)
-
-
-def pairs(n: int) -> list[tuple[int, int]]:
-    """The UAV pairs (i, j), i < j, 0-based, in the order of the distance outputs."""
-    return list(combinations(range(n), 2))
-
-
-def wind(params, dtype):
-    """The true wind vector (constant; Chen & Lu 2013 §3)."""
-    p = kit.cast(params, dtype)
-    return p.wind_speed * jnp.stack([jnp.cos(p.wind_direction), jnp.sin(p.wind_direction)])
-
-
-def reference_distances(cfg, offsets):
-    """The formation's pairwise distances |d_ij| from the ``offsets`` Param, in the order of
-    :func:`pairs` (jittable)."""
-    d = guidance.centre_offsets(jnp.asarray(offsets))
-    ij = np.array(pairs(cfg.n_agents))
-    return jnp.linalg.norm(d[ij[:, 1]] - d[ij[:, 0]], axis=-1)
-
-
-def noise_variance(cfg, p):
-    """The variance of one axis of the measurement noise (uniform ±a: a²/3; Gaussian: σ²)."""
-    return p.noise_scale ** 2 / 3.0 if cfg.wind_noise == "uniform" else p.noise_scale ** 2
-
-
-def init(cfg, params, key) -> State:
-    """The UAVs at ``start``; every filter at zero wind with covariance ``sigma_wind_prior``² I;
-    no fault yet."""
-    dtype = jnp.dtype(cfg.dtype)
-    p = kit.cast(params, dtype)
-    n = cfg.n_agents
-    P0 = jnp.eye(2, dtype=dtype) * p.sigma_wind_prior ** 2
-    g = Gaussian(kit.per_run(p.dt, jnp.zeros(2, dtype)), P0, symmetrize(spd_inverse(P0)))  # per-run: kit.per_run
-    per_agent = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), g)
-    filters = tuple(g if k == "cif" else per_agent for k in cfg.filters)
-    return State(jnp.asarray(0, jnp.int32), p.start, filters, g, faults.init(cfg, key, p))
-
-
-def _identity(x, sensor):
-    del sensor
-    return x
-
-
-def _per_agent(kind, g: Gaussian, n):
-    return jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), g) if kind == "cif" else g
-
-
-def formation_term(cfg, p, positions, offsets):
-    """Eq. 12's formation term per pair, ``η (X_j − X_i − d_ij)`` at [i, j] (n, n, 2) per axis,
-    with d_ij = d_j − d_i; negated when ``formation_sign = "corrective"`` (module docstring)."""
-    rel = positions[None, :, :] - positions[:, None, :]
-    want = offsets[None, :, :] - offsets[:, None, :]
-    sign = -1.0 if cfg.formation_sign == "corrective" else 1.0
-    return sign * p.eta * (rel - want)
-
-
-def formation_centre(positions, offsets, alive):
-    """The formation's centre as the UAVs ``alive`` (n,) bool hold it: the mean of p_i − d_i
-    over them, where d_i is UAV i's slot about the centre (:func:`guidance.centre_offsets`; with
-    every UAV alive it is the centroid of eqs. 13–14, since Σ d_i = 0). A lost UAV's slot stays
-    empty: the others keep theirs (module docstring, "Faults")."""
-    a = alive.astype(positions.dtype)[:, None]
-    return jnp.sum(a * (positions - offsets), axis=0) / jnp.maximum(jnp.sum(a), 1.0)
-
-
-def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> tuple[State, Record]:
-    """One step of ``dt`` (module docstring): measure (eq. 2), filter (eqs. 6–12), correct the
-    path (eqs. 13–16), fly through the true wind. ``smoothing`` (:class:`Smoothing`; None: the
-    exact simulation) makes the comm links, eq. 13's path point and eq. 15's cap smooth with the
-    same draws (:mod:`.smoothing`); ``on_path`` and ``capped`` are then weights in [0, 1].
-
-    Faults (``Config.faults = "on"``, module docstring "Faults"): a dropped-out or lost UAV's
-    measurement is missing (every filter and the centre filter go without it); a lost link
-    drops the kcf's exchange on it (the neighbour's prior, measurement information and eq. 12's
-    formation term); a lost UAV stops where it is, its filter states hold, and the others
-    place the formation's centre from their own slots (:func:`formation_centre`)."""
-    dtype = jnp.dtype(cfg.dtype)
-    p = kit.cast(params, dtype)
-    n = cfg.n_agents
-    w = wind(params, dtype)
-    offsets = guidance.centre_offsets(p.offsets)
-    switched_on = jnp.ones(n, bool)
-    fault_state, fault = faults.advance(key, state.faults, p, switched_on)
-
-    # 1. measurements (NaN where a sensor dropped out or its UAV is lost: faults)
-    if cfg.wind_noise == "uniform":
-        noise = p.noise_scale * jax.random.uniform(key, (n, 2), dtype, -1.0, 1.0)
-    else:
-        noise = p.noise_scale * jax.random.normal(key, (n, 2), dtype)
-    z = faults.measurements(w[None, :] + noise, fault)
-
-    # 2. the filters over the links that carry a message (step 0 updates the prior without predicting)
-    if smoothing is None:
-        adj = graph.adjacency(state.positions, p.comm_radius)
-    else:
-        adj = graph.soft_adjacency(state.positions, p.comm_radius, smoothing.comm)
-    carried = faults.messages(adj, fault)
-    R_inv = jnp.broadcast_to(jnp.eye(2, dtype=dtype) / noise_variance(cfg, p), (n, 2, 2))
-    meas = Measurements(z, state.positions, carried, R_inv)
-    F, Q = first_step_model(state.t == 0, jnp.eye(2, dtype=dtype), jnp.eye(2, dtype=dtype) * p.sigma_wind_process ** 2)
-    no_angle = jnp.array([False, False])
-    opts = FilterOptions(weights=cfg.weights, kcf_gain="prior_consensus")
-    filters = []
-    for kind, post in zip(cfg.filters, state.filters):
-        if kind == "kcf":
-            filters.append(prior_consensus_kcf_step(_identity, no_angle, opts, faults.shield(fault, post), meas, F, Q,
-                                                    formation_term(cfg, p, state.positions, offsets)))
-        elif kind == "local":
-            filters.append(local_step(_identity, no_angle, faults.shield(fault, post), meas, F, Q))
-        else:
-            filters.append(cif_step(_identity, no_angle, post, meas, F, Q))
-    filters = tuple(f if k == "cif" else faults.hold(fault, f, old)
-                    for k, f, old in zip(cfg.filters, filters, state.filters))
-    centre = cif_step(_identity, no_angle, state.centre, meas, F, Q)
-    estimates = [_per_agent(k, f, n).x for k, f in zip(cfg.filters, filters)]
-
-    # 3.–4. path correction and flight
-    psi = guidance.sine_path(p.path_amplitude, p.path_scale)
-    if fault is None:
-        here = jnp.mean(state.positions, axis=0)
-    else:
-        here = formation_centre(state.positions, offsets, fault.alive)
-    predicted = here + centre.x * p.dt
-    if smoothing is None:
-        nxt = guidance.next_centre(psi, predicted, p.step_length, cfg.root_grid)
-    else:
-        nxt = smooth_next_centre(psi, predicted, p.step_length, cfg.root_grid, smoothing.path)
-    steer = estimates[cfg.filters.index("kcf") if "kcf" in cfg.filters else 0]
-    wanted = guidance.wanted_steps(nxt.point, offsets, state.positions, steer, p.dt)
-    if smoothing is None:
-        air = guidance.cap_step(wanted, p.step_length)                               # eq. 15
-    else:
-        air = smooth_cap(wanted, p.step_length, smoothing.cap)
-    positions = state.positions + air + w[None, :] * p.dt
-    if fault is None:
-        centroid = jnp.mean(positions, axis=0)
-    else:  # a lost UAV stops where it is
-        flying = fault.alive[:, None]
-        wanted, air = jnp.where(flying, wanted, 0.0), jnp.where(flying, air, 0.0)
-        positions = jnp.where(flying, positions, state.positions)
-        centroid = formation_centre(positions, offsets, fault.alive)
-
-    a = cfg.report_agent - 1
-    ij = np.array(pairs(n))
-    rec = Record(
-        error=jnp.stack([jnp.linalg.norm(e - w, axis=-1) for e in estimates]),
-        axis_error=jnp.stack([jnp.abs(e[a] - w) for e in estimates]),
-        raw_error=jnp.abs(z[a] - w),
-        distances=jnp.linalg.norm(positions[ij[:, 1]] - positions[ij[:, 0]], axis=-1),
-        path_error=jnp.abs(centroid[1] - psi(centroid[0])),
-        on_path=nxt.on_path,
-        capped=(jnp.any(jnp.linalg.norm(wanted, axis=-1) > p.step_length * (1.0 + CAP_TOL)) if smoothing is None
-                else soft_capped(wanted, p.step_length, smoothing.cap, CAP_TOL)),
-        air_max=jnp.max(jnp.linalg.norm(air, axis=-1)),
-        lambda2=graph.algebraic_connectivity(carried),
-        positions=positions,
-        faults=faults.record(adj, carried, fault, switched_on))
-    return State(state.t + 1, positions, filters, centre, fault_state), rec
 
 
 def _first(mask, dtype):
@@ -413,8 +126,7 @@ def summary(cfg, records: Record | None, params) -> dict:
     r = records
     axes = cache(lambda: _axis_errors(cfg, r))
     fm = cache(lambda: _formation(cfg, r, params))
-    switched_on = cache(lambda: jnp.ones(cfg.n_agents, r.error.dtype))
-    alive = cache(lambda: faults.weights(switched_on(), r.faults))
+    switched_on, alive = kit.team_weights(cfg, params, r, cache(lambda: jnp.ones(cfg.n_agents, r.error.dtype)))
 
     def axis_items(prefix: str, what: str, per_filter: bool) -> dict:
         def pick(name):
@@ -458,8 +170,7 @@ def series(cfg, records: Record | None, params) -> dict:
     """Per-step series of one run, each declared next to its value: errors, per-axis errors,
     the centroid's path error, λ2, every pairwise distance and every UAV's position."""
     r = records
-    switched_on = cache(lambda: jnp.ones(cfg.n_agents, r.error.dtype))
-    alive = cache(lambda: faults.weights(switched_on(), r.faults))
+    switched_on, alive = kit.team_weights(cfg, params, r, cache(lambda: jnp.ones(cfg.n_agents, r.error.dtype)))
     items = dict(
         **kit.error_series_items(lambda: r.error, alive, "m/s", "wind estimate error"),
         wind_error_x=(Output("m/s", "|estimate - wind| along x, report_agent"), lambda: r.axis_error[:, :, 0]),
@@ -489,7 +200,4 @@ SCENARIO = Scenario(
                "moves towards their estimates",
         "local": "each UAV's own Kalman filter on its own wind measurements, nothing shared",
         "cif": "one Kalman filter on every UAV's measurements (the centralised reference)"})
-default_params = SCENARIO.default_params
-#: The record's derived functions (from :func:`summary` and :func:`series`), by their usual names.
-reduce, outputs = SCENARIO.reduce, SCENARIO.outputs
-timeseries, timeseries_outputs = SCENARIO.timeseries, SCENARIO.timeseries_outputs
+default_params, reduce, outputs, timeseries, timeseries_outputs = kit.aliases(SCENARIO)

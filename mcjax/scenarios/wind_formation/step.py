@@ -1,0 +1,187 @@
+"""Chen & Lu 2013's wind and formation scenario, one step: the UAVs measure the wind, the filters
+update over the links that carried a message, the centre's path correction (eqs. 13–16), the flight
+through the wind; the state, the record and what both the step and the outputs use."""
+
+from __future__ import annotations
+
+from itertools import combinations
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mcjax import graph
+from mcjax.filters.consensus import FilterOptions, Measurements, cif_step, filter_step, per_agent
+from mcjax.filters.gaussian import Gaussian, first_step_model
+from mcjax.numerics import spd_inverse, symmetrize
+from mcjax.scenarios import faults, kit
+from mcjax.scenarios.wind_formation import guidance
+from mcjax.scenarios.wind_formation.params import CAP_TOL
+from mcjax.scenarios.wind_formation.smoothing import Smoothing, smooth_cap, smooth_next_centre, soft_capped
+
+
+class State(NamedTuple):
+    t: jax.Array
+    positions: jax.Array    # (n, 2) ground positions
+    filters: tuple          # one Gaussian per filter (cif: single, else a UAV axis first)
+    centre: Gaussian        # the centre Kalman filter's wind estimate
+    faults: faults.State | None  # lost links and UAVs (mcjax.scenarios.faults; None: off)
+
+
+class Record(NamedTuple):
+    error: jax.Array         # (F, n) |wind estimate - wind| per filter and UAV
+    axis_error: jax.Array    # (F, 2) |estimate - wind| per axis, report agent
+    raw_error: jax.Array     # (2,) |measurement - wind| per axis, report agent (NaN: no measurement, faults)
+    distances: jax.Array     # (pairs,) pairwise distances after the step
+    path_error: jax.Array    # () |Y - psi(X)| of the centroid after the step
+    on_path: jax.Array       # () eq. 13 had a forward root (smoothing: a weight in [0, 1])
+    capped: jax.Array        # () some UAV's air step was capped at l (smoothing: a weight in [0, 1])
+    air_max: jax.Array       # () longest air step
+    lambda2: jax.Array       # () algebraic connectivity of the links that carried a message
+    positions: jax.Array     # (n, 2) after the step
+    faults: faults.Record | None  # the step's faults (None: off)
+
+
+def pairs(n: int) -> list[tuple[int, int]]:
+    """The UAV pairs (i, j), i < j, 0-based, in the order of the distance outputs."""
+    return list(combinations(range(n), 2))
+
+
+def wind(params, dtype):
+    """The true wind vector (constant; Chen & Lu 2013 §3)."""
+    p = kit.cast(params, dtype)
+    return p.wind_speed * jnp.stack([jnp.cos(p.wind_direction), jnp.sin(p.wind_direction)])
+
+
+def reference_distances(cfg, offsets):
+    """The formation's pairwise distances |d_ij| from the ``offsets`` Param, in the order of
+    :func:`pairs` (jittable)."""
+    d = guidance.centre_offsets(jnp.asarray(offsets))
+    ij = np.array(pairs(cfg.n_agents))
+    return jnp.linalg.norm(d[ij[:, 1]] - d[ij[:, 0]], axis=-1)
+
+
+def noise_variance(cfg, p):
+    """The variance of one axis of the measurement noise (uniform ±a: a²/3; Gaussian: σ²)."""
+    return p.noise_scale ** 2 / 3.0 if cfg.wind_noise == "uniform" else p.noise_scale ** 2
+
+
+def init(cfg, params, key) -> State:
+    """The UAVs at ``start``; every filter at zero wind with covariance ``sigma_wind_prior``² I;
+    no fault yet."""
+    dtype = jnp.dtype(cfg.dtype)
+    p = kit.cast(params, dtype)
+    n = cfg.n_agents
+    P0 = jnp.eye(2, dtype=dtype) * p.sigma_wind_prior ** 2
+    g = Gaussian(kit.per_run(p.dt, jnp.zeros(2, dtype)), P0, symmetrize(spd_inverse(P0)))  # per-run: kit.per_run
+    per_agent = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), g)
+    filters = tuple(g if k == "cif" else per_agent for k in cfg.filters)
+    return State(jnp.asarray(0, jnp.int32), p.start, filters, g, faults.init(cfg, key, p))
+
+
+def _identity(x, sensor):
+    del sensor
+    return x
+
+
+def formation_term(cfg, p, positions, offsets):
+    """Eq. 12's formation term per pair, ``η (X_j − X_i − d_ij)`` at [i, j] (n, n, 2) per axis,
+    with d_ij = d_j − d_i; negated when ``formation_sign = "corrective"`` (module docstring)."""
+    rel = positions[None, :, :] - positions[:, None, :]
+    want = offsets[None, :, :] - offsets[:, None, :]
+    sign = -1.0 if cfg.formation_sign == "corrective" else 1.0
+    return sign * p.eta * (rel - want)
+
+
+def formation_centre(positions, offsets, alive):
+    """The formation's centre as the UAVs ``alive`` (n,) bool hold it: the mean of p_i − d_i
+    over them, where d_i is UAV i's slot about the centre (:func:`guidance.centre_offsets`; with
+    every UAV alive it is the centroid of eqs. 13–14, since Σ d_i = 0). A lost UAV's slot stays
+    empty: the others keep theirs (module docstring, "Faults")."""
+    a = alive.astype(positions.dtype)[:, None]
+    return jnp.sum(a * (positions - offsets), axis=0) / jnp.maximum(jnp.sum(a), 1.0)
+
+
+def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> tuple[State, Record]:
+    """One step of ``dt`` (module docstring): measure (eq. 2), filter (eqs. 6–12), correct the
+    path (eqs. 13–16), fly through the true wind. ``smoothing`` (:class:`Smoothing`; None: the
+    exact simulation) makes the comm links, eq. 13's path point and eq. 15's cap smooth with the
+    same draws (:mod:`.smoothing`); ``on_path`` and ``capped`` are then weights in [0, 1].
+
+    Faults (``Config.faults = "on"``, module docstring "Faults"): a dropped-out or lost UAV's
+    measurement is missing (every filter and the centre filter go without it); a lost link
+    drops the kcf's exchange on it (the neighbour's prior, measurement information and eq. 12's
+    formation term); a lost UAV stops where it is, its filter states hold, and the others
+    place the formation's centre from their own slots (:func:`formation_centre`)."""
+    dtype = jnp.dtype(cfg.dtype)
+    p = kit.cast(params, dtype)
+    n = cfg.n_agents
+    w = wind(params, dtype)
+    offsets = guidance.centre_offsets(p.offsets)
+    switched_on = jnp.ones(n, bool)
+    fault_state, fault = faults.advance(key, state.faults, p, switched_on)
+
+    # 1. measurements (NaN where a sensor dropped out or its UAV is lost: faults)
+    if cfg.wind_noise == "uniform":
+        noise = p.noise_scale * jax.random.uniform(key, (n, 2), dtype, -1.0, 1.0)
+    else:
+        noise = p.noise_scale * jax.random.normal(key, (n, 2), dtype)
+    z = faults.measurements(w[None, :] + noise, fault)
+
+    # 2. the filters over the links that carry a message (step 0 updates the prior without predicting)
+    adj, carried = kit.link(state.positions, p.comm_radius, fault, smoothing)
+    R_inv = jnp.broadcast_to(jnp.eye(2, dtype=dtype) / noise_variance(cfg, p), (n, 2, 2))
+    meas = Measurements(z, state.positions, carried, R_inv)
+    F, Q = first_step_model(state.t == 0, jnp.eye(2, dtype=dtype), jnp.eye(2, dtype=dtype) * p.sigma_wind_process ** 2)
+    no_angle = jnp.array([False, False])
+    opts = FilterOptions(weights=cfg.weights, kcf_gain="prior_consensus")
+    filters = filter_step(cfg.filters, opts, _identity, no_angle, kit.shield_filters(fault, cfg.filters, state.filters),
+                          meas, F, Q, None, formation_term(cfg, p, state.positions, offsets))
+    filters = kit.hold_filters(fault, cfg.filters, filters, state.filters)
+    centre = cif_step(_identity, no_angle, state.centre, meas, F, Q)
+    estimates = [per_agent(k, f, n).x for k, f in zip(cfg.filters, filters)]
+
+    # 3.–4. path correction and flight
+    psi = guidance.sine_path(p.path_amplitude, p.path_scale)
+    if fault is None:
+        here = jnp.mean(state.positions, axis=0)
+    else:
+        here = formation_centre(state.positions, offsets, fault.alive)
+    predicted = here + centre.x * p.dt
+    if smoothing is None:
+        nxt = guidance.next_centre(psi, predicted, p.step_length, cfg.root_grid)
+    else:
+        nxt = smooth_next_centre(psi, predicted, p.step_length, cfg.root_grid, smoothing.path)
+    steer = estimates[cfg.filters.index("kcf") if "kcf" in cfg.filters else 0]
+    wanted = guidance.wanted_steps(nxt.point, offsets, state.positions, steer, p.dt)
+    if smoothing is None:
+        air = guidance.cap_step(wanted, p.step_length)                               # eq. 15
+    else:
+        air = smooth_cap(wanted, p.step_length, smoothing.cap)
+    positions = state.positions + air + w[None, :] * p.dt
+    if fault is None:
+        centroid = jnp.mean(positions, axis=0)
+    else:  # a lost UAV stops where it is
+        flying = fault.alive[:, None]
+        wanted, air = jnp.where(flying, wanted, 0.0), jnp.where(flying, air, 0.0)
+        positions = jnp.where(flying, positions, state.positions)
+        centroid = formation_centre(positions, offsets, fault.alive)
+
+    a = cfg.report_agent - 1
+    ij = np.array(pairs(n))
+    rec = Record(
+        error=jnp.stack([jnp.linalg.norm(e - w, axis=-1) for e in estimates]),
+        axis_error=jnp.stack([jnp.abs(e[a] - w) for e in estimates]),
+        raw_error=jnp.abs(z[a] - w),
+        distances=jnp.linalg.norm(positions[ij[:, 1]] - positions[ij[:, 0]], axis=-1),
+        path_error=jnp.abs(centroid[1] - psi(centroid[0])),
+        on_path=nxt.on_path,
+        capped=(jnp.any(jnp.linalg.norm(wanted, axis=-1) > p.step_length * (1.0 + CAP_TOL)) if smoothing is None
+                else soft_capped(wanted, p.step_length, smoothing.cap, CAP_TOL)),
+        air_max=jnp.max(jnp.linalg.norm(air, axis=-1)),
+        lambda2=graph.algebraic_connectivity(carried),
+        positions=positions,
+        faults=faults.record(adj, carried, fault, switched_on))
+    return State(state.t + 1, positions, filters, centre, fault_state), rec
+
