@@ -190,8 +190,8 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
     state["out"] = out_dir = out_dir or study.default_out_dir(spec)
     overrides = _parse_set(sets)
     try:
-        s = study.load_sweep(spec, out_dir=out_dir, seeds=seeds, chunk_size=chunk_size, overrides=overrides or None,
-                       resume=resume and not dry_run)
+        s = study.load_sweep(spec, out_dir=out_dir, seeds=seeds, chunk_size=chunk_size,
+                             overrides=overrides or None, resume=resume and not dry_run)
     except (study.OutputError, study.SpecError) as exc:
         _fail(str(exc))
     if dry_run:
@@ -221,9 +221,9 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
     with _executor(remote) as executor, bars:
         try:
             result = study.run_sweep_folder(s, spec_file=spec, out_dir=out_dir, resume=resume, force=force,
-                                      executor=executor, message=bars.echo,
-                                      warn=lambda line: click.echo(line, err=True), progress=progress,
-                                      should_stop=stop.is_set)
+                                            executor=executor, message=bars.echo,
+                                            warn=lambda line: click.echo(line, err=True), progress=progress,
+                                            should_stop=stop.is_set)
         except study.OutputError as exc:
             _fail(str(exc))
         except study.ChunkError as exc:
