@@ -12,7 +12,6 @@ from __future__ import annotations
 import contextlib
 import shlex
 import sys
-import time
 import tomllib
 from pathlib import Path
 from typing import NamedTuple
@@ -53,12 +52,6 @@ def _read_kind(path: Path) -> dict | None:
         return tomllib.loads(path.read_bytes().decode("utf-8").removeprefix("\ufeff"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
         return None
-
-
-def _summary_columns(spec) -> list[str]:
-    """The columns the summary table reads (keys, axes, outputs with a role): what a big sweep loads back."""
-    return ["point_id", "filter", *spec.axes,
-            *(k for k, o in spec.scenario.outputs(spec.config).items() if o.role is not None)]
 
 
 def _print_summary(df, spec) -> None:
@@ -134,9 +127,6 @@ def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, execut
     with ctrl_c(hint, ACK_DASK if executor == "dask" else ACK) as stop:
         remote = _executor_options(executor, scheduler, workers)
         state["words"] = remote.words
-        from mcjax.study import default_out_dir
-
-        state["out"] = out_dir = out_dir or default_out_dir(spec)
         _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state, stop, hint, remote)
 
 
@@ -195,31 +185,21 @@ def _executor(remote: _Remote):
 
 
 def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state, stop, hint, remote=_Remote()):
-    overrides = _parse_set(sets)
-    from mcjax import results, scenarios
-    from mcjax.study import OutputError, SpecError, load_spec, prepare_output, read_identity, run_sweep
+    from mcjax import study
 
-    if resume and not dry_run:  # what the interrupted sweep was given, unless given again
-        try:
-            saved = read_identity(out_dir)
-        except OutputError as exc:
-            _fail(str(exc))
-        seeds = seeds if seeds is not None else saved["seeds"]
-        chunk_size = chunk_size if chunk_size is not None else saved["chunk_size"]
-        overrides = overrides if sets else saved.get("set", {})
+    state["out"] = out_dir = out_dir or study.default_out_dir(spec)
+    overrides = _parse_set(sets)
     try:
-        s = load_spec(spec, seeds=seeds, chunk_size=chunk_size, overrides=overrides, out_dir=out_dir)
-    except SpecError as exc:
+        s = study.load_sweep(spec, out_dir=out_dir, seeds=seeds, chunk_size=chunk_size,
+                             overrides=overrides or None, resume=resume and not dry_run)
+    except (study.OutputError, study.SpecError) as exc:
         _fail(str(exc))
-    plan = s.plan
-    headline = (f"scenario {scenarios.describe(s.scenario)}: {s.n_points} point(s) x {s.seeds} seed(s) = "
-                f"{s.n_runs} runs, {len(plan)} chunk(s) of {s.chunk_runs}, filters {', '.join(s.config.filters)}")
     if dry_run:
         from mcjax.tables import format_table
 
-        click.echo(headline)
+        click.echo(study.sweep_headline(s))
         click.echo(format_table(s.points), nl=False)  # numbers as in the summary (mcjax.tables)
-        for i, (a, b) in enumerate(plan):
+        for i, (a, b) in enumerate(s.plan):
             click.echo(f"chunk {i}: runs {a}..{b - 1}")
         if stop.is_set():
             exit_now(130)
@@ -228,52 +208,76 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
         click.echo(hint(), err=True)
         exit_now(130)
     configure()  # JAX's process settings, before anything computes (mcjax.configure)
-    failure = None
-    with contextlib.ExitStack() as session:
-        # the cluster first: a scheduler that cannot be reached leaves the output folder untouched
-        executor = session.enter_context(_executor(remote))
-        base = (spec.parent / s.source["base"]).resolve()
+    failure = result = None
+    bars = _Bars(sweep="chunk")
+    before = []  # the chunks written before (a resumed sweep's bar counts the chunks to run)
+
+    def progress(at) -> None:
+        state["plan"], state["done"] = at.chunks, at.chunks_done
+        before[:] = before or [at.chunks_done]
+        bars.show("sweep", at.chunks_done - before[0], at.chunks - before[0])
+
+    # the cluster first: a scheduler that cannot be reached leaves the output folder untouched
+    with _executor(remote) as executor, bars:
         try:
-            todo = prepare_output(s, out_dir, resume=resume, force=force, keep=[spec, base], spec_file=spec,
-                                  note=lambda line: click.echo(f"resume: {line}", err=True), hold=session)
-        except OutputError as exc:
+            result = study.run_sweep_folder(s, spec_file=spec, out_dir=out_dir, resume=resume, force=force,
+                                            executor=executor, message=bars.echo,
+                                            warn=lambda line: click.echo(line, err=True), progress=progress,
+                                            should_stop=stop.is_set)
+        except study.OutputError as exc:
             _fail(str(exc))
-        click.echo(headline)
-        state["plan"] = len(plan)
-        state["done"] = 0 if todo is None else len(plan) - len(todo)
-        if todo is not None:
-            click.echo(f"resuming: {len(plan) - len(todo)} of {len(plan)} chunk(s) already written")
-        from tqdm import tqdm
-
-        from mcjax.study import ChunkError
-
-        remaining = s.runs_in(todo)
-        t0 = time.perf_counter()
-
-        def progress(n: int) -> None:
-            state["done"] += 1
-            bar.update(1)
-
-        with tqdm(total=len(plan) if todo is None else len(todo), unit="chunk", desc="sweep", disable=None) as bar:
-            try:
-                run_sweep(s, chunks=todo, progress=progress, should_stop=stop.is_set, executor=executor, keep=False)
-            except ChunkError as exc:
-                failure = exc
+        except study.ChunkError as exc:
+            failure = exc
     if failure is not None:
         click.echo(f"error: {failure}; {state['done']} of {state['plan']} chunk(s) written to {out_dir} (they stay)",
                    err=True)
         if own_process():
             exit_now(1)
         sys.exit(1)
-    if stop.is_set():
+    if result.stopped:
         click.echo(hint(), err=True)
         exit_now(130)
-    elapsed = time.perf_counter() - t0
-    df = results.read_table(out_dir, "runs", _summary_columns(s))
-    click.echo(f"{len(df)} rows in {out_dir / 'runs'}; {remaining} runs in {elapsed:.1f} s "
-               f"({remaining / max(elapsed, 1e-9):.1f} runs/s incl. compilation)")
-    _print_summary(df, s)
+    click.echo(f"{len(result.rows)} rows in {out_dir / 'runs'}; {result.runs_run} runs in {result.seconds:.1f} s "
+               f"({result.runs_run / max(result.seconds, 1e-9):.1f} runs/s incl. compilation)")
+    _print_summary(result.rows, s)
     finish(stop)
+
+
+class _Bars:
+    """The progress bars of a command (tqdm), one stage at a time: a new stage, or a message,
+    closes the bar drawn so far, so the lines come out in order."""
+
+    def __init__(self, **units: str) -> None:
+        self.units = units  # stage -> unit
+        self.stage = self.bar = None
+
+    def show(self, stage: str, done: int, total: int, **postfix) -> None:
+        """Draw ``done`` of ``total`` in ``stage``'s bar (a new one at a stage's first call)."""
+        if self.bar is None or stage != self.stage:
+            from tqdm import tqdm
+
+            self.close()
+            self.stage = stage
+            self.bar = tqdm(total=total, initial=done, unit=self.units[stage], desc=stage, disable=None)
+        else:
+            if postfix:
+                self.bar.set_postfix(**postfix)
+            self.bar.update(done - self.bar.n)
+
+    def echo(self, line: str) -> None:
+        self.close()
+        click.echo(line)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+        self.bar = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 @main.command(short_help="Run one point of a config (configs/*.toml); print a summary.")
@@ -294,21 +298,20 @@ def run(config, seeds, sets):
         if data is not None and "base" in data:
             _fail(f"{config} is a sweep spec (it names a base config), not a config file: run it with "
                   f"`mcjax sweep {shlex.quote(str(config))}`")
-        from mcjax import engine, scenarios
-        from mcjax.study import SpecError, build_spec, run_sweep
+        from mcjax import engine, scenarios, study
 
         if not config.is_file():
             _fail(f"config file not found: {config}" if not config.exists() else f"{config} is a folder, not a file")
         try:
             # chunks of one batch per device: a Ctrl-C waits for little (the numbers do not depend on it)
-            s = build_spec({"base": str(config.resolve())}, Path.cwd(), seeds=seeds, overrides=overrides,
+            s = study.build_spec({"base": str(config.resolve())}, Path.cwd(), seeds=seeds, overrides=overrides,
                            chunk_size=engine.BATCH_SIZE * len(engine.devices()))
-        except SpecError as exc:
+        except study.SpecError as exc:
             _fail(str(exc))
         configure()
         click.echo(f"scenario {scenarios.describe(s.scenario)}: {s.n_points} point(s) x {s.seeds} seed(s) = "
                    f"{s.n_runs} runs, filters {', '.join(s.config.filters)}")
-        df = run_sweep(s, should_stop=stop.is_set)
+        df = study.run_sweep(s, should_stop=stop.is_set)
         if stop.is_set():
             click.echo(f"interrupted: {len(df) // max(len(s.config.filters), 1)} of {s.n_runs} run(s) done, "
                        f"nothing written", err=True)
@@ -380,81 +383,42 @@ def tune(spec, out_dir, resume, force):
         return (f"interrupted: progress saved in {state['out']}; finish with: mcjax tune "
                 f"{shlex.quote(str(spec))} --out {shlex.quote(str(state['out']))} --resume")
 
-    with ctrl_c(hint) as stop, contextlib.ExitStack() as held:  # held: the output folder's lock
-        from mcjax.study import default_out_dir
-
-        state["out"] = out_dir = out_dir or default_out_dir(spec)
-        from mcjax.tune import write_failures_end_the_command
-        with write_failures_end_the_command(out_dir):  # a full disk: one line, exit 1
-            _tune(spec, out_dir, resume, force, state, stop, hint, held)
+    with ctrl_c(hint) as stop:
+        _tune(spec, out_dir, resume, force, state, stop, hint)
 
 
-def _tune(spec_path, out_dir, resume, force, state, stop, hint, held):
-    from mcjax import results, scenarios, tune as tuning
-    from mcjax.study import OutputError, SpecError, store
+def _tune(spec_path, out_dir, resume, force, state, stop, hint):
+    from mcjax import study, tune as tuning
 
-    try:
-        spec = tuning.load_tune_spec(spec_path)
-    except SpecError as exc:
-        _fail(str(exc))
-    try:
-        held.enter_context(store.hold_output(out_dir))
-        tuning.prepare_tune_output(spec, out_dir, resume=resume, force=force, spec_file=spec_path,
-                                   keep=[spec_path, (spec_path.parent / spec.source["base"]).resolve()])
-    except OutputError as exc:
-        _fail(str(exc))
-    state["started"] = True
-    configure()
-    if stop.is_set():
-        click.echo(hint(), err=True)
-        exit_now(130)
-    names = ", ".join(f"{b.name} in ({b.low:g}, {b.high:g}) {b.scale}" for b in spec.bounds)
-    click.echo(f"scenario {scenarios.describe(spec.study.scenario)}: tuning {names} with {spec.optimizer} "
-               f"(learning rate {spec.learning_rate:g}) for {spec.steps} step(s) on {spec.train_seeds} training seed(s); "
-               f"loss on {spec.loss.filter}")
-    saved = tuning.load_state(out_dir, spec)
-    done = 0 if saved is None else saved[0]
-    if done:
-        click.echo(f"resuming: {min(done, spec.steps + 1)} of {spec.steps + 1} loss evaluation(s) already done")
-    from tqdm import tqdm
+    state["out"] = out_dir = out_dir or study.default_out_dir(spec_path)
+    with tuning.write_failures_end_the_command(out_dir), _Bars(tune="step", evaluate="run") as bars:
+        # a full disk: one line, exit 1 (write_failures_end_the_command)
+        try:
+            spec = tuning.load_tune_spec(spec_path)
+        except study.SpecError as exc:
+            _fail(str(exc))
 
-    with tqdm(total=spec.steps + 1, initial=min(done, spec.steps + 1), unit="step", desc="tune",
-              disable=None) as bar:
-        def progress(row: dict) -> None:
-            bar.set_postfix(loss=f"{row['loss']:.4g}", grad=f"{row['grad_norm']:.3g}")
-            bar.update(1)
+        def progress(at) -> None:
+            loss = {} if at.row is None else {"loss": f"{at.row['loss']:.4g}", "grad": f"{at.row['grad_norm']:.3g}"}
+            bars.show("tune" if at.stage == "train" else "evaluate", at.done, at.total, **loss)
 
-        trace = tuning.optimise(spec, out_dir, progress=progress, should_stop=stop.is_set)
-    if stop.is_set() and not tuning.finished(spec, trace):
-        click.echo(hint(), err=True)
-        exit_now(130)
-    tuning.plot_trace(spec, trace, out_dir / "trace.png")
-    first, last = trace.iloc[0], trace.iloc[-1]
-    for b in spec.bounds:
-        click.echo(f"{b.name}: {first[b.name]:.6g} -> {last[b.name]:.6g}")
-    click.echo(f"training loss: {first['loss']:.6g} -> {last['loss']:.6g} ({len(trace) - 1} step(s)); trace: "
-               f"{out_dir / tuning.TRACE_FILE}, {out_dir / 'trace.png'}")
-    try:
-        ev = tuning.evaluation_spec(spec, tuning.final_values(spec, trace))
-        todo = tuning.prepare_evaluation(ev, out_dir, spec_file=spec_path)
-    except (SpecError, OutputError) as exc:
-        _fail(str(exc))
-    remaining = ev.runs_in(todo)
-    click.echo(f"held-out evaluation (exact simulation): {ev.n_points} point(s) x {ev.seeds} seed(s) = "
-               f"{ev.n_runs} runs" + ("" if todo is None else f", {remaining} still to run"))
-    with tqdm(total=remaining, unit="run", desc="evaluate", disable=None) as bar:
-        tuning.run_evaluation(ev, out_dir, chunks=todo, progress=bar.update, should_stop=stop.is_set)
-    if stop.is_set():
-        click.echo(hint(), err=True)
-        exit_now(130)
-    runs = results.read_table(out_dir, "runs")
-    click.echo(tuning.summary_text(runs, ev))  # the initial row first, a column role = initial / tuned
-    paired = tuning.paired_differences(runs, [k for k, o in ev.scenario.outputs(ev.config).items()
-                                              if o.role in ("error", "divergence")])
-    if len(paired):
-        click.echo("tuned - initial, paired by seed (mean and 95 % t-interval):\n" + paired.to_string(index=False))
-    click.echo(f"role = initial (point 0) / tuned (point 1); report: mcjax report {shlex.quote(str(out_dir))}")
-    finish(stop)
+        try:
+            result = tuning.run_tune(spec, out_dir=out_dir, spec_file=spec_path, resume=resume, force=force,
+                                     message=bars.echo, progress=progress, started=lambda: state.update(started=True),
+                                     should_stop=stop.is_set)
+        except (study.SpecError, study.OutputError) as exc:
+            _fail(str(exc))
+        bars.close()
+        if result.stopped:
+            click.echo(hint(), err=True)
+            exit_now(130)
+        # the initial row first, a column role = initial / tuned
+        click.echo(tuning.summary_text(result.runs, result.evaluation))
+        if len(result.paired):
+            click.echo("tuned - initial, paired by seed (mean and 95 % t-interval):\n"
+                       + result.paired.to_string(index=False))
+        click.echo(f"role = initial (point 0) / tuned (point 1); report: mcjax report {shlex.quote(str(out_dir))}")
+        finish(stop)
 
 
 @main.command(name="list", short_help="List the scenarios; with SCENARIO, its params, settings, outputs.")

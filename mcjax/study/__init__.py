@@ -8,7 +8,9 @@
 * :mod:`~mcjax.study.execute` computes the chunks (:class:`LocalExecutor`; the Dask executor is
   :mod:`mcjax.study.dask`) and publishes them as part files (:func:`run_sweep`);
 * :mod:`~mcjax.study.store` owns the output folder: identity file, parts, ``--resume``,
-  ``--force``.
+  ``--force``;
+* :mod:`~mcjax.study.runner` runs a spec into its folder as ``mcjax sweep`` does
+  (:func:`load_sweep`, :func:`run_sweep_folder`), reporting through callbacks.
 
 ``mcjax run``, ``mcjax sweep``, ``mcjax tune`` and the Dask executor all take a Study. The
 names below are the pipeline's public face::
@@ -26,6 +28,7 @@ from mcjax.study.rows import chunk_keys, chunk_parts, part_metadata, run_rows, t
 from mcjax.study.spec import (MAX_BASE_SEED, MAX_CHUNK_SIZE, MAX_POINTS, MAX_RUNS, MAX_SEEDS, SPEC_KEYS, ConfigFile,
                               build_spec, is_config_file, is_sweep_spec, load_config_file, load_spec,
                               read_config_file)
+from mcjax.study.runner import SweepProgress, SweepResult, load_sweep, run_sweep_folder, summary_columns, sweep_headline
 from mcjax.study.store import (IDENTITY_FILE, RESULTS_DIR, OutputError, check_parts, default_out_dir, identity,
                                missing_chunks, prepare_output, read_identity)
 
@@ -35,5 +38,6 @@ __all__ = [
     "part_metadata", "run_rows", "timeseries_rows", "MAX_BASE_SEED", "MAX_CHUNK_SIZE", "MAX_POINTS", "MAX_RUNS",
     "MAX_SEEDS", "SPEC_KEYS", "ConfigFile", "build_spec", "is_config_file", "is_sweep_spec", "load_config_file",
     "load_spec", "read_config_file", "IDENTITY_FILE", "RESULTS_DIR", "OutputError", "check_parts",
-    "default_out_dir", "identity", "missing_chunks", "prepare_output", "read_identity",
+    "default_out_dir", "identity", "missing_chunks", "prepare_output", "read_identity", "SweepProgress",
+    "SweepResult", "load_sweep", "run_sweep_folder", "summary_columns", "sweep_headline",
 ]

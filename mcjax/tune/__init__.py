@@ -50,7 +50,8 @@ The package: :mod:`mcjax.tune.spec` reads the spec (:func:`load_tune_spec`);
 :mod:`mcjax.tune.loss` holds the loss and its gradient (:func:`run_loss`,
 :func:`batch_function`, :class:`Evaluator`); :mod:`mcjax.tune.optimise` the optimisation loop
 with its atomic per-step state (:func:`optimise`) and the held-out evaluation in the sweep's
-format (:func:`evaluation_spec`). Its output folder is kept by :mod:`mcjax.study.store`.
+format (:func:`evaluation_spec`); :mod:`mcjax.tune.runner` runs a spec into its folder as ``mcjax tune``
+does (:func:`run_tune`), reporting through callbacks. Its output folder is kept by :mod:`mcjax.study.store`.
 """
 
 
@@ -65,6 +66,7 @@ from mcjax.tune.optimise import (ROLE_COLUMN, ROLES, STATE_FILE, TRACE_FILE, Rol
 from mcjax.tune.spec import (BOUND_KEYS, GRADIENT_MODES, LOSS_KEYS, MAX_STEPS, MAX_TRAIN_SEEDS, NONFINITE_ERROR,
                              OPTIMIZERS, SCALES, SHARED_KEYS, TUNE_KEYS, Bound, Loss, TuneSpec, build_tune_spec,
                              continuous_params, from_unconstrained, load_tune_spec, to_unconstrained)
+from mcjax.tune.runner import TuneProgress, TuneResult, run_tune, tune_headline
 
 __all__ = [
     "RUNS_PER_DEVICE", "Evaluation", "Evaluator", "batch_function", "params_at", "program_key", "run_loss",
@@ -75,4 +77,5 @@ __all__ = [
     "trace_columns", "with_role", "write_failures_end_the_command", "BOUND_KEYS", "GRADIENT_MODES", "LOSS_KEYS", "MAX_STEPS",
     "MAX_TRAIN_SEEDS", "NONFINITE_ERROR", "OPTIMIZERS", "SCALES", "SHARED_KEYS", "TUNE_KEYS", "Bound", "Loss",
     "TuneSpec", "build_tune_spec", "continuous_params", "from_unconstrained", "load_tune_spec", "to_unconstrained",
+    "TuneProgress", "TuneResult", "run_tune", "tune_headline",
 ]

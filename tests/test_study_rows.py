@@ -1,7 +1,7 @@
-"""The Study: built once from a spec, its points table and Params built once, and the
-Parquet key columns of the swept fields taken from the Params that ran."""
+"""Stage 4, the rows (mcjax.study.rows): the Parquet key columns of the swept fields, taken from
+the Params that ran, and the tidy rows of a chunk carrying their own point's values."""
 
-import dataclasses
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -17,21 +17,6 @@ def _study(**tables) -> Study:
     return build_spec({"base": SUN, **tables}, ROOT, seeds=3)
 
 
-def test_points_params_and_plan_are_built_once_and_again_for_a_changed_study():
-    s = _study(grid={"comm_radius": [60e3, 80e3]}, zip={"horizon": [4, 5], "sigma_bearing": [0.01, 0.02]})
-    assert s.points is s.points and s.params is s.params and s.plan is s.plan
-    assert list(s.points.columns) == ["point_id", "comm_radius", "horizon", "sigma_bearing"]
-    assert len(s.points) == s.n_points == 4 and s.n_runs == 12
-    np.testing.assert_array_equal(s.params.comm_radius, [60e3, 60e3, 80e3, 80e3])
-    np.testing.assert_array_equal(s.params.horizon, [4, 5, 4, 5])
-    other = dataclasses.replace(s, seeds=5)
-    assert other.points is not s.points and other.n_runs == 20
-    np.testing.assert_array_equal(other.params.comm_radius, s.params.comm_radius)
-    one = s.point(3)
-    assert float(one.comm_radius) == 80e3 and float(one.horizon) == 5
-    assert np.shape(one.initial_positions) == np.shape(s.base_params.initial_positions)
-
-
 def test_swept_columns_come_from_the_params_that_ran():
     # integers written for a float field run as floats, and the column says so; an integer
     # field's column stays integer; a per-agent axis gives one list per row
@@ -43,8 +28,10 @@ def test_swept_columns_come_from_the_params_that_ran():
     np.testing.assert_array_equal(keys["seed_index"], np.tile([0, 1, 2], 4))
     np.testing.assert_array_equal(keys["comm_radius"], np.repeat([60000.0, 60000.0, 80000.0, 80000.0], 3))
     np.testing.assert_array_equal(keys["horizon"], np.repeat([4, 5, 4, 5], 3))
-    # and they are what the engine runs
-    np.testing.assert_array_equal(keys["comm_radius"], np.asarray(s.params.comm_radius)[keys["point_id"]])
+    # and, run by run, the values of the grid as written: its product, seeds repeated point-major
+    grid = {"comm_radius": [60000, 80000], "horizon": [4, 5]}
+    expected = [(c, h) for c, h in itertools.product(*grid.values()) for _seed in range(3)]
+    assert list(zip(keys["comm_radius"].tolist(), keys["horizon"].tolist())) == expected
 
     n = s.config.n_agents
     per_agent = [[50e3] * n, [70e3] * (n - 1) + [90e3]]
