@@ -1,8 +1,9 @@
 """One UAV localises a static radio emitter among buildings by its azimuth, Chen & Hao 2022 —
 the scenario ``urban_bearing`` and everything only it uses:
 
-* :mod:`.scenario` — Config, Params, the step (Alg. 1; exact, or smooth for ``mcjax tune``), the outputs,
-  ``SCENARIO``;
+* :mod:`.scenario` — the scenario's description and ``SCENARIO``, assembled from:
+* :mod:`.params` — Config, Params and their checks; :mod:`.step` — State, Record, the measurement, init and
+  the step (Alg. 1; exact, or smooth for ``mcjax tune``); :mod:`.readout` — the outputs (summary, series);
 * :mod:`.environment` — buildings: occupancy, line of sight and shadow, one-bounce
   reflections, the measured azimuth (eqs. 3, 5–10);
 * :mod:`.score` — the track score of eqs. 13–20 (FIM, shadow, NLOS), its candidates and its
@@ -17,11 +18,15 @@ from mcjax.scenarios.urban_bearing.planner import (
     SequencePlan, limits_of, plan_command, plan_sequence, planner_options, project_sequence, sequence_track,
     smooth_plan_command,
 )
-from mcjax.scenarios.urban_bearing.scenario import (
-    DEFAULT_BUILDINGS, DEG, FILTER_KINDS, INITS, LOS, NAME, NLOS_MINUS, NLOS_PLUS, PLANNERS, SCENARIO, Config, Params,
-    Record, Smoothing, State, buildings_np, buildings_of, check_params, default_params, first_bearing_prior, init, inv2,
-    measure, outputs, reduce, series, step, summary, timeseries, timeseries_outputs, training_weights,
+from mcjax.scenarios.urban_bearing.params import (
+    DEFAULT_BUILDINGS, DEG, FILTER_KINDS, INITS, LOS, NAME, NLOS_MINUS, NLOS_PLUS, PLANNERS, Config, Params,
+    buildings_np, buildings_of, check_params,
 )
+from mcjax.scenarios.urban_bearing.readout import series, summary, training_weights
+from mcjax.scenarios.urban_bearing.scenario import (
+    SCENARIO, default_params, outputs, reduce, timeseries, timeseries_outputs,
+)
+from mcjax.scenarios.urban_bearing.step import Record, Smoothing, State, first_bearing_prior, init, inv2, measure, step
 
 __all__ = ["Config", "DEFAULT_BUILDINGS", "DEG", "FILTER_KINDS", "INITS", "LOS", "NAME", "NLOS_MINUS", "NLOS_PLUS", "PLANNERS",
            "Params", "Record", "SCENARIO", "Smoothing", "State", "buildings_np", "buildings_of", "check_params",
