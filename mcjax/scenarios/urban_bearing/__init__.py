@@ -26,7 +26,8 @@ from mcjax.scenarios.urban_bearing.readout import series, summary, training_weig
 from mcjax.scenarios.urban_bearing.scenario import (
     SCENARIO, default_params, outputs, reduce, timeseries, timeseries_outputs,
 )
-from mcjax.scenarios.urban_bearing.step import Record, Smoothing, State, first_bearing_prior, init, inv2, measure, step
+from mcjax.scenarios.urban_bearing.smoothing import Smoothing
+from mcjax.scenarios.urban_bearing.step import Record, State, first_bearing_prior, init, inv2, measure, step
 
 __all__ = ["Config", "DEFAULT_BUILDINGS", "DEG", "FILTER_KINDS", "INITS", "LOS", "NAME", "NLOS_MINUS", "NLOS_PLUS", "PLANNERS",
            "Params", "Record", "SCENARIO", "Smoothing", "State", "buildings_np", "buildings_of", "check_params",

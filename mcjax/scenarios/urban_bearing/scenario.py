@@ -23,7 +23,8 @@ listed in ``configs/chen2022.toml``.
 from mcjax.contract import FAST_COMPILE, Scenario
 from mcjax.scenarios.urban_bearing.params import NAME, Config, Params, check_params
 from mcjax.scenarios.urban_bearing.readout import series, summary, training_weights
-from mcjax.scenarios.urban_bearing.step import Smoothing, init, step
+from mcjax.scenarios.urban_bearing.smoothing import Smoothing
+from mcjax.scenarios.urban_bearing.step import init, step
 from mcjax.smoothing import Smooth
 
 

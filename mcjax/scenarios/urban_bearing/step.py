@@ -17,6 +17,9 @@ from mcjax.scenarios.urban_bearing import score as urban
 from mcjax.scenarios.urban_bearing.mode_filters import GATE_FLOOR, filter_bank, gated_mode_filter, mode_filter, mode_models
 from mcjax.scenarios.urban_bearing.params import buildings_of
 from mcjax.scenarios.urban_bearing.planner import limits_of, plan_command, smooth_plan_command
+from mcjax.scenarios.urban_bearing.smoothing import (
+    Smoothing, soft_admissible_log, soft_line_of_sight, soft_measured_bearing, soft_occupied,
+)
 
 
 class State(NamedTuple):
@@ -128,15 +131,6 @@ def _violation(cfg, params, previous, command, uav):
             | (uav[2] < lim.h_min - tol) | (uav[2] > lim.h_max + tol))
 
 
-class Smoothing(NamedTuple):
-    """Temperatures of the smooth system (:func:`step` with ``smoothing``; ``[tune.smoothing]``
-    of a tune spec, ``[sensitivity.smoothing]`` of a sweep). Ours: the paper has no smooth model."""
-
-    geometry: float = 20.0   # m: every building test (LOS, shadow, reflections, occupancy, altitude band)
-    plan: float = 0.1        # the soft argmax over the grid: τ in units of the candidates' score spread
-    command: float = 1e-3    # rad, rad/s: the soft max/min of the command box's limits
-
-
 def _plan_or_hold(cfg, p, b, state: State, belief, key):
     """The exact command (Alg. 1): the planner's, or the previous one held after a step in the
     shadow. Returns ``(held, command, exact score of the planned command)``."""
@@ -162,9 +156,9 @@ def _soft_plan_or_hold(cfg, p, b, state: State, belief, smoothing: Smoothing):
     planned, score = smooth_plan_command(cfg, p, b, state.uav, state.command, belief, smoothing)
     lim = limits_of(cfg, p)
     hold_track = urban.predicted_track(state.uav, state.command, p.speed, cfg.dt, cfg.horizon)
-    hold_ok = jnp.exp(urban.soft_admissible_log(b, state.uav, state.command, hold_track, lim, p.speed, cfg.dt,
-                                                cfg.theta_rate_max * cfg.dt, T))
-    los_prev = jnp.where(state.t == 0, 1.0, urban.soft_line_of_sight(b, p.emitter, state.uav[:3], T))
+    hold_ok = jnp.exp(soft_admissible_log(b, state.uav, state.command, hold_track, lim, p.speed, cfg.dt,
+                                          cfg.theta_rate_max * cfg.dt, T))
+    los_prev = jnp.where(state.t == 0, 1.0, soft_line_of_sight(b, p.emitter, state.uav[:3], T))
     held = (1.0 - los_prev) * hold_ok
     return held, held * state.command + (1.0 - held) * planned, score
 
@@ -214,7 +208,7 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
         new_filters, errors = filter_bank(cfg, p, state, mode_filter, z, uav)
     else:
         T = smoothing.geometry
-        clean, los, reflected = urban.soft_measured_bearing(b, p.emitter, pos, p.R2, p.power, p.directivity, T)
+        clean, los, reflected = soft_measured_bearing(b, p.emitter, pos, p.R2, p.power, p.directivity, T)
         reflected = jnp.where(p.R2 > 0, reflected, 0.0)
         sigma = p.sigma_los + reflected * (p.sigma_nlos - p.sigma_los)
         z = wrap_angle(clean + sigma * jax.random.normal(k_noise, (), dtype))
@@ -234,6 +228,6 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
     fim = state.fim + los * gained
     rec = Record(
         error=jnp.stack(errors), uav=uav, command=command, held=held, shadow=1.0 - los, nlos=los * reflected,
-        in_building=urban.soft_occupied(b, pos, T),
+        in_building=soft_occupied(b, pos, T),
         violation=_violation(cfg, p, state.command, command, uav).astype(dtype), mu=imm_new.mu, score=score)
     return State(state.t + 1, uav, command, los > 0.5, tuple(new_filters), fim, state.held_for), rec
