@@ -55,10 +55,9 @@ def summary(cfg, records: Record | None, params) -> dict:
 def series(cfg, records: Record | None, params) -> dict:
     """Per-step series of one run, each declared next to its value."""
     r = records
-    what = "distance of the estimate from the emitter"
     return declare(
-        error_mean=(Output("m", f"mean {what} over alive agents"), lambda: r.error[..., 0]),
-        error_max=(Output("m", f"largest {what} of any alive agent"), lambda: r.error[..., 0]),
+        **kit.error_series_items(lambda: r.error, lambda: jnp.ones(1, r.error.dtype), "m",
+                                 "distance of the estimate from the emitter"),
         x=(Output("m", "UAV x", False), lambda: r.uav[:, 0]),
         y=(Output("m", "UAV y", False), lambda: r.uav[:, 1]),
         z=(Output("m", "UAV altitude", False), lambda: r.uav[:, 2]),

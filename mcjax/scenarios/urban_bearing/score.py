@@ -42,7 +42,7 @@ import jax.numpy as jnp
 
 from mcjax.models.platforms import FixedWingLimits, braking_climb, command_box, fixed_wing_step
 from mcjax.scenarios.urban_bearing import environment as env
-from mcjax.scenarios.urban_bearing.smoothing import (  # used here, the rest re-exported (defined here before)
+from mcjax.scenarios.urban_bearing.smoothing import (  # noqa: F401 (some used here; all defined here before)
     soft_admissible_log, soft_argmax_command, soft_candidate_commands, soft_command_box, soft_inside_box,
     soft_line_of_sight, soft_measured_bearing, soft_occupied, soft_reflection_region, soft_reflections,
     soft_segment_blocked,

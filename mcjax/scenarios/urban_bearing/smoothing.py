@@ -67,7 +67,7 @@ def soft_occupied(buildings, p, T):
     """Smooth "``p`` (..., 3) lies in a building" (``p ∈ A_Build``, Chen & Hao 2022, eq. 3):
     ``1 − Π_b (1 − Π_faces sigmoid(margin/T))``. (...)."""
     lo3, hi3 = env.boxes3(buildings)
-    return 1.0 - jnp.prod(1.0 - _soft_inside_box(p, lo3, hi3, T), axis=-1)
+    return 1.0 - jnp.prod(1.0 - soft_inside_box(p, lo3, hi3, T), axis=-1)
 
 
 def _soft_positive(x, T):
