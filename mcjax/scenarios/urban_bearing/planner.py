@@ -93,9 +93,9 @@ def plan_command(cfg, params, b: env.Buildings, uav, previous, belief: urban.Bel
 def smooth_plan_command(cfg, params, b: env.Buildings, uav, previous, belief: urban.Belief, smoothing):
     """The training surrogate of :func:`plan_command`, for the grid planner of Chen & Hao 2022,
     Alg. 1 (lines 3–9) and eq. 20: the same grid of candidate commands (spread over a soft
-    command box, :func:`.score.soft_candidate_commands`), each scored by the
+    command box, :func:`.smoothing.soft_candidate_commands`), each scored by the
     smooth eq. 20 score (:func:`.score.surrogate_score_terms`), the choice a
-    soft argmax weighed by smooth admissibility (:func:`.score.soft_argmax_command`).
+    soft argmax weighed by smooth admissibility (:func:`.smoothing.soft_argmax_command`).
     No fallback and no warm-start switch: the command is a smooth function of the weights,
     the state and the belief. Used for every ``Config.planner`` (docs/tune.md). Returns
     ``(command (2,), the soft argmax's mean surrogate score)``."""
@@ -165,7 +165,7 @@ def plan_sequence(cfg, params, b: env.Buildings, uav, previous, belief: urban.Be
        scaled by one step's largest change (θ̇_max Δt, ω̇_max Δt), minimising
        ``−(J_smooth + log p_adm)``: the smooth eq. 20 score of its track
        (:func:`.score.surrogate_score_terms` at ``plan_temperature``) and the smooth
-       admissibility (:func:`.score.soft_admissible_log`). After every step the sequence is
+       admissibility (:func:`.smoothing.soft_admissible_log`). After every step the sequence is
        projected onto the flyable ones (:func:`project_sequence`), so every iterate keeps the
        box and the rate limits, and the warm start — whose command often lies on an edge of
        the rate box — is represented exactly (a tanh squash cannot reach an edge).

@@ -66,7 +66,7 @@ def init(cfg, params, key) -> State:
     else:
         k_prior, k_range, k_noise = jax.random.split(key, 3)
         b = buildings_of(p)
-        z0, los = measure(p, b, p.uav0[:3], k_noise)
+        z0, los, _ = measure(p, b, p.uav0[:3], k_noise)
         true_range = jnp.sqrt(jnp.sum((p.emitter[:2] - p.uav0[:2]) ** 2))
         r0 = true_range + p.prior_sigma * jax.random.normal(k_range, (), dtype)
         xb, Pb = first_bearing_prior(p.uav0[:2], jnp.where(los, z0, 0.0), r0, p.prior_sigma, p.sigma_los)
@@ -108,18 +108,13 @@ def inv2(m):
 def measure(p, b, pos, key):
     """The azimuth the UAV measures at ``pos`` (3,) (Chen & Hao 2022, eqs. 2, 5–6): the bearing of
     the summed field plus noise of std σ_NLOS when a reflection arrives, σ_LOS otherwise; NaN
-    without line of sight. Returns ``(z, los)``."""
-    los, reflected, clean = _measurement_geometry(p, b, pos)
-    sigma = jnp.where(reflected, p.sigma_nlos, p.sigma_los)
-    z = jnp.where(los, wrap_angle(clean + sigma * jax.random.normal(key, (), clean.dtype)), jnp.nan)
-    return z, los
-
-
-def _measurement_geometry(p, b, pos):
+    without line of sight. Returns ``(z, los, reflected)``, ``reflected``: a reflection arrives."""
     los = env.line_of_sight(b, p.emitter, pos)
     reflected = jnp.any(env.reflections(b, p.emitter, pos).valid) & (p.R2 > 0)
     clean = env.measured_bearing(b, p.emitter, pos, p.R2, p.power, p.directivity)
-    return los, reflected, clean
+    sigma = jnp.where(reflected, p.sigma_nlos, p.sigma_los)
+    z = jnp.where(los, wrap_angle(clean + sigma * jax.random.normal(key, (), clean.dtype)), jnp.nan)
+    return z, los, reflected
 
 
 def _violation(cfg, params, previous, command, uav):
@@ -176,7 +171,7 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
     * the shadow hold -> the blend ``h·previous + (1 − h)·planned`` (:func:`_soft_plan_or_hold`);
     * the measurement gate (no LOS -> no measurement) -> a measurement of weight ``g = los``
       (:func:`.mode_filters.gated_mode_filter`), its bearing from the smooth field
-      (:func:`.score.soft_measured_bearing`), its noise σ blended between LOS and NLOS by the
+      (:func:`.smoothing.soft_measured_bearing`), its noise σ blended between LOS and NLOS by the
       smooth "a reflection arrives";
     * the FIM accumulation (eq. 13: only with LOS) -> weighted by ``los``.
 
@@ -202,9 +197,7 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
     # the measurement (eqs. 2, 5–6): no line of sight -> none; a reflection -> NLOS noise
     pos = uav[:3]
     if smoothing is None:
-        los, reflected, clean = _measurement_geometry(p, b, pos)
-        sigma = jnp.where(reflected, p.sigma_nlos, p.sigma_los)
-        z = jnp.where(los, wrap_angle(clean + sigma * jax.random.normal(k_noise, (), dtype)), jnp.nan)
+        z, los, reflected = measure(p, b, pos, k_noise)
         new_filters, errors = filter_bank(cfg, p, state, mode_filter, z, uav)
     else:
         T = smoothing.geometry
