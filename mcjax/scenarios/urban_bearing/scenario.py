@@ -21,6 +21,7 @@ listed in ``configs/chen2022.toml``.
 """
 
 from mcjax.contract import FAST_COMPILE, Scenario
+from mcjax.scenarios import kit
 from mcjax.scenarios.urban_bearing.params import NAME, Config, Params, check_params
 from mcjax.scenarios.urban_bearing.readout import series, summary, training_weights
 from mcjax.scenarios.urban_bearing.smoothing import Smoothing
@@ -34,14 +35,11 @@ SCENARIO = Scenario(
     check_params=check_params,
     # rough: max_hold_steps (a step count; the soft hold has no limit), plan_temperature (only the exact
     # gradient planner's smooth objective reads it; the smooth system's soft grid does not)
-    smooth=Smooth(Smoothing, lambda cfg, params, record: record.error, training_weights,
-                  ("max_hold_steps", "plan_temperature")),
+    smooth=Smooth(Smoothing, kit.training_errors, training_weights, ("max_hold_steps", "plan_temperature")),
     compiler_options=FAST_COMPILE,
     filter_words={
         "imm": "Chen & Hao 2022's IMM-EKF over three measurement modes (line of sight, and reflected paths "
                "biased either way); the planner steers by it",
         "ekf": "a single extended Kalman filter that assumes every bearing has line of sight (what the IMM buys)"})
-default_params = SCENARIO.default_params
-#: The record's derived functions (from :func:`summary` and :func:`series`), by their usual names.
-reduce, outputs = SCENARIO.reduce, SCENARIO.outputs
-timeseries, timeseries_outputs = SCENARIO.timeseries, SCENARIO.timeseries_outputs
+#: The default Params and the record's derived functions (of :func:`summary`, :func:`series`), by their usual names.
+default_params, reduce, outputs, timeseries, timeseries_outputs = kit.aliases(SCENARIO)
