@@ -15,7 +15,8 @@ from mcjax.scenarios import kit
 from mcjax.scenarios.urban_bearing import environment as env
 from mcjax.scenarios.urban_bearing import score as urban
 from mcjax.scenarios.urban_bearing.mode_filters import GATE_FLOOR, filter_bank, gated_mode_filter, mode_filter, mode_models
-from mcjax.scenarios.urban_bearing.params import buildings_of
+# FILTER_KINDS: the scenario's filter kinds, read beside its step (tests/test_contract.py)
+from mcjax.scenarios.urban_bearing.params import FILTER_KINDS, buildings_of  # noqa: F401
 from mcjax.scenarios.urban_bearing.planner import limits_of, plan_command, smooth_plan_command
 from mcjax.scenarios.urban_bearing.smoothing import (
     Smoothing, soft_admissible_log, soft_line_of_sight, soft_measured_bearing, soft_occupied,
