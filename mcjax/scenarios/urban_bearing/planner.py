@@ -15,6 +15,9 @@ from mcjax.models.platforms import FixedWingLimits, command_box, fixed_wing_step
 from mcjax.planning.solvers import PlanCost, PlannerOptions, solve
 from mcjax.scenarios.urban_bearing import environment as env
 from mcjax.scenarios.urban_bearing import score as urban
+from mcjax.scenarios.urban_bearing.smoothing import (
+    soft_admissible_log, soft_argmax_command, soft_candidate_commands, soft_command_box,
+)
 
 
 def limits_of(cfg, params) -> FixedWingLimits:
@@ -90,27 +93,27 @@ def plan_command(cfg, params, b: env.Buildings, uav, previous, belief: urban.Bel
 def smooth_plan_command(cfg, params, b: env.Buildings, uav, previous, belief: urban.Belief, smoothing):
     """The training surrogate of :func:`plan_command`, for the grid planner of Chen & Hao 2022,
     Alg. 1 (lines 3–9) and eq. 20: the same grid of candidate commands (spread over a soft
-    command box, :func:`.score.soft_candidate_commands`), each scored by the
+    command box, :func:`.smoothing.soft_candidate_commands`), each scored by the
     smooth eq. 20 score (:func:`.score.surrogate_score_terms`), the choice a
-    soft argmax weighed by smooth admissibility (:func:`.score.soft_argmax_command`).
+    soft argmax weighed by smooth admissibility (:func:`.smoothing.soft_argmax_command`).
     No fallback and no warm-start switch: the command is a smooth function of the weights,
     the state and the belief. Used for every ``Config.planner`` (docs/tune.md). Returns
     ``(command (2,), the soft argmax's mean surrogate score)``."""
     lim = limits_of(cfg, params)
     w = urban.Weights(params.c1, params.c2, params.c3)
     T = smoothing.geometry
-    lo, hi = urban.soft_command_box(previous, lim, cfg.dt, smoothing.command)
+    lo, hi = soft_command_box(previous, lim, cfg.dt, smoothing.command)
     counts = urban.grid_counts(cfg.theta_rate_max, cfg.omega_rate_max, cfg.dt, cfg.theta_step, cfg.omega_step)
-    commands = urban.soft_candidate_commands(lo, hi, counts, smoothing.command)
+    commands = soft_candidate_commands(lo, hi, counts, smoothing.command)
 
     def score(c):
         track = urban.predicted_track(uav, c, params.speed, cfg.dt, cfg.horizon)
         j = urban.track_score(urban.surrogate_score_terms(b, belief, track, cfg.fim_score, T), w)
-        ok = urban.soft_admissible_log(b, uav, c, track, lim, params.speed, cfg.dt, cfg.theta_rate_max * cfg.dt, T)
+        ok = soft_admissible_log(b, uav, c, track, lim, params.speed, cfg.dt, cfg.theta_rate_max * cfg.dt, T)
         return j, ok
 
     scores, log_ok = jax.vmap(score)(commands)
-    command, weights = urban.soft_argmax_command(commands, scores, log_ok, smoothing.plan)
+    command, weights = soft_argmax_command(commands, scores, log_ok, smoothing.plan)
     return command, weights @ scores
 
 
@@ -162,7 +165,7 @@ def plan_sequence(cfg, params, b: env.Buildings, uav, previous, belief: urban.Be
        scaled by one step's largest change (θ̇_max Δt, ω̇_max Δt), minimising
        ``−(J_smooth + log p_adm)``: the smooth eq. 20 score of its track
        (:func:`.score.surrogate_score_terms` at ``plan_temperature``) and the smooth
-       admissibility (:func:`.score.soft_admissible_log`). After every step the sequence is
+       admissibility (:func:`.smoothing.soft_admissible_log`). After every step the sequence is
        projected onto the flyable ones (:func:`project_sequence`), so every iterate keeps the
        box and the rate limits, and the warm start — whose command often lies on an edge of
        the rate box — is represented exactly (a tanh squash cannot reach an edge).
@@ -192,8 +195,8 @@ def plan_sequence(cfg, params, b: env.Buildings, uav, previous, belief: urban.Be
         seq = v * unit
         track = sequence_track(uav, seq, params.speed, cfg.dt)
         j = urban.track_score(urban.surrogate_score_terms(b, belief, track, cfg.fim_score, T), w)
-        adm = urban.soft_admissible_log(b, uav, seq[0], track, lim, params.speed, cfg.dt,
-                                        cfg.theta_rate_max * cfg.dt, T)
+        adm = soft_admissible_log(b, uav, seq[0], track, lim, params.speed, cfg.dt,
+                                  cfg.theta_rate_max * cfg.dt, T)
         return -(j + adm)
 
     stride = cfg.sequence_grid_stride
