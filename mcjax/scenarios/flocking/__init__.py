@@ -4,8 +4,9 @@ Li 2013 — the scenario ``flocking`` and everything only it uses:
 * :mod:`.scenario` — the scenario's description and ``SCENARIO``, assembled from:
 * :mod:`.params` — Config, Params and their checks; :mod:`.step` — State, Record, init and the step;
   :mod:`.readout` — the outputs (summary, series) and the training loss's errors;
-* :mod:`.dynamics` — connectivity-preserving flocking of double integrators (eqs. 1, 10–16):
-  potential, controllers, the integrators (an error-controlled Dormand–Prince pair; RK4 sub-steps), energy;
+* :mod:`.model` — connectivity-preserving flocking of double integrators (eqs. 1, 10–16):
+  potential, controllers, energy; :mod:`.dynamics` — its integrators over a step (an error-controlled
+  Dormand–Prince pair; RK4 sub-steps);
 * :mod:`.smoothing` — the smoothing switch: soft links with hysteresis (``mcjax tune``, sensitivities).
 """
 

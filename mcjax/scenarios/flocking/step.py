@@ -112,7 +112,7 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
     ``smoothing`` (the smoothing switch, :class:`~.smoothing.Smoothing`; None: the exact
     simulation) makes the graph's links weights in [0, 1] with a soft hysteresis
     (:func:`~.smoothing.soft_hysteresis`) and fades each link's potential out at R
-    (:func:`.dynamics.faded_potential`); the filters, the controllers (eqs. 10–13), the
+    (:func:`.model.faded_potential`); the filters, the controllers (eqs. 10–13), the
     integrator and the random draws are the same. The record's graph statistics and link
     counts are then those of the weights (``last_change_time`` is not meaningful).
 
