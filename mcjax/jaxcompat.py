@@ -2,7 +2,7 @@
 
 mcjax loads one compiled program on every CPU device and from its program store
 (:mod:`mcjax.runtime`, :mod:`mcjax.engine`). JAX's public API cannot quite do that, so this
-module reaches into JAX's internals — and nothing else in mcjax does (``tests/test_engine.py``
+module reaches into JAX's internals — and nothing else in mcjax does (``tests/test_engine_compilation.py``
 walks the package and fails on any other module that imports ``jax._src``, a private name of
 ``jaxlib``, a private attribute of a JAX module, or calls the ``jax.stages.Compiled``
 constructor). The internals used:
@@ -22,7 +22,7 @@ function                 internals                                    fallback (
 
 JAX is pinned to the range these were tested with (``pyproject.toml``); :func:`missing` names
 the internals the installed JAX lacks (each then costs what its fallback costs, and the
-results stay the same bits). Every fallback is run by ``tests/test_engine.py``.
+results stay the same bits). Every fallback is run by ``tests/test_engine_compilation.py``.
 """
 
 from __future__ import annotations

@@ -23,7 +23,7 @@ def test_probe_compiles_through_the_engine():
     from mcjax import engine
     from mcjax.scenarios import wind_formation as wf
 
-    cfg = wf.Config(n_steps=15)  # a small program (as in tests/test_engine.py), compiled and stored
+    cfg = wf.Config(n_steps=15)  # a small program (as in tests/test_engine_chunks.py), compiled and stored
     list(engine.run_chunks(wf.SCENARIO, cfg, engine.stack_points([wf.default_params(cfg)]), 20, chunk_size=100))
     print("stats", runtime.STATS)
     assert runtime.STATS["stored"] + runtime.STATS["loaded"] >= 1  # the store was used, not bypassed

@@ -141,8 +141,11 @@ class Study:
 def describe_chunk(study: Study, index: int) -> str:
     """Chunk ``index`` in words: its runs and the points it covers, with their swept values
     (``chunk 3 (runs 300..399; point_id 3: r = 13.0)``)."""
+    from mcjax.engine import points_of
+
     start, stop = study.plan[index]
-    first, last = start // study.seeds, (stop - 1) // study.seeds
+    points = points_of(start, stop, study.seeds)
+    first, last = points[0], points[-1]
     shown = []
     for pid in range(first, min(last, first + 2) + 1):
         values = ", ".join(f"{axis} = {show(np.asarray(study.points.at[pid, axis]).tolist())}" for axis in study.axes)

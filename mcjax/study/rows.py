@@ -60,9 +60,10 @@ def run_rows(scenario: Scenario, cfg, outputs: Mapping[str, Any], keys: Mapping[
 def chunk_keys(study: Study, start: int, n: int) -> dict:
     """``point_id``, ``seed_index`` and the swept values of runs ``start … start+n−1``: the
     values of the Params that ran (:meth:`~mcjax.study.plan.Study.swept_values`)."""
-    runs = np.arange(start, start + n)
-    point_idx = runs // study.seeds
-    keys = {"point_id": point_idx.astype(np.int64), "seed_index": (runs % study.seeds).astype(np.int64)}
+    from mcjax.engine import point_and_seed
+
+    point_idx, seed_idx = point_and_seed(np.arange(start, start + n), study.seeds)
+    keys = {"point_id": point_idx.astype(np.int64), "seed_index": seed_idx.astype(np.int64)}
     for axis in study.axes:
         keys[axis] = study.swept_values(axis, point_idx)
     return keys
@@ -76,11 +77,13 @@ def timeseries_rows(study: Study, start: int, series: dict) -> pd.DataFrame:
     filters = study.config.filters
     first = np.asarray(next(iter(series.values())))
     n, T = first.shape[:2]
-    runs = np.arange(start, start + n)
+    from mcjax.engine import point_and_seed
+
+    point_idx, seed_idx = point_and_seed(np.arange(start, start + n), study.seeds)
     shape = (n, T, len(filters))
     cols = {
-        "point_id": np.broadcast_to((runs // study.seeds)[:, None, None], shape).ravel().astype(np.int64),
-        "seed_index": np.broadcast_to((runs % study.seeds)[:, None, None], shape).ravel().astype(np.int64),
+        "point_id": np.broadcast_to(point_idx[:, None, None], shape).ravel().astype(np.int64),
+        "seed_index": np.broadcast_to(seed_idx[:, None, None], shape).ravel().astype(np.int64),
         "t": np.broadcast_to(np.arange(T)[None, :, None], shape).ravel().astype(np.int64),
         "filter": np.broadcast_to(np.asarray(filters)[None, None, :], shape).ravel(),
     }
@@ -92,7 +95,9 @@ def timeseries_rows(study: Study, start: int, series: dict) -> pd.DataFrame:
 
 def chunk_parts(study: Study, index: int, start: int, stop: int) -> list[str]:
     """The part names chunk ``index`` (runs ``start … stop−1``) writes, one per point it touches."""
-    return [f"point_id={p}/part-{index:06d}" for p in range(start // study.seeds, (stop - 1) // study.seeds + 1)]
+    from mcjax.engine import points_of
+
+    return [f"point_id={p}/part-{index:06d}" for p in points_of(start, stop, study.seeds)]
 
 
 def part_metadata(study: Study, chunk_size: int) -> dict:

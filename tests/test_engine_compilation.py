@@ -1,170 +1,18 @@
-"""The batch engine: chunking, keys, NaN isolation."""
+"""Compiled programs (mcjax.engine.compilation): loading one program on every device, JAX internals kept
+in mcjax/jaxcompat.py, the one in-process cache, the program store across processes, compiler options."""
 
 import dataclasses
 
 import jax
+import mcjax
 import numpy as np
 import pytest
 
 from mcjax import engine
+from mcjax.engine import compilation
 from mcjax.scenarios import leader_follower as lf
 
-# 10 steps: what these tests check (chunking, keys, NaN isolation, bit-identity) does not
-# depend on the length of a run, and the 1000-run test runs 2,600 of them
-CFG = lf.Config(n_steps=10, warmup_steps=5)
-
-
-def _points(*overrides):
-    return engine.stack_points([lf.default_params(CFG, **o) for o in overrides])
-
-
-def _collect(cfg, points, n_seeds, chunk_size):
-    outs = [out for _, _, _, out in engine.run_chunks(lf.SCENARIO, cfg, points, n_seeds, chunk_size=chunk_size)]
-    return {k: np.concatenate([o[k] for o in outs]) for k in outs[0]}
-
-
-def test_chunk_plan_covers_every_run_once():
-    plan = engine.chunk_plan(1003, 100)
-    covered = np.concatenate([np.arange(a, b) for a, b in plan])
-    np.testing.assert_array_equal(covered, np.arange(1003))
-    assert all(b - a == 100 for a, b in plan[:-1]) and plan[-1] == (1000, 1003)
-
-
-@pytest.mark.xdist_group("test_engine.batch100")  # one worker compiles the 100-run program once
-def test_1000_runs_bit_identical_for_chunk_sizes_100_and_1000():
-    points = _points({"comm_radius": 80e3}, {"comm_radius": 100e3})  # 2 points x 500 seeds
-    a = _collect(CFG, points, 500, 100)
-    b = _collect(CFG, points, 500, 1000)
-    assert a["rmse"].shape == (1000, len(CFG.filters))
-    for key in a:
-        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
-    # and an uneven chunk size (three batches per chunk: the devices take them in turn), on
-    # its first two chunks
-    outs = [out for *_, out in engine.run_chunks(lf.SCENARIO, CFG, points, 500, chunk_size=300, chunks=[0, 1])]
-    for key in a:
-        np.testing.assert_array_equal(a[key][:600], np.concatenate([o[key] for o in outs]), err_msg=key)
-
-
-@pytest.mark.xdist_group("test_engine.records")  # one worker compiles the 6-run records program once
-@pytest.mark.parametrize("base_seed", [0, 1, 2**31 - 1, 2**32 - 1, 2**32, 2**40 + 5, -1, -2**63, 2**63 - 1])
-def test_numpy_run_keys_are_jax_keys(base_seed):
-    """The engine's numpy Threefry gives JAX's own PRNGKey/fold_in keys, bit for bit (seed
-    indices from 0 up, random 32-bit ones and the largest), also for base seeds past 32 bits."""
-    idx = np.concatenate([np.arange(40), np.random.default_rng(3).integers(0, 2**32, 100), [2**32 - 1]]).astype(np.uint32)
-    want = np.stack([np.asarray(jax.random.fold_in(jax.random.PRNGKey(base_seed), int(i))) for i in idx[::7]])
-    got = engine.run_keys(base_seed, idx)
-    assert got.dtype == np.uint32 and got.shape == (len(idx), 2)
-    np.testing.assert_array_equal(got[::7], want)
-    np.testing.assert_array_equal(got, np.asarray(jax.vmap(lambda s: engine.run_key(base_seed, s))(idx)))
-
-
-def test_common_random_numbers_across_points():
-    """Seed s draws the same target and the same measurement noise at every point: with a comm
-    radius that changes nothing for the CIF (it ignores the graph), the target path, the
-    measurements and the CIF's errors are the same at both points, while the graph-based
-    modified ICF differs. (The CIF is compared to 1e-12: XLA may round a lane of a batch
-    differently from another in the last bit; runs keep their lanes whatever the chunk size.)"""
-    fn = engine.compiled(lf.SCENARIO, CFG, records=True)
-    rec = fn(*engine.chunk_inputs(_points({"comm_radius": 60e3}, {"comm_radius": 100e3}), 3, 0, 0, 6, 6))
-    for name in ("target", "positions", "measurements"):
-        a = np.asarray(getattr(rec, name))
-        np.testing.assert_array_equal(a[:3], a[3:], err_msg=name)
-    err = np.asarray(rec.error)
-    cif, mod = CFG.filters.index("cif"), CFG.filters.index("modified_icf")
-    np.testing.assert_allclose(err[:3, :, cif], err[3:, :, cif], rtol=1e-12, atol=1e-9)
-    assert not np.allclose(err[:3, :, mod], err[3:, :, mod])
-    assert len({float(err[s, -1, cif, 0]) for s in range(3)}) == 3  # different seeds differ
-
-
-@pytest.mark.xdist_group("test_engine.batch100")
-def test_nan_in_one_run_is_flagged_and_isolated():
-    good = lf.default_params(CFG)
-    bad = lf.default_params(CFG, p0_diag=[np.nan, 100.0, 1e4, 100.0])
-    # 2 points x 50 seeds: the 100-run program the chunk-size test compiles too
-    clean = _collect(CFG, engine.stack_points([good, good]), 50, 100)
-    mixed = _collect(CFG, engine.stack_points([good, bad]), 50, 100)
-    assert mixed["nonfinite"][50:].all() and mixed["diverged"][50:].all()
-    assert not clean["nonfinite"].any()
-    for key in clean:
-        np.testing.assert_array_equal(clean[key][:50], mixed[key][:50], err_msg=key)
-
-
-@pytest.mark.xdist_group("test_engine.records")
-def test_records_can_be_kept():
-    fn = engine.compiled(lf.SCENARIO, CFG, records=True)
-    params, keys = engine.chunk_inputs(_points({}), 6, 0, 0, 6, 6)  # the CRN test's program
-    rec = fn(params, keys)
-    assert rec.error.shape == (6, CFG.n_steps, len(CFG.filters), CFG.n_agents)
-    assert rec.lambda2.shape == (6, CFG.n_steps)
-
-
-def test_float32_config_runs():
-    cfg = dataclasses.replace(CFG, dtype="float32", filters=("modified_icf",))
-    out = _collect(cfg, _points({}), 4, 4)
-    assert out["rmse"].dtype == np.float32
-    assert np.isfinite(out["rmse"]).all()
-
-
-@pytest.mark.parametrize("emitters", [True, False], ids=["fusion-emitters", "older-emitters"])
-def test_nan_aware_max_and_min_keep_a_nan_in_a_large_batch(emitters):
-    """XLA's CPU min/max over (100, 300) can drop a NaN; mcjax.metrics.nan_max / nan_min
-    must not, since max_error and min_distance are how a blow-up shows in a summary. With both
-    of XLA's CPU code generators (the suite's flags pick the older one; users get the newer one
-    for a scenario without compiler options)."""
-    import jax
-    import jax.numpy as jnp
-
-    from mcjax.metrics import nan_max, nan_min
-
-    x = np.ones((100, 300))
-    x[-1, 5] = np.nan
-    opts = {"xla_cpu_use_fusion_emitters": emitters}
-    got_max = np.asarray(jax.jit(jax.vmap(nan_max), compiler_options=opts)(jnp.asarray(x)))
-    got_min = np.asarray(jax.jit(jax.vmap(nan_min), compiler_options=opts)(jnp.asarray(x)))
-    assert np.isnan(got_max[-1]) and np.isnan(got_min[-1])
-    np.testing.assert_array_equal(got_max[:-1], 1.0)
-    np.testing.assert_array_equal(got_min[:-1], 1.0)
-
-
-def test_results_do_not_depend_on_the_device_count(tmp_path):
-    """The same sweep on 3 CPU devices (a subprocess: the count is fixed when JAX starts) and on
-    one (chunks of one batch use one device) gives the same bits; the subprocess really has 3.
-    There the program is compiled once and loaded on the other two devices; and again with that
-    loading failing (as with a JAX that refuses it), when each device compiles its own."""
-    import os
-    import subprocess
-    import sys
-
-    from mcjax.scenarios import wind_formation as wf
-
-    cfg = wf.Config(n_steps=20)
-    points = engine.stack_points([wf.default_params(cfg), wf.default_params(cfg, comm_radius=2500.0)])
-    one = [o for *_, o in engine.run_chunks(wf.SCENARIO, cfg, points, 150, chunk_size=100)]
-    one = {k: np.concatenate([o[k] for o in one]) for k in one[0]}
-    script = tmp_path / "three.py"
-    script.write_text(
-        "import sys, numpy as np\n"
-        "from mcjax import engine, jaxcompat, runtime\n"
-        "from mcjax.scenarios import wind_formation as wf\n"
-        "assert runtime.settings()['cpu_devices'] == 3, runtime.settings()\n"
-        "cfg = wf.Config(n_steps=20)\n"
-        "pts = engine.stack_points([wf.default_params(cfg), wf.default_params(cfg, comm_radius=2500.0)])\n"
-        "def run(name):\n"
-        "    out = [o for *_, o in engine.run_chunks(wf.SCENARIO, cfg, pts, 150, chunk_size=1000)]\n"
-        "    np.savez(sys.argv[1] + name, **{k: np.concatenate([o[k] for o in out]) for k in out[0]})\n"
-        "run('three.npz')\n"
-        "def refuse(*args):\n"
-        "    raise RuntimeError('no')\n"
-        "jaxcompat.deserialise = refuse\n"
-        "engine.forget('programs')\n"
-        "run('fallback.npz')\n")
-    env = {**os.environ, "MCJAX_CPU_DEVICES": "3", "MCJAX_CACHE_DIR": "off"}  # compiled here, not loaded
-    subprocess.run([sys.executable, str(script), str(tmp_path) + "/"], check=True, env=env, timeout=300)
-    for name in ("three.npz", "fallback.npz"):
-        three = np.load(tmp_path / name)
-        assert set(three.files) == set(one)
-        for key in one:
-            np.testing.assert_array_equal(one[key], three[key], err_msg=f"{name}: {key}")
+from engine_cases import CFG, points as _points
 
 
 def test_deserialise_runs_a_program_as_compiled_with_and_without_jax_internals(monkeypatch):
@@ -258,7 +106,7 @@ def test_only_jaxcompat_uses_jax_internals():
     import ast
     from pathlib import Path
 
-    root = Path(engine.__file__).resolve().parent
+    root = Path(mcjax.__file__).resolve().parent
     bad = []
     for path in sorted(root.rglob("*.py")):
         if path.name == "jaxcompat.py" and path.parent == root:
@@ -297,8 +145,8 @@ def test_the_engines_one_cache_keeps_jitted_functions_and_programs_by_key(monkey
     compiled() and program_futures() keep their entries there, forget() drops them."""
     from collections import OrderedDict
 
-    monkeypatch.setattr(engine, "_CACHE", OrderedDict())  # this test's own
-    monkeypatch.setattr(engine, "CACHE_MAX", 3)
+    monkeypatch.setattr(compilation, "_CACHE", OrderedDict())  # this test's own
+    monkeypatch.setattr(compilation, "CACHE_MAX", 3)
     fn = engine.compiled(lf.SCENARIO, CFG)
     assert engine.compiled(lf.SCENARIO, CFG, records=False, timeseries=0) is fn
     assert engine.cached(("jit", lf.SCENARIO, CFG, False, False, None), lambda: None) is fn
@@ -308,15 +156,15 @@ def test_the_engines_one_cache_keeps_jitted_functions_and_programs_by_key(monkey
     engine.cached(("test", 2), lambda: 2)
     engine.cached(("jit", lf.SCENARIO, CFG, False, False, None), lambda: None)  # used: now the most recent
     engine.cached(("test", 3), lambda: 3)
-    assert list(engine._CACHE) == [("test", 2), ("jit", lf.SCENARIO, CFG, False, False, None), ("test", 3)]
+    assert list(compilation._CACHE) == [("test", 2), ("jit", lf.SCENARIO, CFG, False, False, None), ("test", 3)]
     engine.forget("test")
-    assert list(engine._CACHE) == [("jit", lf.SCENARIO, CFG, False, False, None)]
+    assert list(compilation._CACHE) == [("jit", lf.SCENARIO, CFG, False, False, None)]
     engine.forget()
-    assert not engine._CACHE
+    assert not compilation._CACHE
 
 
 def test_a_devices_program_future_falls_back_only_when_loading_gave_nothing():
-    """engine._or_else: a device's program is the loaded one, else what the fallback makes; a
+    """compilation._or_else: a device's program is the loaded one, else what the fallback makes; a
     failure reaches whoever waits for the program."""
     from concurrent.futures import Future
 
@@ -325,17 +173,17 @@ def test_a_devices_program_future_falls_back_only_when_loading_gave_nothing():
         f.set_exception(error) if error else f.set_result(value)
         return f
 
-    assert engine._or_else(settled("loaded"), lambda: "made").result() == "loaded"
-    assert engine._or_else(settled(None), lambda: "made").result() == "made"
+    assert compilation._or_else(settled("loaded"), lambda: "made").result() == "loaded"
+    assert compilation._or_else(settled(None), lambda: "made").result() == "made"
     pending = Future()
-    later = engine._or_else(pending, lambda: "made")
+    later = compilation._or_else(pending, lambda: "made")
     assert not later.done()
     pending.set_result(None)
     assert later.result() == "made"
     with pytest.raises(RuntimeError, match="no program"):
-        engine._or_else(settled(error=RuntimeError("no program")), lambda: "made").result()
+        compilation._or_else(settled(error=RuntimeError("no program")), lambda: "made").result()
     with pytest.raises(ValueError, match="fallback failed"):
-        engine._or_else(settled(None), lambda: (_ for _ in ()).throw(ValueError("fallback failed"))).result()
+        compilation._or_else(settled(None), lambda: (_ for _ in ()).throw(ValueError("fallback failed"))).result()
 
 
 def test_a_second_process_loads_the_stored_program_and_gets_the_same_bits(tmp_path):

@@ -1,0 +1,82 @@
+"""Sensing and linking, faults included: every agent's range–bearing measurement of the target
+(exact range gate or soft gate), the comm graph (exact or soft) and the links that carried the
+step's message; the fault-aware filter update (shield the inputs, hold a lost agent's state)."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from mcjax import graph
+from mcjax.models.sensors import measure_range_bearing, range_bearing
+from mcjax.scenarios import faults
+
+
+def team_measurements(key, target, sensors, sigma_range, sigma_bearing, sensing_radius, alive):
+    """Every agent's noisy range–bearing measurement of ``target`` (n, 2), NaN where the
+    target is out of the agent's ``sensing_radius`` (n,) or the agent is not ``alive`` (n,)
+    — :func:`mcjax.models.sensors.measure_range_bearing` with one key per agent."""
+    keys = jax.random.split(key, sensors.shape[0])
+    return jax.vmap(measure_range_bearing, in_axes=(0, None, 0, None, None, 0, 0))(
+        keys, target, sensors, sigma_range, sigma_bearing, sensing_radius, alive)
+
+
+def soft_team_measurements(key, target, sensors, sigma_range, sigma_bearing, sensing_radius, alive, temperature):
+    """:func:`team_measurements` (the same noise draws) with the range gate ``r ≤ R_s`` replaced
+    by a soft gate ``g_i = sigmoid((R_s − r_i)/T)``, for a scenario's smoothing switch: returns
+    ``(z (n, 2), g (n,))``, every alive agent's measurement and its weight (the caller weighs
+    agent i's measurement information by ``g_i``). Dead agents: NaN, ``g = 0``."""
+    z = team_measurements(key, target, sensors, sigma_range, sigma_bearing,
+                          jnp.full(sensors.shape[0], jnp.inf, sensors.dtype), alive)
+    r = jax.vmap(range_bearing, in_axes=(None, 0))(target, sensors)[:, 0]
+    return z, jnp.where(alive, jax.nn.sigmoid((sensing_radius - r) / temperature), 0.0)
+
+
+class Sensed(NamedTuple):
+    """One step's measurements and links (:func:`sense_and_link`)."""
+
+    z: jax.Array                 # (n, 2) range–bearing measurements, NaN where there is none
+    comm_graph: jax.Array        # (n, n) the comm graph among the agents switched on (0/1, or soft weights)
+    carried: jax.Array           # (n, n) its links whose message was not lost (:func:`mcjax.scenarios.faults.messages`)
+    gates: jax.Array | None      # (n,) the soft sensing gates (smooth system), else None
+    sizes: jax.Array | None      # (n,) the soft component sizes (smooth system), else None
+
+
+def sense_and_link(key, target, sensors, params, sensing, comm, alive, fault, smoothing=None) -> Sensed:
+    """Every agent's range–bearing measurement of ``target`` (noise ``params.sigma_range``,
+    ``params.sigma_bearing``) within its ``sensing`` radius (n,), the comm graph of radius ``comm`` (n,)
+    among the agents ``alive`` (n,) (switched on by the spec) and the links that carried the step's
+    message, with the step's ``fault`` (:func:`mcjax.scenarios.faults.advance`; None: off) applied:
+    a lost agent senses nothing, a dropped-out sensor returns nothing, a lost link carries nothing.
+
+    ``smoothing`` (a scenario's smoothing switch with ``sensing`` and ``comm`` temperatures; None:
+    exact) swaps the range gate for soft gates (:func:`soft_team_measurements`) and the comm graph
+    for soft links (:func:`mcjax.graph.soft_adjacency`), with the same random draws, and gives the
+    soft component sizes (:func:`mcjax.graph.soft_component_sizes`), which see lost agents, not lost links."""
+    if smoothing is None:
+        z = faults.measurements(team_measurements(key, target, sensors, params.sigma_range, params.sigma_bearing,
+                                                  sensing, alive), fault)
+        comm_graph = graph.adjacency(sensors, comm, alive)
+        gates = sizes = None
+    else:
+        z, gates = soft_team_measurements(key, target, sensors, params.sigma_range, params.sigma_bearing,
+                                          sensing, alive, smoothing.sensing)
+        z = faults.measurements(z, fault)
+        comm_graph = graph.soft_adjacency(sensors, comm, smoothing.comm, alive)
+        sizes = graph.soft_component_sizes(sensors, comm, smoothing.comm, alive & faults.alive(fault, sensors.shape[0]))
+    return Sensed(z, comm_graph, faults.messages(comm_graph, fault), gates, sizes)
+
+
+def shield_filters(fault, kinds, states, exempt=("cif",)) -> tuple:
+    """The filters' states (one per kind of ``kinds``) as they enter a step under faults: each lost
+    agent's entries replaced by a finite stand-in (:func:`mcjax.scenarios.faults.shield`), but for
+    the kinds ``exempt`` (the centralised CIF, which no link carries)."""
+    return tuple(s if k in exempt else faults.shield(fault, s) for k, s in zip(kinds, states))
+
+
+def hold_filters(fault, kinds, new, old, exempt=("cif",)) -> tuple:
+    """The filters' states after a step under faults: a lost agent's stay as they were
+    (:func:`mcjax.scenarios.faults.hold`), but for the kinds ``exempt``."""
+    return tuple(s if k in exempt else faults.hold(fault, s, o) for k, s, o in zip(kinds, new, old))
