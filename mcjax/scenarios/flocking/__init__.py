@@ -3,7 +3,7 @@ Li 2013 — the scenario ``flocking`` and everything only it uses:
 
 * :mod:`.scenario` — the scenario's description and ``SCENARIO``, assembled from:
 * :mod:`.params` — Config, Params and their checks; :mod:`.step` — State, Record, init and the step;
-  :mod:`.readout` — the outputs (summary, series) and the training loss's errors;
+  :mod:`.readout` — the outputs (summary, series) and the training loss's weights;
 * :mod:`.model` — connectivity-preserving flocking of double integrators (eqs. 1, 10–16):
   potential, controllers, energy; :mod:`.dynamics` — its integrators over a step (an error-controlled
   Dormand–Prince pair; RK4 sub-steps);
@@ -14,10 +14,11 @@ from mcjax.scenarios.flocking.params import (
     CONTROL_REFERENCES, FILTER_KINDS, FILTER_NODES, NAME, START_LAYOUTS, TARGET_PATHS, Config, Params, check_params,
     lattice_sites,
 )
-from mcjax.scenarios.flocking.readout import series, summary, training_errors, training_weights
+from mcjax.scenarios.flocking.readout import series, summary, training_weights
 from mcjax.scenarios.flocking.scenario import SCENARIO, default_params, outputs, reduce, timeseries, timeseries_outputs
 from mcjax.scenarios.flocking.smoothing import ROUGH, Smoothing, soft_hysteresis, soft_link_changes
 from mcjax.scenarios.flocking.step import Record, State, init, sensing_mask, step, target_state
+from mcjax.scenarios.kit import training_errors
 
 __all__ = ["CONTROL_REFERENCES", "Config", "FILTER_KINDS", "FILTER_NODES", "NAME", "Params", "ROUGH", "Record",
            "SCENARIO", "START_LAYOUTS", "Smoothing", "State", "TARGET_PATHS", "check_params", "default_params", "init",

@@ -1,5 +1,5 @@
 """Lou, Cui & Li 2013's flock (:mod:`.scenario`): what a run's records reduce to — the summary
-and the per-step series — and what ``mcjax tune``'s training loss reads."""
+and the per-step series — and the weights of ``mcjax tune``'s training loss (its errors: the kit's)."""
 
 from __future__ import annotations
 
@@ -11,12 +11,6 @@ from mcjax import metrics
 from mcjax.contract import Output, declare
 from mcjax.scenarios import faults, kit
 from mcjax.scenarios.flocking.step import Record, sensing_mask
-
-
-def training_errors(cfg, params, record: Record):
-    """What the training loss of ``mcjax tune`` reads from a step's record: the position errors
-    (F, N) of every filter's estimate at every node (the error output ``rmse``'s)."""
-    return record.error
 
 
 def training_weights(cfg, params):

@@ -53,8 +53,9 @@ neighbours' old measurement information is not fused); the control, sensed, is n
 """
 
 from mcjax.contract import FAST_COMPILE, Scenario
-from mcjax.scenarios.flocking.readout import series, summary, training_errors, training_weights
+from mcjax.scenarios import kit
 from mcjax.scenarios.flocking.params import NAME, Config, Params, check_params
+from mcjax.scenarios.flocking.readout import series, summary, training_weights
 from mcjax.scenarios.flocking.smoothing import ROUGH, Smoothing
 from mcjax.scenarios.flocking.step import init, sensing_mask, step  # sensing_mask: read here by benchmarks
 from mcjax.smoothing import Smooth
@@ -63,7 +64,7 @@ from mcjax.smoothing import Smooth
 SCENARIO = Scenario(
     name=NAME, title="Lou, Cui & Li 2013: a flocking sensor network tracks a target with the Kalman-consensus "
     "filter", Config=Config, Params=Params, init=init, step=step, summary=summary, series=series,
-    check_params=check_params, smooth=Smooth(Smoothing, training_errors, training_weights, ROUGH),
+    check_params=check_params, smooth=Smooth(Smoothing, kit.training_errors, training_weights, ROUGH),
     compiler_options=FAST_COMPILE,
     # two of its programs running at once on two CPU devices wait for each other for good (XLA's CPU
     # runtime, its sub-steps in a data-dependent while loop): a sweep of four 100-run batches hung
@@ -72,7 +73,4 @@ SCENARIO = Scenario(
         "kcf": "Kalman-consensus filter of Lou, Cui & Li 2013 (Alg. 1): a local update with the neighbours' "
                "measurements plus a step towards their estimates",
         "local": "each node's own Kalman filter on its own measurements, nothing shared"})
-default_params = SCENARIO.default_params
-#: The record's derived functions (from :func:`summary` and :func:`series`), by their usual names.
-reduce, outputs = SCENARIO.reduce, SCENARIO.outputs
-timeseries, timeseries_outputs = SCENARIO.timeseries, SCENARIO.timeseries_outputs
+default_params, reduce, outputs, timeseries, timeseries_outputs = kit.aliases(SCENARIO)
