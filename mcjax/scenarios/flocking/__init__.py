@@ -1,18 +1,24 @@
 """A flocking mobile sensor network tracks a target with the Kalman-consensus filter, Lou, Cui &
 Li 2013 — the scenario ``flocking`` and everything only it uses:
 
-* :mod:`.scenario` — Config, Params, the step, the outputs, ``SCENARIO``;
-* :mod:`.dynamics` — connectivity-preserving flocking of double integrators (eqs. 1, 10–16):
-  potential, controllers, the integrators (an error-controlled Dormand–Prince pair; RK4 sub-steps), energy;
+* :mod:`.scenario` — the scenario's description and ``SCENARIO``, assembled from:
+* :mod:`.params` — Config, Params and their checks; :mod:`.step` — State, Record, init and the step;
+  :mod:`.readout` — the outputs (summary, series) and the training loss's weights;
+* :mod:`.model` — connectivity-preserving flocking of double integrators (eqs. 1, 10–16):
+  potential, controllers, energy; :mod:`.dynamics` — its integrators over a step (an error-controlled
+  Dormand–Prince pair; RK4 sub-steps);
 * :mod:`.smoothing` — the smoothing switch: soft links with hysteresis (``mcjax tune``, sensitivities).
 """
 
-from mcjax.scenarios.flocking.scenario import (
-    CONTROL_REFERENCES, FILTER_KINDS, FILTER_NODES, NAME, SCENARIO, START_LAYOUTS, TARGET_PATHS, Config, Params, Record,
-    State, check_params, default_params, init, lattice_sites, outputs, reduce, sensing_mask, series, step, summary,
-    target_state, timeseries, timeseries_outputs, training_errors, training_weights,
+from mcjax.scenarios.flocking.params import (
+    CONTROL_REFERENCES, FILTER_KINDS, FILTER_NODES, NAME, START_LAYOUTS, TARGET_PATHS, Config, Params, check_params,
+    lattice_sites,
 )
+from mcjax.scenarios.flocking.readout import series, summary, training_weights
+from mcjax.scenarios.flocking.scenario import SCENARIO, default_params, outputs, reduce, timeseries, timeseries_outputs
 from mcjax.scenarios.flocking.smoothing import ROUGH, Smoothing, soft_hysteresis, soft_link_changes
+from mcjax.scenarios.flocking.step import Record, State, init, sensing_mask, step, target_state
+from mcjax.scenarios.kit import training_errors
 
 __all__ = ["CONTROL_REFERENCES", "Config", "FILTER_KINDS", "FILTER_NODES", "NAME", "Params", "ROUGH", "Record",
            "SCENARIO", "START_LAYOUTS", "Smoothing", "State", "TARGET_PATHS", "check_params", "default_params", "init",

@@ -9,7 +9,7 @@ The step's discrete switches and what the smooth step puts in their place:
   state (:func:`soft_hysteresis`); the KCF's exchange, the alignment of eq. 11, ``ḃ_ij`` and
   the energy of eq. 15 weigh each pair by it;
 * the potential of eq. 12 on a link, which is +∞ at R (a link at R is a broken run) → the
-  faded potential :func:`mcjax.scenarios.flocking.dynamics.faded_potential`, 0 at and beyond
+  faded potential :func:`mcjax.scenarios.flocking.model.faded_potential`, 0 at and beyond
   R, so a pair of small weight near or beyond R feels a finite force;
 * the counts of links formed and broken → their soft counts (:func:`soft_link_changes`).
 
