@@ -97,7 +97,7 @@ from mcjax.filters.imm import combine
 from mcjax.scenarios.urban_bearing import environment as env
 from mcjax.scenarios.urban_bearing import score as urban
 from mcjax.results import environment_metadata, write_part
-from mcjax.scenarios import urban_bearing as ub
+from mcjax.scenarios import kit, urban_bearing as ub
 from mcjax.statistics import mean_ci, t_critical, wilson_interval
 from mcjax.study import load_spec, run_rows
 from mcjax import configure
@@ -316,7 +316,7 @@ def planner_fn(cfg, batched: bool = True):
     """``(params, State, step key) -> (command, exact score J, admissible)`` with the inputs
     built as ``urban_bearing.step`` builds them."""
     def plan(params, state, key):
-        p = ub.kit.cast(params, jnp.dtype(cfg.dtype))
+        p = kit.cast(params, jnp.dtype(cfg.dtype))
         imm = state.filters[cfg.filters.index("imm")]
         xy, _ = combine(imm)
         _, sig = ub.mode_models(p, "imm")

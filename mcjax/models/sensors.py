@@ -50,3 +50,10 @@ def azimuth(target_xy: jax.Array, uav: jax.Array) -> jax.Array:
     dy = target_xy[..., 1] - uav[..., 1]
     above = (dx == 0.0) & (dy == 0.0)
     return jnp.where(above, 0.0, jnp.arctan2(dy, jnp.where(above, 1.0, dx)))
+
+
+def position(x: jax.Array, sensor: jax.Array) -> jax.Array:
+    """A linear position fix of a CV state ``[x, vx, y, vy]``: ``[x, y]`` (the sensor's own
+    position does not enter; Lou, Cui & Li 2013, the type-I nodes' measurement)."""
+    del sensor
+    return jnp.stack([x[0], x[2]])

@@ -1,9 +1,9 @@
 """A flocking mobile sensor network tracks a target with the Kalman-consensus filter, Lou, Cui &
 Li 2013 — the scenario ``flocking`` and everything only it uses:
 
-* :mod:`.scenario` — the scenario's description and ``SCENARIO``, assembled from:
+* :mod:`.scenario` — the scenario's description, its outputs (summary, series), the training loss's
+  weights and ``SCENARIO``, assembled from:
 * :mod:`.params` — Config, Params and their checks; :mod:`.step` — State, Record, init and the step;
-  :mod:`.readout` — the outputs (summary, series) and the training loss's weights;
 * :mod:`.model` — connectivity-preserving flocking of double integrators (eqs. 1, 10–16):
   potential, controllers, energy; :mod:`.dynamics` — its integrators over a step (an error-controlled
   Dormand–Prince pair; RK4 sub-steps);
@@ -14,8 +14,9 @@ from mcjax.scenarios.flocking.params import (
     CONTROL_REFERENCES, FILTER_KINDS, FILTER_NODES, NAME, START_LAYOUTS, TARGET_PATHS, Config, Params, check_params,
     lattice_sites,
 )
-from mcjax.scenarios.flocking.readout import series, summary, training_weights
-from mcjax.scenarios.flocking.scenario import SCENARIO, default_params, outputs, reduce, timeseries, timeseries_outputs
+from mcjax.scenarios.flocking.scenario import (
+    SCENARIO, default_params, outputs, reduce, series, summary, timeseries, timeseries_outputs, training_weights,
+)
 from mcjax.scenarios.flocking.smoothing import ROUGH, Smoothing, soft_hysteresis, soft_link_changes
 from mcjax.scenarios.flocking.step import Record, State, init, sensing_mask, step, target_state
 from mcjax.scenarios.kit import training_errors

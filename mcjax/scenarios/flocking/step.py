@@ -9,9 +9,10 @@ import jax
 import jax.numpy as jnp
 
 from mcjax import graph, metrics
-from mcjax.filters.consensus import FilterOptions, Measurements, filter_step
+from mcjax.filters.consensus import FilterOptions, Measurements
 from mcjax.filters.gaussian import Gaussian, first_step_model
 from mcjax.models.motion import cv_matrices, cv_process_noise
+from mcjax.models.sensors import position
 from mcjax.numerics import spd_inverse, symmetrize
 from mcjax.scenarios import faults, kit
 from mcjax.scenarios.flocking import dynamics as fl
@@ -82,8 +83,7 @@ def _draw_start(cfg, p, key):
 def init(cfg, params, key) -> State:
     """The first valid draw of the initial flock (:mod:`.scenario`), every filter at the true
     target state with covariance ``diag(p0_diag)``, the adaptive gains at 0; no fault yet."""
-    dtype = jnp.dtype(cfg.dtype)
-    p = kit.cast(params, dtype)
+    dtype, p = kit.typed(cfg, params)
     n = cfg.n_agents
     q, v, adj, ok = jax.vmap(lambda k: _draw_start(cfg, p, k))(jax.random.split(key, cfg.start_attempts))
     first = jnp.argmax(ok)
@@ -94,15 +94,8 @@ def init(cfg, params, key) -> State:
     P0 = jnp.diag(p.p0_diag)
     g = Gaussian(x0, P0, symmetrize(spd_inverse(P0)))
     filters = tuple(jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), g) for _ in cfg.filters)
-    box = faults.mailbox(cfg, x0) if "kcf" in cfg.filters else None
-    box = None if box is None else faults.Mailbox(*kit.per_run(p.dt, *box))
     return State(jnp.asarray(0, jnp.int32), flock, adj[pick], filters, ~found, pick + 1,
-                 faults.init(cfg, key, p), box)
-
-
-def _position(x, sensor):
-    del sensor
-    return jnp.stack([x[0], x[2]])
+                 faults.init(cfg, key, p), kit.kcf_mailbox(cfg, p, x0))
 
 
 def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> tuple[State, Record]:
@@ -120,8 +113,7 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
     measures nothing; a lost link drops the step's KCF exchange on it, not the link of the
     flocking control (eqs. 11–12: sensed, not sent); a lost node leaves the flock at once — no
     link of the graph, frozen where it is, its filter states held, out of every statistic."""
-    dtype = jnp.dtype(cfg.dtype)
-    p = kit.cast(params, dtype)
+    dtype, p = kit.typed(cfg, params)
     n = cfg.n_agents
     t = state.t.astype(dtype) * p.dt
     h = sensing_mask(cfg, p, dtype)
@@ -136,7 +128,7 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
 
     # 1. measurements of the type-I nodes; the filters (step 0 updates the prior without predicting)
     noise = p.sigma_meas * jax.random.normal(key, (n, 2), dtype)
-    z = faults.measurements(jnp.where(h[:, None] > 0.5, _position(target, None)[None, :] + noise, jnp.nan), fault)
+    z = faults.measurements(jnp.where(h[:, None] > 0.5, position(target, None)[None, :] + noise, jnp.nan), fault)
     runs_filter = h if cfg.filter_nodes == "sensing" else jnp.ones(n, dtype)
     adj_f = graph_now * runs_filter[:, None] * runs_filter[None, :]
     carried = faults.messages(adj_f, fault)
@@ -145,15 +137,8 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
     F, _ = cv_matrices(p.dt, dtype)
     F, Q = first_step_model(state.t == 0, F, cv_process_noise(p.dt, p.sigma_accel, dtype))
     opts = FilterOptions(kcf_gain=cfg.kcf_gain)
-    shielded, no_angle, mailbox = faults.shield(fault, state.filters), jnp.array([False, False]), state.mailbox
-    if mailbox is None:
-        filters = filter_step(cfg.filters, opts, _position, no_angle, shielded, meas, F, Q, p.kcf_epsilon)
-    else:  # the KCF's consensus messages arrive message_delay steps late
-        late = meas._replace(late=faults.late(mailbox, F))
-        filters = tuple(filter_step((k,), opts, _position, no_angle, (f,), late if k == "kcf" else meas, F, Q,
-                                    p.kcf_epsilon)[0] for k, f in zip(cfg.filters, shielded))
-        mailbox = faults.post(mailbox, shielded[cfg.filters.index("kcf")].x, carried)
-    filters = faults.hold(fault, filters, state.filters)
+    filters, mailbox = kit.filter_update(cfg.filters, opts, position, jnp.array([False, False]), state.filters, meas,
+                                         F, Q, p.kcf_epsilon, fault, state.mailbox)
     errors = jnp.stack([metrics.position_error(f.x, target) * h for f in filters])
 
     # 2. fly: type-I nodes steer to their KCF estimate (the first filter's without a KCF) or the

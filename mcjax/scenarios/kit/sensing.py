@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 
 from mcjax import graph
+from mcjax.filters.consensus import filter_step
 from mcjax.models.sensors import measure_range_bearing, range_bearing
 from mcjax.scenarios import faults
 from mcjax.scenarios.kit.settings import per_run
@@ -97,3 +98,20 @@ def kcf_mailbox(cfg, params, x0):
     None without a message delay or without a ``"kcf"`` filter), per-run from the start (:func:`per_run`)."""
     box = faults.mailbox(cfg, x0) if "kcf" in cfg.filters else None
     return None if box is None else faults.Mailbox(*per_run(params.dt, *box))
+
+
+def filter_update(kinds, opts, h, angle_mask, states, meas, F, Q, kcf_epsilon, fault, mailbox=None) -> tuple:
+    """``(filters, mailbox)``: every filter of ``kinds`` one step on (:func:`mcjax.filters.consensus.filter_step`)
+    under faults — the states shielded before (:func:`shield_filters`), a lost agent's held after
+    (:func:`hold_filters`) — and, with a ``mailbox`` (:func:`kcf_mailbox`), the KCF's consensus messages
+    arriving late (:func:`mcjax.scenarios.faults.late`), this step's posted over the links that carried
+    one (``meas.adjacency``)."""
+    shielded = shield_filters(fault, kinds, states)
+    if mailbox is None:
+        filters = filter_step(kinds, opts, h, angle_mask, shielded, meas, F, Q, kcf_epsilon)
+    else:  # the KCF's consensus messages arrive message_delay steps late
+        late = meas._replace(late=faults.late(mailbox, F))
+        filters = tuple(filter_step((k,), opts, h, angle_mask, (f,), late if k == "kcf" else meas, F, Q,
+                                    kcf_epsilon)[0] for k, f in zip(kinds, shielded))
+        mailbox = faults.post(mailbox, shielded[kinds.index("kcf")].x, meas.adjacency)
+    return hold_filters(fault, kinds, filters, states), mailbox

@@ -52,6 +52,13 @@ def cast(params, dtype):
     return jax.tree.map(lambda a: jnp.asarray(a, dtype), params)
 
 
+def typed(cfg, params):
+    """``(dtype, params)``: the Config's float type and every Params field as a JAX array of it
+    (:func:`cast`)."""
+    dtype = jnp.dtype(cfg.dtype)
+    return dtype, cast(params, dtype)
+
+
 def agents(p, n: int, dtype):
     """A scalar-or-per-agent Params value as an (n,) array."""
     return jnp.broadcast_to(jnp.asarray(p, dtype), (n,))

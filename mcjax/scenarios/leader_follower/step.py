@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 
 from mcjax import graph, metrics
-from mcjax.filters.consensus import Measurements, filter_step, init_states, per_agent
+from mcjax.filters.consensus import Measurements, init_states, per_agent
 from mcjax.filters.gaussian import first_step_model
 from mcjax.models.motion import cv_matrices, cv_process_noise, cv_step
 from mcjax.models.platforms import UnicycleLimits, unicycle_step
@@ -138,16 +138,8 @@ def _advance(cfg, params, state: State, key, smoothing):
 
     F, Q = first_step_model(first, cv_matrices(dt, dtype)[0], cv_process_noise(dt, params.sigma_accel, dtype))
     angle_mask = jnp.array([False, True])
-    shielded = kit.shield_filters(fault, cfg.filters, state.filters)
-    eps, mailbox = jnp.asarray(params.kcf_epsilon, dtype), state.mailbox
-    if mailbox is None:
-        filters = filter_step(cfg.filters, filter_options(cfg), range_bearing, angle_mask, shielded, meas, F, Q, eps)
-    else:  # the kcf's consensus messages arrive message_delay steps late
-        late = meas._replace(late=faults.late(mailbox, F))
-        filters = tuple(filter_step((k,), filter_options(cfg), range_bearing, angle_mask, (f,),
-                                    late if k == "kcf" else meas, F, Q, eps)[0] for k, f in zip(cfg.filters, shielded))
-        mailbox = faults.post(mailbox, shielded[cfg.filters.index("kcf")].x, carried)
-    filters = kit.hold_filters(fault, cfg.filters, filters, state.filters)
+    filters, mailbox = kit.filter_update(cfg.filters, filter_options(cfg), range_bearing, angle_mask, state.filters,
+                                         meas, F, Q, jnp.asarray(params.kcf_epsilon, dtype), fault, state.mailbox)
 
     plan = (state.plan_u, state.plan_cmd, age, state.plan_cost)
     if cfg.planner != "none":

@@ -15,8 +15,7 @@ from mcjax.scenarios import kit
 from mcjax.scenarios.urban_bearing import environment as env
 from mcjax.scenarios.urban_bearing import score as urban
 from mcjax.scenarios.urban_bearing.mode_filters import GATE_FLOOR, filter_bank, gated_mode_filter, mode_filter, mode_models
-# FILTER_KINDS: the scenario's filter kinds, read beside its step (tests/test_contract.py)
-from mcjax.scenarios.urban_bearing.params import FILTER_KINDS, buildings_of  # noqa: F401
+from mcjax.scenarios.urban_bearing.params import buildings_of
 from mcjax.scenarios.urban_bearing.planner import limits_of, plan_command, smooth_plan_command
 from mcjax.scenarios.urban_bearing.smoothing import (
     Smoothing, soft_admissible_log, soft_line_of_sight, soft_measured_bearing, soft_occupied,
@@ -58,8 +57,7 @@ def init(cfg, params, key) -> State:
       ch. 6, and the range-parameterised EKF): :func:`first_bearing_prior` at the bearing the
       UAV measures at ``uav0`` (the measurement model of :func:`step`), as a line-of-sight
       bearing; if ``uav0`` has no line of sight, the ``"prior"`` start."""
-    dtype = jnp.dtype(cfg.dtype)
-    p = kit.cast(params, dtype)
+    dtype, p = kit.typed(cfg, params)
     if cfg.init == "prior":
         x0 = p.emitter[:2] + p.prior_sigma * jax.random.normal(key, (2,), dtype)
         P0 = p.prior_sigma**2 * jnp.eye(2, dtype=dtype)
@@ -180,8 +178,7 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
     (los · reflected) and ``in_building`` (soft occupancy) are floats in [0, 1];
     ``violation`` is the exact test of the smooth command as 0/1; ``score`` is the soft
     argmax's mean surrogate score of the plan (not NaN when held)."""
-    dtype = jnp.dtype(cfg.dtype)
-    p = kit.cast(params, dtype)
+    dtype, p = kit.typed(cfg, params)
     b = buildings_of(p)
     k_plan, k_noise = jax.random.split(key)
 

@@ -70,8 +70,7 @@ def noise_variance(cfg, p):
 def init(cfg, params, key) -> State:
     """The UAVs at ``start``; every filter at zero wind with covariance ``sigma_wind_prior``² I;
     no fault yet."""
-    dtype = jnp.dtype(cfg.dtype)
-    p = kit.cast(params, dtype)
+    dtype, p = kit.typed(cfg, params)
     n = cfg.n_agents
     P0 = jnp.eye(2, dtype=dtype) * p.sigma_wind_prior ** 2
     g = Gaussian(kit.per_run(p.dt, jnp.zeros(2, dtype)), P0, symmetrize(spd_inverse(P0)))  # per-run: kit.per_run
@@ -114,8 +113,7 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
     drops the kcf's exchange on it (the neighbour's prior, measurement information and eq. 12's
     formation term); a lost UAV stops where it is, its filter states hold, and the others
     place the formation's centre from their own slots (:func:`formation_centre`)."""
-    dtype = jnp.dtype(cfg.dtype)
-    p = kit.cast(params, dtype)
+    dtype, p = kit.typed(cfg, params)
     n = cfg.n_agents
     w = wind(params, dtype)
     offsets = guidance.centre_offsets(p.offsets)
