@@ -20,6 +20,7 @@ import click
 
 from mcjax import configure, envvars
 from mcjax.interrupt import ACK, ACK_DASK, ctrl_c, exit_now, finish, own_process
+from mcjax.progress import Bars
 
 def _parse_set(values: tuple[str, ...]) -> dict:
     """``--set key=value`` pairs (see :func:`mcjax.study.checks.set_value`)."""
@@ -209,7 +210,7 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
         exit_now(130)
     configure()  # JAX's process settings, before anything computes (mcjax.configure)
     failure = result = None
-    bars = _Bars(sweep="chunk")
+    bars = Bars(sweep="chunk")
     before = []  # the chunks written before (a resumed sweep's bar counts the chunks to run)
 
     def progress(at) -> None:
@@ -241,43 +242,6 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
                f"({result.runs_run / max(result.seconds, 1e-9):.1f} runs/s incl. compilation)")
     _print_summary(result.rows, s)
     finish(stop)
-
-
-class _Bars:
-    """The progress bars of a command (tqdm), one stage at a time: a new stage, or a message,
-    closes the bar drawn so far, so the lines come out in order."""
-
-    def __init__(self, **units: str) -> None:
-        self.units = units  # stage -> unit
-        self.stage = self.bar = None
-
-    def show(self, stage: str, done: int, total: int, **postfix) -> None:
-        """Draw ``done`` of ``total`` in ``stage``'s bar (a new one at a stage's first call)."""
-        if self.bar is None or stage != self.stage:
-            from tqdm import tqdm
-
-            self.close()
-            self.stage = stage
-            self.bar = tqdm(total=total, initial=done, unit=self.units[stage], desc=stage, disable=None)
-        else:
-            if postfix:
-                self.bar.set_postfix(**postfix)
-            self.bar.update(done - self.bar.n)
-
-    def echo(self, line: str) -> None:
-        self.close()
-        click.echo(line)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-        self.bar = None
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 @main.command(short_help="Run one point of a config (configs/*.toml); print a summary.")
@@ -391,7 +355,7 @@ def _tune(spec_path, out_dir, resume, force, state, stop, hint):
     from mcjax import study, tune as tuning
 
     state["out"] = out_dir = out_dir or study.default_out_dir(spec_path)
-    with tuning.write_failures_end_the_command(out_dir), _Bars(tune="step", evaluate="run") as bars:
+    with tuning.write_failures_end_the_command(out_dir), Bars(tune="step", evaluate="run") as bars:
         # a full disk: one line, exit 1 (write_failures_end_the_command)
         try:
             spec = tuning.load_tune_spec(spec_path)

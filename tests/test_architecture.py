@@ -127,7 +127,7 @@ LAYERS = [
     {"study", "tables", "plots", "listing"},
     {"tune"},
     {"report", "html_report", "findings", "tune_report"},
-    {"cli", "clidoc", "__main__"},
+    {"cli", "clidoc", "__main__", "progress"},
 ]
 
 
