@@ -134,7 +134,7 @@ def main() -> None:
 
     import jax
 
-    from mcjax.study.checks import read_toml
+    from mcjax.validation import read_toml
     from mcjax import engine, tune
     from mcjax.study import build_spec, read_identity  # noqa: F401
 

@@ -23,8 +23,8 @@ from mcjax.interrupt import ACK, ACK_DASK, ctrl_c, exit_now, finish, own_process
 from mcjax.progress import Bars
 
 def _parse_set(values: tuple[str, ...]) -> dict:
-    """``--set key=value`` pairs (see :func:`mcjax.study.checks.set_value`)."""
-    from mcjax.study.checks import set_value  # here: the package imports the scenarios (and JAX)
+    """``--set key=value`` pairs (see :func:`mcjax.validation.set_value`)."""
+    from mcjax.validation import set_value
     out = {}
     for item in values:
         key, eq, raw = item.partition("=")

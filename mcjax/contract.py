@@ -8,31 +8,39 @@ class); the layers above use a scenario only through it and name no scenario, fi
   a per-filter output has one value per filter, in this order);
 * ``Params`` (:func:`params_type`, one :class:`Param` per field): a NamedTuple of arrays of
   what a sweep may vary without recompiling;
-* ``init``, ``step`` (:class:`Init`, :class:`Step`; pure, jittable) and ``reduce``
-  (:class:`Reduce`) to the :class:`Output` fields ``outputs(cfg)`` declares, ``(F,)`` per
-  filter, ``()`` per run — or both from one ``summary`` declaring each output once, next to
-  its value (:func:`declare`); optionally ``timeseries`` / ``timeseries_outputs`` (or one
-  ``series``), ``check_params``, ``smooth`` (:class:`mcjax.smoothing.Smooth`) and ``compiler_options`` (:data:`FAST_COMPILE`).
+* ``init``, ``step`` (:class:`Init`, :class:`Step`; pure, jittable) and one ``summary``
+  (:data:`Summary`) declaring each :class:`Output` once, next to its value (:func:`declare`),
+  ``(F,)`` per filter, ``()`` per run; the record derives ``reduce(cfg, records, params)``
+  (:class:`Reduce`) and ``outputs(cfg)`` from it, and ``timeseries`` / ``timeseries_outputs``
+  from an optional ``series``; optionally ``check_params``, ``smooth``
+  (:class:`mcjax.smoothing.Smooth`) and ``compiler_options`` (:data:`FAST_COMPILE`).
 
-Validation reads values as a spec (TOML) writes them: kinds are exact (:meth:`Param.problem`
-with ``exact=True``) and integer Config fields without an upper bound get :func:`ceiling`.
+Validation is :mod:`mcjax.validation`'s (the declarations' ``problem`` methods call it): it reads
+values as a spec (TOML) writes them — kinds are exact (:meth:`Param.problem` with
+``exact=True``) and integer Config fields without an upper bound get a :func:`ceiling`. Display
+units are :mod:`mcjax.units`' (:func:`~mcjax.units.display_unit`).
 Output roles (:data:`ROLES`) tell the layers above what a column means: ``"error"`` (exactly
 one: the metric the report leads with), ``"divergence"``, ``"nonfinite"`` and the graph
 statistics (optional; each role at most once). ``Scenario(...)`` checks the declarations of
 ``Config()`` when it is built (ValueError, one line).
 
-This module is a leaf: it imports nothing from mcjax and no JAX, so every layer may use it.
+This module is a leaf: it imports only the leaves :mod:`mcjax.validation` and :mod:`mcjax.units`
+and no JAX, so every layer (the scenarios too) may use it.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any, Callable, Mapping, NamedTuple, Protocol
 
 import numpy as np
+
+from mcjax import validation
+from mcjax.units import display_unit
+# COUNT_CEILING(S) and ceiling: the count limits, also read from here (docs/cli.md, tests/test_hardening_corpus.py)
+from mcjax.validation import COUNT_CEILING, COUNT_CEILINGS, ceiling, setting_problem, show  # noqa: F401
 
 #: Roles an output may declare (see the module docstring).
 ROLES = ("error", "divergence", "nonfinite", "connectivity_mean", "connectivity_min", "disconnected_steps")
@@ -50,130 +58,6 @@ class Output(NamedTuple):
         return self._asdict()
 
 
-def _num(v) -> str:
-    return f"{v:g}" if isinstance(v, float) else str(v)
-
-
-def _range_text(low, high, low_open, integer) -> str:
-    kind = "an integer " if integer else ""
-    lo_ok, hi_ok = low is not None and low > -math.inf, high is not None and high < math.inf
-    if lo_ok and hi_ok:
-        return f"{kind}in {'(' if low_open else '['}{_num(low)}, {_num(high)}]"
-    if lo_ok:
-        return f"{kind}{'>' if low_open else '>='} {_num(low)}"
-    if hi_ok:
-        return f"{kind}<= {_num(high)}"
-    return "an integer" if integer else "any number"
-
-
-def _show(value) -> str:
-    """``repr(value)`` on one line, cut to a readable length."""
-    text = repr(value.tolist() if isinstance(value, np.ndarray) else value).replace("\n", " ")
-    return text if len(text) <= 120 else text[:100] + f"... ({len(text)} characters)"
-
-
-def _bad(allowed: str, value) -> str:
-    return f"must be {allowed}; got {_show(value)}"
-
-
-def _shape_text(shape, n_agents=None) -> str:
-    """A declared shape as ``n_agentsx2`` (or, given ``n_agents``, its numbers: ``5x2``)."""
-    return "x".join(("n_agents" if n_agents is None else str(n_agents)) if d == "n" else str(d) for d in shape)
-
-
-# Exact kinds of values, as TOML has them: a boolean is no number, a float no integer, a string or
-# a table no list (numpy scalars count as their Python kinds).
-
-def _is_bool(v) -> bool:
-    return isinstance(v, (bool, np.bool_))
-
-
-def _is_int(v) -> bool:
-    return isinstance(v, (int, np.integer)) and not _is_bool(v)
-
-
-def _is_real(v) -> bool:
-    return isinstance(v, (int, float, np.integer, np.floating)) and not _is_bool(v)
-
-
-def _same(value, choice) -> bool:
-    """``value`` is ``choice`` in kind and in value: true is not 1, 1.0 is not 1, "1" is not 1."""
-    for kind in (lambda v: isinstance(v, str), _is_bool, _is_int, _is_real):
-        if kind(choice):
-            return kind(value) and value == choice
-    return type(value) is type(choice) and value == choice
-
-
-def _leaves(value):
-    """The leaves of a nested list (a value itself if it is no list); None if a leaf is a
-    table, a string, a boolean or anything but a number."""
-    if isinstance(value, np.ndarray):
-        return [value] if value.dtype.kind in "iuf" else None
-    if isinstance(value, (list, tuple)):
-        subs = [_leaves(v) for v in value]
-        return None if any(sub is None for sub in subs) else [leaf for sub in subs for leaf in sub]
-    return [value] if _is_real(value) else None
-
-
-def _integral_leaves(leaves) -> bool:
-    """Every leaf is an integer in kind (an integer-typed array counts; a float never does)."""
-    return all(_is_int(v) or (isinstance(v, np.ndarray) and v.dtype.kind in "iu") for v in leaves)
-
-
-def _within(value, low, high, low_open):
-    """A range check (element-wise for an array) that also holds for integers beyond float range."""
-    ok = True if low is None else (value > low if low_open else value >= low)
-    return ok & (True if high is None else value <= high)
-
-
-#: Upper bounds of the integer Config fields that declare none (agents, steps; every other count:
-#: COUNT_CEILING), so no spec asks for more than a machine holds (the study plan's memory check refines them).
-COUNT_CEILINGS = {"n_agents": 1_000, "n_steps": 1_000_000}
-COUNT_CEILING = 100_000
-
-
-def ceiling(name: str, setting: "Setting") -> int | None:
-    """The upper bound :func:`config_type` enforces on an integer Setting that declares no
-    ``high`` (:data:`COUNT_CEILINGS`, else :data:`COUNT_CEILING`); None for other fields."""
-    if not setting.integer or setting.choices is not None or (setting.high is not None and setting.high < math.inf):
-        return None
-    return COUNT_CEILINGS.get(name, COUNT_CEILING)
-
-
-def setting_problem(name: str, setting: "Setting", value) -> str | None:
-    """:meth:`Setting.problem`, then the field's :func:`ceiling`."""
-    msg = setting.problem(value)
-    top = ceiling(name, setting)
-    if msg is None and top is not None and value > top:
-        low, unit = setting.low if setting.low is not None else -math.inf, f" {setting.unit}" if setting.unit else ""
-        return _bad(_range_text(low, top, setting.low_open, True) + unit, value)
-    return msg
-
-
-#: Units a value may be shown in: (declared unit, shown unit) -> factor (shown = factor x declared).
-DISPLAY_UNITS = {("m", "km"): 1e-3, ("rad", "deg"): 180.0 / math.pi, ("rad/s", "deg/s"): 180.0 / math.pi,
-                 ("s", "min"): 1.0 / 60.0, ("s", "h"): 1.0 / 3600.0, ("m/s", "km/h"): 3.6}
-#: The shown unit of a declared unit when a Param names none: angles in degrees.
-DEFAULT_DISPLAY = {"rad": "deg", "rad/s": "deg/s"}
-
-
-def display_unit(unit: str, display: str | None = None) -> tuple[str, float]:
-    """``(shown unit, factor)`` for a value declared in ``unit``: ``display`` when given (it
-    must be ``unit`` or a pair of :data:`DISPLAY_UNITS`, else ValueError), else
-    :data:`DEFAULT_DISPLAY`, else ``unit`` unchanged (factor 1)."""
-    unit = unit or ""
-    if display is None:
-        display = DEFAULT_DISPLAY.get(unit, unit)
-    if display == unit:
-        return unit, 1.0
-    try:
-        return display, DISPLAY_UNITS[(unit, display)]
-    except KeyError:
-        known = [b for a, b in DISPLAY_UNITS if a == unit]
-        raise ValueError(f"display unit {display!r} for a value in {unit!r}: allowed "
-                         f"{', '.join(repr(k) for k in [unit, *known])}") from None
-
-
 class Setting(NamedTuple):
     """Declaration of one Config field (changing it recompiles)."""
 
@@ -188,29 +72,11 @@ class Setting(NamedTuple):
     many: bool = False            # a non-empty tuple of distinct choices (e.g. ``filters``)
 
     def allowed(self) -> str:
-        if self.many:
-            return "a non-empty list of distinct values from " + ", ".join(map(str, self.choices))
-        if self.choices is not None:
-            return "one of " + ", ".join(map(str, self.choices))
-        return _range_text(self.low, self.high, self.low_open, self.integer)
+        return validation.setting_allowed(self)
 
     def problem(self, value) -> str | None:
-        """None if ``value`` is allowed, else ``"must be …; got …"``. Kinds are exact: a
-        boolean is no number, a float no integer, a string no list."""
-        if self.many:
-            if not isinstance(value, (tuple, list)):
-                return _bad(self.allowed(), value)
-            unknown = [v for v in value if not any(_same(v, c) for c in self.choices)]
-            if unknown:
-                return _bad(self.allowed(), value) + f" (unknown: {', '.join(map(_show, unknown))})"
-            return _bad(self.allowed(), value) if len(value) == 0 or len(set(value)) != len(value) else None
-        if self.choices is not None:
-            return None if any(_same(value, c) for c in self.choices) else _bad(self.allowed(), value)
-        unit = f" {self.unit}" if self.unit else ""
-        if not _is_real(value) or (self.integer and not _is_int(value)):
-            return _bad(self.allowed() + ("" if self.integer else unit), value)
-        finite = _is_int(value) or math.isfinite(value)
-        return None if finite and _within(value, self.low, self.high, self.low_open) else _bad(self.allowed() + unit, value)
+        """None if ``value`` is allowed, else ``"must be …; got …"`` (:func:`mcjax.validation.setting_value_problem`)."""
+        return validation.setting_value_problem(self, value)
 
 
 class Param(NamedTuple):
@@ -228,12 +94,10 @@ class Param(NamedTuple):
     per_agent: bool = False
     shape: tuple | None = None
     choices: tuple | None = None  # allowed values, e.g. (0, 1) for an alive flag
-    display: str | None = None    # the unit plots show it in (e.g. "km" for "m"; see DISPLAY_UNITS)
+    display: str | None = None    # the unit plots show it in (e.g. "km" for "m"; see mcjax.units.DISPLAY_UNITS)
 
     def allowed(self) -> str:
-        if self.choices is not None:
-            return " or ".join(_num(c) for c in self.choices)
-        return _range_text(self.low, self.high, self.low_open, self.integer)
+        return validation.param_allowed(self)
 
     def default_value(self, cfg):
         return self.default(cfg) if callable(self.default) else self.default
@@ -246,60 +110,16 @@ class Param(NamedTuple):
 
     def integral(self) -> bool:
         """Takes integers only: an integer field, or one whose choices are all integers."""
-        return self.integer or (self.choices is not None and all(_is_int(c) for c in self.choices))
+        return self.integer or (self.choices is not None and all(validation.is_int(c) for c in self.choices))
 
     def expected(self, n_agents: int | None = None, cfg=None) -> str:
-        """What the field takes, in words: its form (a number, one per agent, a shape) and
-        its allowed values, e.g. ``"a number or a list of n_agents = 5 numbers, >= 0 m"``."""
-        kind = "integer" if self.integral() else "number"
-        one = f"a{'n' if kind == 'integer' else ''} {kind}"
-        if self.shape is not None:
-            want = "" if n_agents is None else f" ({_shape_text(self.shape, n_agents)})"
-            form = f"an array of {kind}s of shape {_shape_text(self.shape)}{want}"
-        elif self.per_agent:
-            form = f"{one} or a list of {'n_agents' if n_agents is None else f'n_agents = {n_agents}'} {kind}s"
-        else:
-            form = one if cfg is not None and self.scalar(cfg) else f"{one} or a rectangular list of {kind}s"
-        if self.choices is not None:
-            return f"{form}, {self.allowed()}"
-        rng = _range_text(self.low, self.high, self.low_open, False)
-        return form if rng == "any number" else f"{form}, {rng}" + (f" {self.unit}" if self.unit else "")
+        """What the field takes, in words (:func:`mcjax.validation.param_expected`)."""
+        return validation.param_expected(self, n_agents, cfg)
 
     def problem(self, value, n_agents: int | None = None, *, exact: bool = False, cfg=None) -> str | None:
-        """None if ``value`` is allowed (for ``n_agents`` agents, when given: shapes are then
-        checked too), else ``"must be …; got …"``; a boolean, string, table or ragged list is no
-        number. ``exact=True`` reads ``value`` as a spec gives it: an integer field (or one with
-        integer choices) takes integers only (``5.0`` is a float), and with ``cfg`` (which also
-        sets ``n_agents``) a :meth:`scalar` field takes one number only."""
-        if cfg is not None:
-            n_agents = cfg.n_agents
-        leaves = _leaves(value)
-        if leaves is None:
-            return _bad(self.expected(n_agents, cfg) if exact else "a number or a list of numbers", value)
-        try:
-            arr = np.asarray(value, dtype=np.float64)
-        except (TypeError, ValueError, OverflowError):  # ragged, or an integer beyond float range
-            return _bad(self.expected(n_agents, cfg) if exact else "a number or a list of numbers", value)
-        if exact and self.integral() and not _integral_leaves(leaves):
-            return _bad(self.expected(n_agents, cfg), value)
-        if exact and cfg is not None and self.scalar(cfg) and arr.ndim != 0:
-            return _bad(self.expected(n_agents, cfg), value)
-        if not np.all(np.isfinite(arr)):
-            return _bad("finite", value)
-        if self.choices is not None:
-            if not np.all(np.isin(arr, self.choices)):
-                return _bad(self.allowed(), value)
-        elif self.integer and np.any(arr != np.round(arr)):
-            return _bad(self.allowed(), value)
-        elif not np.all(_within(arr, self.low, self.high, self.low_open)):
-            return _bad(self.allowed() + (f" {self.unit}" if self.unit else ""), value)
-        if n_agents is not None:
-            if self.per_agent and arr.shape not in ((), (n_agents,)):
-                return _bad(f"a number or a list of n_agents = {n_agents} numbers", value)
-            if self.shape is not None:
-                if arr.shape != tuple(n_agents if d == "n" else d for d in self.shape):
-                    return _bad(f"of shape {_shape_text(self.shape)} ({_shape_text(self.shape, n_agents)})", value)
-        return None
+        """None if ``value`` is allowed, else ``"must be …; got …"``; ``exact=True`` reads
+        ``value`` as a spec gives it (:func:`mcjax.validation.param_problem`)."""
+        return validation.param_problem(self, value, n_agents, exact=exact, cfg=cfg)
 
     def display_unit(self) -> tuple[str, float]:
         """``(unit, factor)``: the unit plots show this field in, and the factor to it (:func:`display_unit`)."""
@@ -351,6 +171,8 @@ def params_type(name: str, table: Mapping[str, Param], module: str) -> type:
     return cls
 
 
+#: The value a scenario gives its ``compiler_options`` (kept here, beside the field, so a scenario
+#: needs nothing but the contract; it is a mapping, and JAX reads it only in the engine):
 #: XLA's older CPU fusion code generator: the closed loop of Sun et al. 2011 compiled with ~35–45 %
 #: less CPU time, running as fast; Ren & Lv 2017's IMM-UKF ran ~10 % slower (docs/benchmarks.md).
 FAST_COMPILE: Mapping[str, Any] = MappingProxyType({"xla_cpu_use_fusion_emitters": False})
@@ -384,7 +206,7 @@ def declare(**items: tuple[Output, Callable[[], Any]]) -> Mapping[str, tuple[Out
     (ValueError naming it). A value shared by outputs goes in a ``functools.cache``-d thunk."""
     for name, item in items.items():
         if not (isinstance(item, tuple) and len(item) == 2 and isinstance(item[0], Output) and callable(item[1])):
-            raise ValueError(f"output {name!r} must be (Output(...), a function of no arguments); got {_show(item)}")
+            raise ValueError(f"output {name!r} must be (Output(...), a function of no arguments); got {show(item)}")
     return MappingProxyType(items)
 
 
@@ -407,12 +229,12 @@ def check_outputs(declared, what: str, *, error_role: bool) -> None:
     for name, o in declared.items():
         where = f"{what}: output {name!r}"
         if not isinstance(o, Output):
-            raise ValueError(f"{where} must be an Output(unit, description, per_filter, role); got {_show(o)}")
+            raise ValueError(f"{where} must be an Output(unit, description, per_filter, role); got {show(o)}")
         for field, kind in (("unit", str), ("description", str), ("per_filter", bool)):
             if not isinstance(getattr(o, field), kind):
-                raise ValueError(f"{where}: {field} must be a {kind.__name__}; got {_show(getattr(o, field))}")
+                raise ValueError(f"{where}: {field} must be a {kind.__name__}; got {show(getattr(o, field))}")
         if o.role is not None and o.role not in ROLES:
-            raise ValueError(f"{where} has the unknown role {_show(o.role)}; allowed roles: {', '.join(ROLES)}, None")
+            raise ValueError(f"{where} has the unknown role {show(o.role)}; allowed roles: {', '.join(ROLES)}, None")
         if o.role is not None and seen.setdefault(o.role, name) != name:
             raise ValueError(f"{where}: the role {o.role!r} is declared twice (also by {seen[o.role]!r})")
     if error_role and "error" not in seen:
@@ -422,7 +244,9 @@ def check_outputs(declared, what: str, *, error_role: bool) -> None:
 @dataclass(frozen=True, eq=False)
 class Scenario:
     """One simulated system (module docstring), hashed by identity (compiled once per Config).
-    ``summary`` gives ``reduce`` and ``outputs``; ``series`` ``timeseries`` and its outputs."""
+    Outputs are declared one way: ``summary`` (and optionally ``series``), each output next to its
+    value (:func:`declare`); ``reduce`` and ``outputs`` (``timeseries`` and
+    ``timeseries_outputs``) derive from them and are what the layers above call."""
 
     name: str
     title: str                      # one line: the system, and the paper it comes from
@@ -430,35 +254,31 @@ class Scenario:
     Params: type
     init: Init
     step: Step
-    reduce: Reduce | None = None
-    outputs: Callable[[Any], Mapping[str, Output]] | None = None
-    timeseries: Reduce | None = None
-    timeseries_outputs: Callable[[Any], Mapping[str, Output]] | None = None
+    summary: Summary | None = None       # the outputs of a run: each declared once, next to its value
+    series: Summary | None = None        # optional: the per-step outputs, declared the same way
     check_params: Callable[[Any, dict], list] | None = None
     smooth: Any = None                   # its smoothing switch, a mcjax.smoothing.Smooth (optional)
     compiler_options: Mapping[str, Any] | None = None  # XLA options of its programs (optional)
-    summary: Summary | None = None       # reduce and outputs in one
-    series: Summary | None = None        # timeseries and timeseries_outputs in one
     filter_words: Mapping[str, str] | None = None  # each filter kind in plain words (the report's glossary)
     #: its programs run on one CPU device (True where two running at once deadlock in XLA's CPU runtime)
     one_device: bool = False
+    # derived from summary / series (not given):
+    reduce: Reduce | None = dataclasses.field(init=False, default=None)
+    outputs: Callable[[Any], Mapping[str, Output]] | None = dataclasses.field(init=False, default=None)
+    timeseries: Reduce | None = dataclasses.field(init=False, default=None)
+    timeseries_outputs: Callable[[Any], Mapping[str, Output]] | None = dataclasses.field(init=False, default=None)
 
     def __post_init__(self):
         me = f"scenario {self.name!r}"
+        if not callable(self.summary):
+            raise ValueError(f"{me}: summary is missing (a function (cfg, records, params) -> declare(...))")
         for summary, pair in ((self.summary, ("reduce", "outputs")), (self.series, ("timeseries", "timeseries_outputs"))):
             if summary is not None:
-                if any(not isinstance(getattr(self, f), (FromSummary, type(None))) for f in pair):  # (derived: replaced)
-                    raise ValueError(f"{me}: give {' and '.join(pair)} or a summary of both, not both")
                 object.__setattr__(self, pair[0], FromSummary(summary, True))
                 object.__setattr__(self, pair[1], FromSummary(summary, False))
-        for field in ("reduce", "outputs"):
-            if not callable(getattr(self, field)):
-                raise ValueError(f"{me}: {field} is missing (give {field}, or summary)")
         for field in ("n_agents", "n_steps", "filters"):  # a Config built by config_type has SETTINGS
             if field not in getattr(self.Config, "SETTINGS", {}):
                 raise ValueError(f"{me}: Config must declare {field!r}")
-        if (self.timeseries is None) != (self.timeseries_outputs is None):
-            raise ValueError(f"{me}: timeseries and timeseries_outputs go together")
         cfg = self.Config()
         check_outputs(self.outputs(cfg), f"{me}: outputs(Config())", error_role=True)
         if self.timeseries_outputs is not None:

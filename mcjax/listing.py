@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mcjax.contract import Scenario, ceiling
+from mcjax.contract import Scenario
+from mcjax.validation import ceiling
 from mcjax.tables import format_number
 
 

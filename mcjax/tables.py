@@ -46,7 +46,7 @@ from typing import Any, Iterable, Mapping, NamedTuple, Sequence
 import numpy as np
 import pandas as pd
 
-from mcjax.contract import display_unit
+from mcjax.units import display_unit
 from mcjax.statistics import CONFIDENCE, mean_ci, wilson_interval
 
 __all__ = [
@@ -207,7 +207,7 @@ def label(name: str, metadata: Mapping[str, Any] | Schema) -> str:
 def display(name: str, metadata: Mapping[str, Any] | Schema) -> tuple[str, float]:
     """``(unit, factor)`` a parameter column is shown in on plots: the display unit its
     declaration names (``display_unit`` / ``display_factor`` in the metadata), else
-    :func:`mcjax.contract.display_unit` of its declared unit (degrees for radians); an
+    :func:`mcjax.units.display_unit` of its declared unit (degrees for radians); an
     output column keeps its unit (factor 1)."""
     _, params = _declarations(metadata)
     decl = params.get(name) if isinstance(params, Mapping) else None

@@ -116,7 +116,7 @@ def test_architecture_lists_every_module_and_only_modules_that_exist():
 
 #: Layers from the bottom: a module may import its own layer or lower ones only.
 LAYERS = [
-    {"contract", "smoothing", "envvars", "files", "interrupt", "jaxcompat", "runtime", "numerics", "results"},
+    {"validation", "units", "contract", "smoothing", "envvars", "files", "interrupt", "jaxcompat", "runtime", "numerics", "results"},
     {"models"},
     {"graph"},
     {"metrics"},

@@ -229,8 +229,8 @@ def test_docs_example_scenario_tunes(tmp_path):
 SINGLE_AGENT = '''
 """One agent, no comm graph: a 1-D random walk tracked by one Kalman filter (error in m)."""
 import jax, jax.numpy as jnp
-from mcjax.contract import Output, Param, Scenario, config_type, params_type
-from mcjax.scenarios.kit import check_common, common_settings, error_outputs, error_summary
+from mcjax.contract import Output, Param, Scenario, config_type, declare, params_type
+from mcjax.scenarios.kit import check_common, common_settings, error_items
 
 Config = config_type("Config", common_settings(filter_kinds=("kf",), n_agents=1, n_steps=40, warmup_steps=2,
                                                divergence_threshold=100.0), __name__, check_common)
@@ -250,18 +250,19 @@ def step(cfg, p, s, key):
     x, P = x + K * (z - x), (1 - K) * P
     return (t, x, P), jnp.abs(x - t).reshape(1, 1)
 
+def summary(cfg, e, p):
+    return declare(**error_items(lambda: e, lambda: jnp.ones(1), cfg, "m"))
+
 SCENARIO = Scenario(name="single_agent", title="one agent, no graph", Config=Config, Params=Params, init=init,
-                    step=step, reduce=lambda cfg, e, p: error_summary(e, jnp.ones(1), cfg.warmup_steps,
-                                                                      cfg.divergence_threshold),
-                    outputs=lambda cfg: error_outputs("m"))
+                    step=step, summary=summary)
 '''
 
 WIND = '''
 """Three agents averaging noisy wind measurements over a ring (error in m/s, with graph statistics)."""
 import jax, jax.numpy as jnp
-from mcjax import graph, metrics
-from mcjax.contract import Output, Param, Scenario, config_type, params_type
-from mcjax.scenarios.kit import GRAPH_OUTPUTS, check_common, common_settings, error_outputs, error_summary
+from mcjax import graph
+from mcjax.contract import Output, Param, Scenario, config_type, declare, params_type
+from mcjax.scenarios.kit import check_common, common_settings, error_items, graph_items
 
 Config = config_type("Config", common_settings(filter_kinds=("mean", "consensus"), n_agents=3, n_steps=30,
                                                warmup_steps=2, divergence_threshold=50.0, error_unit="m/s"),
@@ -285,14 +286,12 @@ def step(cfg, p, s, key):
     est = jnp.stack([own, mixed])
     return (k, est), (jnp.abs(est - wind), graph.algebraic_connectivity(adj))
 
-def reduce(cfg, rec, p):
-    err, lam = rec
-    return {**error_summary(err, jnp.ones(cfg.n_agents), cfg.warmup_steps, cfg.divergence_threshold),
-            **metrics.graph_summary(lam)}
+def summary(cfg, rec, p):
+    return declare(**error_items(lambda: rec[0], lambda: jnp.ones(cfg.n_agents), cfg, "m/s", "wind error"),
+                   **graph_items(lambda: rec[1]))
 
 SCENARIO = Scenario(name="wind_demo", title="wind averaging demo", Config=Config, Params=Params, init=init,
-                    step=step, reduce=reduce,
-                    outputs=lambda cfg: {**error_outputs("m/s", "wind error"), **GRAPH_OUTPUTS})
+                    step=step, summary=summary)
 '''
 
 
@@ -432,14 +431,18 @@ def test_configs_and_params_pickle():
 
 
 def _toy(**changes):
-    """A minimal valid scenario's fields (``changes`` replace some)."""
-    from mcjax.scenarios.kit import check_common, common_settings, error_outputs, error_summary
+    """A minimal valid scenario's fields (``changes`` replace some; ``outputs=`` / ``series_outputs=``:
+    a summary / series declaring those outputs, each with a zero value)."""
+    from mcjax.scenarios.kit import check_common, common_settings
 
     fields = dict(name="toy", title="toy", Config=config_type("Config", common_settings(
         filter_kinds=("kf",), n_agents=1, n_steps=4, warmup_steps=0, divergence_threshold=1.0), __name__,
         check_common), Params=params_type("Params", dict(q=Param(1.0, "m", "q")), __name__),
-        init=lambda cfg, p, key: 0.0, step=lambda cfg, p, s, key: (s, s),
-        reduce=lambda cfg, e, p: error_summary(e, np.ones(1), 0, 1.0), outputs=lambda cfg: error_outputs("m"))
+        init=lambda cfg, p, key: 0.0, step=lambda cfg, p, s, key: (s, s), summary=_summary)
+    for given, field in (("outputs", "summary"), ("series_outputs", "series")):
+        if given in changes:
+            declared = changes.pop(given)
+            changes[field] = lambda cfg, r, p, declared=declared: {k: (o, lambda: 0.0) for k, o in declared.items()}
     fields.update(changes)
     return fields
 
@@ -447,7 +450,7 @@ def _toy(**changes):
 def test_an_unknown_role_fails_at_construction_in_one_line():
     bad = {"rmse": Output("m", "error", True, "error"), "spread": Output("m", "spread", True, "erorr")}
     with pytest.raises(ValueError) as err:
-        Scenario(**_toy(outputs=lambda cfg: bad))
+        Scenario(**_toy(outputs=bad))
     message = str(err.value)
     assert "\n" not in message and "'spread'" in message and "'erorr'" in message
     assert "scenario 'toy'" in message and "allowed roles: error, divergence, nonfinite" in message
@@ -457,16 +460,16 @@ def test_an_unknown_role_fails_at_construction_in_one_line():
 def test_zero_or_two_error_roles_fail_at_construction(roles):
     outs = {f"o{i}": Output("m", "an output", True, r) for i, r in enumerate(roles)}
     with pytest.raises(ValueError, match="role 'error'") as err:
-        Scenario(**_toy(outputs=lambda cfg: outs))
+        Scenario(**_toy(outputs=outs))
     assert "\n" not in str(err.value)
 
 
 def test_bad_output_fields_and_timeseries_roles_fail_at_construction():
     for bad, field in ((Output(1, "x"), "unit"), (Output("m", "x", "yes"), "per_filter"), (("m", "x"), "Output(")):
         with pytest.raises(ValueError, match=re.escape(field)):
-            Scenario(**_toy(outputs=lambda cfg: {"rmse": Output("m", "e", True, "error"), "other": bad}))
+            Scenario(**_toy(outputs={"rmse": Output("m", "e", True, "error"), "other": bad}))
     with pytest.raises(ValueError, match=r"timeseries_outputs\(Config\(\)\): output 'e' has the unknown role 'x'"):
-        Scenario(**_toy(timeseries=lambda cfg, r, p: {}, timeseries_outputs=lambda cfg: {"e": Output("m", "e", role="x")}))
+        Scenario(**_toy(series_outputs={"e": Output("m", "e", role="x")}))
 
 
 @pytest.mark.parametrize("missing", ["n_agents", "n_steps", "filters"])
@@ -478,11 +481,11 @@ def test_a_config_without_a_required_field_is_a_value_error(missing):
         Scenario(**_toy(Config=config_type("Config", settings, __name__)))
 
 
-def test_reduce_and_outputs_or_a_summary_are_required():
-    with pytest.raises(ValueError, match="reduce is missing"):
-        Scenario(**_toy(reduce=None))
-    with pytest.raises(ValueError, match="not both"):
-        Scenario(**_toy(summary=lambda cfg, r, p: {}))
+def test_a_summary_is_the_one_way_to_declare_outputs():
+    with pytest.raises(ValueError, match="summary is missing"):
+        Scenario(**_toy(summary=None))
+    with pytest.raises(TypeError, match="reduce"):  # reduce and outputs derive from the summary
+        Scenario(**_toy(reduce=lambda cfg, r, p: {}, outputs=lambda cfg: {}))
     with pytest.raises(ValueError, match="output 'x' must be"):
         declare(x=Output("m", "x"))
 
@@ -501,7 +504,7 @@ def _summary(cfg, records, params):
 def test_a_summary_declares_each_output_once_for_outputs_and_reduce():
     import jax.numpy as jnp
 
-    sc = Scenario(**_toy(reduce=None, outputs=None, summary=_summary))
+    sc = Scenario(**_toy())
     cfg = sc.Config()
     values = sc.reduce(cfg, jnp.array([[0.5], [2.0], [1.0]]), sc.default_params(cfg))
     declared = sc.outputs(cfg)

@@ -1,18 +1,19 @@
 """Sweeps on a Dask cluster (mcjax.study.dask): a LocalCluster of 2 worker processes, shared by the tests.
 
-The scenario is a one-agent Kalman filter written to a file (so it travels to the workers by
-value), with a host callback the tests steer through flag files in the scenario's folder:
-``slow`` makes every chunk sleep, ``armed`` makes the next chunk announce its worker's pid
-and wait to be killed, and the point r = 13.0 raises (a bad point).
+The scenario is the tests' one-agent Kalman filter (tests/scenarios/probe.py) copied into the
+test's folder (so it travels to the workers by value), with a host callback the tests steer
+through flag files in the scenario's folder: ``pace`` makes every chunk sleep, ``armed`` makes
+the next chunk announce its worker's pid and wait to be killed, and the point r = 13.0 raises
+(a bad point).
 """
 
 import importlib
 import os
 import shlex
+import shutil
 import signal
 import subprocess
 import sys
-import textwrap
 import threading
 import time
 from pathlib import Path
@@ -26,57 +27,8 @@ from mcjax.cli import ACK_DASK, main
 from mcjax.results import read_table
 from mcjax.study import check_parts, load_spec, prepare_output, run_sweep
 
-PROBE = '''
-"""One agent tracking a 1-D random walk; a host callback reads the test's flag files."""
-import os, time
-from pathlib import Path
-import numpy as np
-import jax, jax.numpy as jnp
-from mcjax.contract import Param, Scenario, config_type, params_type
-from mcjax.scenarios.kit import check_common, common_settings, error_outputs, error_summary
-
-FLAGS = Path({flags!r})
-BAD = 13.0
-
-Config = config_type("Config", common_settings(filter_kinds=("kf",), n_agents=1, n_steps=10, warmup_steps=2,
-                                               divergence_threshold=100.0), __name__, check_common)
-Params = params_type("Params", dict(q=Param(1.0, "m", "walk std", low=0),
-                                    r=Param(1.0, "m", "noise std", low=0, low_open=True)), __name__)
-
-def _host(r):
-    r = np.asarray(r)
-    if (r == BAD).any():
-        time.sleep(1.0)  # the good chunks finish first
-        raise ValueError(f"bad point: r = {{BAD}}")
-    try:
-        os.rename(FLAGS / "armed", FLAGS / f"busy-{{os.getpid()}}")  # one chunk claims it
-        time.sleep(60)  # ... and is killed here
-    except FileNotFoundError:
-        pass
-    if (FLAGS / "slow").exists():
-        time.sleep(0.5)
-    return r
-
-def init(cfg, p, key):
-    r = jax.pure_callback(_host, jax.ShapeDtypeStruct(jnp.shape(p.r), jnp.result_type(p.r)), p.r,
-                          vmap_method="expand_dims")
-    return (jnp.zeros(()), jnp.zeros(()), jnp.ones(()), r)
-
-def step(cfg, p, s, key):
-    t, x, P, r = s
-    k1, k2 = jax.random.split(key)
-    t = t + p.q * jax.random.normal(k1)
-    z = t + r * jax.random.normal(k2)
-    P = P + p.q**2
-    K = P / (P + r**2)
-    x, P = x + K * (z - x), (1 - K) * P
-    return (t, x, P, r), jnp.abs(x - t).reshape(1, 1)
-
-SCENARIO = Scenario(name="probe", title="one agent, steerable by flag files", Config=Config, Params=Params,
-                    init=init, step=step, outputs=lambda cfg: error_outputs("m"),
-                    reduce=lambda cfg, e, p: error_summary(e, jnp.ones(1), cfg.warmup_steps,
-                                                           cfg.divergence_threshold))
-'''
+#: The tests' probe scenario, copied next to each spec (its flag files: its docstring).
+PROBE = Path(__file__).with_name("scenarios") / "probe.py"
 
 CLI = [sys.executable, "-m", "mcjax.cli"]
 # all on one pytest-xdist worker (pyproject: --dist loadgroup), so the module starts one cluster
@@ -94,7 +46,7 @@ class Lab(NamedTuple):
 
 
 def _write(root: Path) -> tuple[Path, Path]:
-    (root / "probe.py").write_text(textwrap.dedent(PROBE.format(flags=str(root))))
+    shutil.copy(PROBE, root / "probe.py")
     (root / "probe.toml").write_text('scenario = "probe.py:SCENARIO"\n')
     good, bad = root / "good.toml", root / "bad.toml"
     good.write_text('base = "probe.toml"\nseeds = 100\nchunk_size = 100\n[grid]\nr = [0.5, 1.0, 2.0, 4.0, 8.0, 16.0]\n')
@@ -169,7 +121,7 @@ def test_same_bytes_as_local_and_one_compilation_per_worker(lab, tmp_path):
 
 def test_client_killed_then_resumed_locally(lab, tmp_path):
     out = tmp_path / "out"
-    (lab.root / "slow").touch()
+    (lab.root / "pace").touch()
     try:
         proc = subprocess.Popen([*CLI, "sweep", str(lab.good), "--out", str(out), *_dask(lab)],
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -177,7 +129,7 @@ def test_client_killed_then_resumed_locally(lab, tmp_path):
         proc.kill()
         proc.wait()
     finally:
-        (lab.root / "slow").unlink()
+        (lab.root / "pace").unlink()
     assert 1 <= len(_parts(out)) < 6, _parts(out)
     r = CliRunner().invoke(main, ["sweep", str(lab.good), "--out", str(out), "--resume"])
     assert r.exit_code == 0, r.output
@@ -199,7 +151,7 @@ def test_started_locally_ctrl_c_on_dask_then_finished_on_dask(lab, tmp_path, mon
         _wait_for(lambda: len(_parts(out)) > 1)
         os.kill(os.getpid(), signal.SIGINT)
 
-    (lab.root / "slow").touch()
+    (lab.root / "pace").touch()
     calm = signal.signal(signal.SIGINT, lambda *_: None)  # the command restores this: a late signal lands here
     try:
         thread = threading.Thread(target=ctrl_c, daemon=True)
@@ -209,7 +161,7 @@ def test_started_locally_ctrl_c_on_dask_then_finished_on_dask(lab, tmp_path, mon
         time.sleep(0.1)
     finally:
         signal.signal(signal.SIGINT, calm)
-        (lab.root / "slow").unlink()
+        (lab.root / "pace").unlink()
     assert r.exit_code == 130, r.output
     assert ACK_DASK in capfd.readouterr().err and "Traceback" not in r.stderr, r.stderr  # said at once, on fd 2
     assert len(_parts(out)) >= 2

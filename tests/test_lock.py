@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import socket
 import subprocess
 import sys
-import textwrap
 import time
 from pathlib import Path
 
@@ -21,56 +21,13 @@ from mcjax.cli import main
 from mcjax.results import read_table
 from mcjax.study import lock
 
-PROBE = '''
-"""One agent tracking a 1-D random walk; a host callback waits while the file `slow` exists,
-and takes half a second per chunk while the file `pace` exists."""
-import time
-from pathlib import Path
-import numpy as np
-import jax, jax.numpy as jnp
-from mcjax.contract import Param, Scenario, config_type, params_type
-from mcjax.scenarios.kit import check_common, common_settings, error_outputs, error_summary
-
-SLOW = Path(__file__).with_name("slow")
-Config = config_type("Config", common_settings(filter_kinds=("kf",), n_agents=1, n_steps=10, warmup_steps=2,
-                                               divergence_threshold=100.0), __name__, check_common)
-Params = params_type("Params", dict(q=Param(1.0, "m", "walk std", low=0),
-                                    r=Param(1.0, "m", "noise std", low=0, low_open=True)), __name__)
-
-PACE = Path(__file__).with_name("pace")
-
-def _host(r):
-    while SLOW.exists():
-        time.sleep(0.05)
-    if PACE.exists():
-        time.sleep(0.5)
-    return np.asarray(r)
-
-def init(cfg, p, key):
-    r = jax.pure_callback(_host, jax.ShapeDtypeStruct(jnp.shape(p.r), jnp.result_type(p.r)), p.r,
-                          vmap_method="expand_dims")
-    return (jnp.zeros(()), jnp.zeros(()), jnp.ones(()), r)
-
-def step(cfg, p, s, key):
-    t, x, P, r = s
-    k1, k2 = jax.random.split(key)
-    t = t + p.q * jax.random.normal(k1)
-    z = t + r * jax.random.normal(k2)
-    P = P + p.q**2
-    K = P / (P + r**2)
-    x, P = x + K * (z - x), (1 - K) * P
-    return (t, x, P, r), jnp.abs(x - t).reshape(1, 1)
-
-SCENARIO = Scenario(name="probe", title="one agent", Config=Config, Params=Params, init=init, step=step,
-                    outputs=lambda cfg: error_outputs("m"),
-                    reduce=lambda cfg, e, p: error_summary(e, jnp.ones(1), cfg.warmup_steps,
-                                                           cfg.divergence_threshold))
-'''
+#: The tests' probe scenario (flag files: ``slow`` holds every chunk, ``pace`` slows it), copied next to each spec.
+PROBE = Path(__file__).with_name("scenarios") / "probe.py"
 
 
 def write_probe(root: Path) -> Path:
     """A 3-point sweep of the probe scenario, one chunk per point; returns the spec."""
-    (root / "probe.py").write_text(textwrap.dedent(PROBE))
+    shutil.copy(PROBE, root / "probe.py")
     (root / "probe.toml").write_text('scenario = "probe.py:SCENARIO"\n')
     spec = root / "sweep.toml"
     spec.write_text('base = "probe.toml"\nseeds = 100\nchunk_size = 100\n[grid]\nr = [0.5, 1.0, 2.0]\n')

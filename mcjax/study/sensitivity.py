@@ -25,7 +25,7 @@ from typing import Any, NamedTuple
 from mcjax.contract import Output, Scenario
 from mcjax.smoothing import column
 from mcjax.smoothing import problem as smooth_problem
-from mcjax.study.checks import SpecError, check_keys, is_number, show, suggest
+from mcjax.validation import SpecError, check_keys, is_number, show, suggest
 
 SENSITIVITY_KEYS = ("params", "outputs", "smoothing")
 

@@ -17,7 +17,7 @@ from typing import Callable, Iterator
 from mcjax import results
 from mcjax.files import atomic_write
 from mcjax.study import lock
-from mcjax.study.checks import is_int, one_line
+from mcjax.validation import is_int, one_line
 from mcjax.study.plan import Study
 from mcjax.study.rows import chunk_parts
 

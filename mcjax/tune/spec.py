@@ -1,7 +1,7 @@
 """A tune spec: a sweep spec (``base``, ``[config]``, ``[params]``, ``chunk_size``,
 ``description``; no ``[grid]``, ``[zip]``, ``seeds`` or ``base_seed``) with a ``[tune]`` table
-(see :mod:`mcjax.tune`), read and validated into a :class:`TuneSpec`, and the bounded
-transform of the tuned Params (:class:`Bound`)."""
+(see :mod:`mcjax.tune`), read and validated (:mod:`mcjax.validation`) into a :class:`TuneSpec`,
+and the bounded transform of the tuned Params (:class:`Bound`)."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from mcjax import scenarios
 from mcjax.smoothing import problem as smooth_problem
 from mcjax.smoothing import smooth_params
 from mcjax.study import MAX_BASE_SEED, MAX_SEEDS, SpecError, Study, build_spec, is_config_file
-from mcjax.study.checks import check_keys, count, is_number, read_toml, show, suggest
+from mcjax.validation import check_keys, choice, count, number, read_toml, show
 
 #: optax optimisers a spec may name (each is called as ``optax.NAME(learning_rate)``).
 OPTIMIZERS = ("adam", "adamw", "sgd", "rmsprop", "adagrad", "adabelief", "lamb", "lion", "nadam", "radam",
@@ -125,13 +125,6 @@ def from_unconstrained(bounds, z):
 # ------------------------------------------------------------------ spec
 
 
-def _number(where: str, value, *, positive: bool = False, nonneg: bool = False) -> float:
-    if not is_number(value) or not math.isfinite(value) or (positive and value <= 0) or (nonneg and value < 0):
-        what = "a number > 0" if positive else "a number >= 0" if nonneg else "a finite number"
-        raise SpecError(f"{where}: must be {what}; got {show(value)}")
-    return float(value)
-
-
 def _tune_table(where: str, table: dict, key: str) -> dict:
     value = table.get(key, {})
     if not isinstance(value, dict):
@@ -154,20 +147,18 @@ def _bound(scenario, cfg, base_params, name: str, table) -> Bound:
     for k in ("low", "high"):
         if k not in table:
             raise SpecError(f"{where}.{k}: missing; give the bounds low < high")
-    low, high = _number(f"{where}.low", table["low"]), _number(f"{where}.high", table["high"])
+    low, high = number(f"{where}.low", table["low"]), number(f"{where}.high", table["high"])
     if not low < high:
         raise SpecError(f"{where}: bounds reversed or empty: low must be < high; got low = {low:g}, high = {high:g}")
     for k, v in (("low", low), ("high", high)):
         msg = p.problem(v)
         if msg:
             raise SpecError(f"{where}.{k}: {msg} (the Param's allowed range)")
-    scale = table.get("scale", "linear")
-    if scale not in SCALES:
-        raise SpecError(f"{where}.scale: must be one of {', '.join(SCALES)}; got {show(scale)}")
+    scale = choice(f"{where}.scale", table.get("scale", "linear"), SCALES)
     if scale == "log" and low <= 0:
         raise SpecError(f"{where}.low: must be > 0 for scale = \"log\"; got {low:g}")
     if "initial" in table:
-        initial = _number(f"{where}.initial", table["initial"])
+        initial = number(f"{where}.initial", table["initial"])
         origin = f"{where}.initial: must lie"
     else:
         initial = float(getattr(base_params, name))
@@ -199,11 +190,8 @@ def build_tune_spec(data: dict, base_dir: str | Path) -> TuneSpec:
         raise SpecError(f"scenario: {scenario.name} has no smoothing switch (Scenario.smooth), which "
                         f"mcjax tune needs; tunable built-in scenarios: "
                         f"{', '.join(n for n, s in scenarios.BUILTIN.items() if s.smooth is not None)}")
-    optimizer = tune.get("optimizer", "adam")
-    if optimizer not in OPTIMIZERS:
-        raise SpecError(f"tune.optimizer: must be one of {', '.join(OPTIMIZERS)}; got {show(optimizer)}"
-                        f"{suggest(optimizer, OPTIMIZERS) if isinstance(optimizer, str) else ''}")
-    lr = _number("tune.learning_rate", tune.get("learning_rate", 0.1), positive=True)
+    optimizer = choice("tune.optimizer", tune.get("optimizer", "adam"), OPTIMIZERS, hint=True)
+    lr = number("tune.learning_rate", tune.get("learning_rate", 0.1), positive=True)
     steps = count("tune.steps", tune.get("steps", 30), 1, MAX_STEPS)
     train_seeds = count("tune.train_seeds", tune.get("train_seeds", 128), 1, MAX_TRAIN_SEEDS)
     train_base = count("tune.train_base_seed", tune.get("train_base_seed", 1), 0, MAX_BASE_SEED)
@@ -213,9 +201,7 @@ def build_tune_spec(data: dict, base_dir: str | Path) -> TuneSpec:
         raise SpecError(f"tune.heldout_base_seed: must differ from tune.train_base_seed = {train_base} (held-out "
                         f"seeds are not training seeds)")
     block = count("tune.checkpoint_every", tune.get("checkpoint_every", min(10, cfg.n_steps)), 1, cfg.n_steps)
-    mode = tune.get("gradient", "forward")
-    if mode not in GRADIENT_MODES:
-        raise SpecError(f"tune.gradient: must be one of {', '.join(GRADIENT_MODES)}; got {show(mode)}")
+    mode = choice("tune.gradient", tune.get("gradient", "forward"), GRADIENT_MODES)
     window = count("tune.gradient_window", tune.get("gradient_window", 0), 0, cfg.n_steps)
     params_table = _tune_table("tune.", tune, "params")
     if not params_table:
@@ -229,15 +215,15 @@ def build_tune_spec(data: dict, base_dir: str | Path) -> TuneSpec:
                         f"got {show(filt)}")
     D = float(cfg.divergence_threshold)
     loss = Loss(filt,
-                _number("tune.loss.error_scale", lt.get("error_scale", D), positive=True),
-                _number("tune.loss.divergence_weight", lt.get("divergence_weight", 1.0), nonneg=True),
-                _number("tune.loss.divergence_temperature", lt.get("divergence_temperature", D / 5), positive=True),
-                _number("tune.loss.max_temperature", lt.get("max_temperature", D / 50), positive=True),
+                number("tune.loss.error_scale", lt.get("error_scale", D), positive=True),
+                number("tune.loss.divergence_weight", lt.get("divergence_weight", 1.0), nonneg=True),
+                number("tune.loss.divergence_temperature", lt.get("divergence_temperature", D / 5), positive=True),
+                number("tune.loss.max_temperature", lt.get("max_temperature", D / 50), positive=True),
                 D, int(cfg.warmup_steps))
     Smoothing = scenario.smooth.Smoothing
     st = _tune_table("tune.", tune, "smoothing")
     check_keys("tune.smoothing.", st, list(Smoothing._fields))
-    smoothing = Smoothing(**{k: _number(f"tune.smoothing.{k}", v, positive=True) for k, v in st.items()})
+    smoothing = Smoothing(**{k: number(f"tune.smoothing.{k}", v, positive=True) for k, v in st.items()})
     for b in bounds:  # checks across fields (e.g. the horizon) at both bounds
         for v in (b.low, b.high):
             if scenario.check_params is not None:

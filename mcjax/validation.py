@@ -1,0 +1,329 @@
+"""Validation, in one place: the exact kinds of values, their range, choice and shape checks, the
+unknown-key check with its did-you-mean hint, and the one-line messages they give — used by the
+contract's declarations (:class:`~mcjax.contract.Setting`, :class:`~mcjax.contract.Param`), by
+the sweep and config-file reader (:mod:`mcjax.study.spec`) and by the tune spec
+(:mod:`mcjax.tune.spec`); also reading a spec's TOML.
+
+Every message has one form: ``"must be …; got …"`` (:func:`bad`) for a value, and
+:class:`SpecError` ``"<key path>: …"`` for a spec, the key path written as TOML writes it.
+
+Kinds are exact, as TOML has them: a boolean is no number, a float no integer, a string or a
+table no list (numpy scalars count as their Python kinds).
+
+This module is a leaf: it imports nothing from mcjax and no JAX.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import math
+import re
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+
+class SpecError(ValueError):
+    """A sweep spec or config file is invalid; the message names the key path."""
+
+
+# ------------------------------------------------------------------ text of messages
+
+BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
+
+
+def key_text(key) -> str:
+    """A key as TOML writes it: bare if it can be, else quoted (so a message stays one line)."""
+    return key if isinstance(key, str) and BARE_KEY.match(key) else json.dumps(str(key))
+
+
+def show(value) -> str:
+    """``repr(value)`` on one line (an array as its list), cut to a readable length."""
+    text = repr(value.tolist() if isinstance(value, np.ndarray) else value).replace("\n", " ")
+    return text if len(text) <= 120 else text[:100] + f"... ({len(text)} characters)"
+
+
+def one_line(text) -> str:
+    """``text`` with its white space folded: one line."""
+    return " ".join(str(text).split())
+
+
+def suggest(key, allowed) -> str:
+    """`` (did you mean 'X'?)`` for the allowed key closest to ``key``, else ``""``."""
+    close = difflib.get_close_matches(str(key), allowed, n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def bad(allowed: str, value) -> str:
+    """The one-line message of a value that is not allowed: ``"must be …; got …"``."""
+    return f"must be {allowed}; got {show(value)}"
+
+
+def number_text(v) -> str:
+    """A bound or choice as a message writes it (``80000`` for ``80e3``)."""
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def range_text(low, high, low_open, integer) -> str:
+    """An allowed range in words: ``"in [0, 1]"``, ``"an integer >= 1"``, ``"any number"``."""
+    kind = "an integer " if integer else ""
+    lo_ok, hi_ok = low is not None and low > -math.inf, high is not None and high < math.inf
+    if lo_ok and hi_ok:
+        return f"{kind}in {'(' if low_open else '['}{number_text(low)}, {number_text(high)}]"
+    if lo_ok:
+        return f"{kind}{'>' if low_open else '>='} {number_text(low)}"
+    if hi_ok:
+        return f"{kind}<= {number_text(high)}"
+    return "an integer" if integer else "any number"
+
+
+def shape_text(shape, n_agents=None) -> str:
+    """A declared shape as ``n_agentsx2`` (or, given ``n_agents``, its numbers: ``5x2``)."""
+    return "x".join(("n_agents" if n_agents is None else str(n_agents)) if d == "n" else str(d) for d in shape)
+
+
+# ------------------------------------------------------------------ exact kinds
+
+def is_bool(v) -> bool:
+    return isinstance(v, (bool, np.bool_))
+
+
+def is_int(v) -> bool:
+    """An integer in kind (a boolean is none)."""
+    return isinstance(v, (int, np.integer)) and not is_bool(v)
+
+
+def is_number(v) -> bool:
+    """A number in kind (a boolean is none)."""
+    return isinstance(v, (int, float, np.integer, np.floating)) and not is_bool(v)
+
+
+def same(value, choice) -> bool:
+    """``value`` is ``choice`` in kind and in value: true is not 1, 1.0 is not 1, "1" is not 1."""
+    for kind in (lambda v: isinstance(v, str), is_bool, is_int, is_number):
+        if kind(choice):
+            return kind(value) and value == choice
+    return type(value) is type(choice) and value == choice
+
+
+def leaves(value):
+    """The leaves of a nested list (a value itself if it is no list); None if a leaf is a
+    table, a string, a boolean or anything but a number."""
+    if isinstance(value, np.ndarray):
+        return [value] if value.dtype.kind in "iuf" else None
+    if isinstance(value, (list, tuple)):
+        subs = [leaves(v) for v in value]
+        return None if any(sub is None for sub in subs) else [leaf for sub in subs for leaf in sub]
+    return [value] if is_number(value) else None
+
+
+def integral_leaves(items) -> bool:
+    """Every leaf is an integer in kind (an integer-typed array counts; a float never does)."""
+    return all(is_int(v) or (isinstance(v, np.ndarray) and v.dtype.kind in "iu") for v in items)
+
+
+def within(value, low, high, low_open):
+    """A range check (element-wise for an array) that also holds for integers beyond float range."""
+    ok = True if low is None else (value > low if low_open else value >= low)
+    return ok & (True if high is None else value <= high)
+
+
+# ------------------------------------------------------------------ declared values (Setting, Param)
+
+#: Upper bounds of the integer Config fields that declare none (agents, steps; every other count:
+#: COUNT_CEILING), so no spec asks for more than a machine holds (the study plan's memory check refines them).
+COUNT_CEILINGS = {"n_agents": 1_000, "n_steps": 1_000_000}
+COUNT_CEILING = 100_000
+
+
+def ceiling(name: str, setting) -> int | None:
+    """The upper bound a Config enforces on an integer Setting that declares no ``high``
+    (:data:`COUNT_CEILINGS`, else :data:`COUNT_CEILING`); None for other fields."""
+    if not setting.integer or setting.choices is not None or (setting.high is not None and setting.high < math.inf):
+        return None
+    return COUNT_CEILINGS.get(name, COUNT_CEILING)
+
+
+def setting_allowed(s) -> str:
+    """What a :class:`~mcjax.contract.Setting` allows, in words."""
+    if s.many:
+        return "a non-empty list of distinct values from " + ", ".join(map(str, s.choices))
+    if s.choices is not None:
+        return "one of " + ", ".join(map(str, s.choices))
+    return range_text(s.low, s.high, s.low_open, s.integer)
+
+
+def setting_value_problem(s, value) -> str | None:
+    """None if a Setting allows ``value``, else ``"must be …; got …"``. Kinds are exact: a
+    boolean is no number, a float no integer, a string no list."""
+    if s.many:
+        if not isinstance(value, (tuple, list)):
+            return bad(setting_allowed(s), value)
+        unknown = [v for v in value if not any(same(v, c) for c in s.choices)]
+        if unknown:
+            return bad(setting_allowed(s), value) + f" (unknown: {', '.join(map(show, unknown))})"
+        return bad(setting_allowed(s), value) if len(value) == 0 or len(set(value)) != len(value) else None
+    if s.choices is not None:
+        return None if any(same(value, c) for c in s.choices) else bad(setting_allowed(s), value)
+    unit = f" {s.unit}" if s.unit else ""
+    if not is_number(value) or (s.integer and not is_int(value)):
+        return bad(setting_allowed(s) + ("" if s.integer else unit), value)
+    finite = is_int(value) or math.isfinite(value)
+    return None if finite and within(value, s.low, s.high, s.low_open) else bad(setting_allowed(s) + unit, value)
+
+
+def setting_problem(name: str, setting, value) -> str | None:
+    """:meth:`Setting.problem <mcjax.contract.Setting.problem>`, then the field's :func:`ceiling`."""
+    msg = setting_value_problem(setting, value)
+    top = ceiling(name, setting)
+    if msg is None and top is not None and value > top:
+        low, unit = setting.low if setting.low is not None else -math.inf, f" {setting.unit}" if setting.unit else ""
+        return bad(range_text(low, top, setting.low_open, True) + unit, value)
+    return msg
+
+
+def param_allowed(p) -> str:
+    """What a :class:`~mcjax.contract.Param` allows, in words (its choices or range)."""
+    if p.choices is not None:
+        return " or ".join(number_text(c) for c in p.choices)
+    return range_text(p.low, p.high, p.low_open, p.integer)
+
+
+def param_expected(p, n_agents: int | None = None, cfg=None) -> str:
+    """What a Param takes, in words: its form (a number, one per agent, a shape) and its
+    allowed values, e.g. ``"a number or a list of n_agents = 5 numbers, >= 0 m"``."""
+    kind = "integer" if p.integral() else "number"
+    one = f"a{'n' if kind == 'integer' else ''} {kind}"
+    if p.shape is not None:
+        want = "" if n_agents is None else f" ({shape_text(p.shape, n_agents)})"
+        form = f"an array of {kind}s of shape {shape_text(p.shape)}{want}"
+    elif p.per_agent:
+        form = f"{one} or a list of {'n_agents' if n_agents is None else f'n_agents = {n_agents}'} {kind}s"
+    else:
+        form = one if cfg is not None and p.scalar(cfg) else f"{one} or a rectangular list of {kind}s"
+    if p.choices is not None:
+        return f"{form}, {param_allowed(p)}"
+    rng = range_text(p.low, p.high, p.low_open, False)
+    return form if rng == "any number" else f"{form}, {rng}" + (f" {p.unit}" if p.unit else "")
+
+
+def param_problem(p, value, n_agents: int | None = None, *, exact: bool = False, cfg=None) -> str | None:
+    """None if a Param allows ``value`` (for ``n_agents`` agents, when given: shapes are then
+    checked too), else ``"must be …; got …"``; a boolean, string, table or ragged list is no
+    number. ``exact=True`` reads ``value`` as a spec gives it: an integer field (or one with
+    integer choices) takes integers only (``5.0`` is a float), and with ``cfg`` (which also
+    sets ``n_agents``) a scalar field takes one number only."""
+    if cfg is not None:
+        n_agents = cfg.n_agents
+    items = leaves(value)
+    if items is None:
+        return bad(param_expected(p, n_agents, cfg) if exact else "a number or a list of numbers", value)
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):  # ragged, or an integer beyond float range
+        return bad(param_expected(p, n_agents, cfg) if exact else "a number or a list of numbers", value)
+    if exact and p.integral() and not integral_leaves(items):
+        return bad(param_expected(p, n_agents, cfg), value)
+    if exact and cfg is not None and p.scalar(cfg) and arr.ndim != 0:
+        return bad(param_expected(p, n_agents, cfg), value)
+    if not np.all(np.isfinite(arr)):
+        return bad("finite", value)
+    if p.choices is not None:
+        if not np.all(np.isin(arr, p.choices)):
+            return bad(param_allowed(p), value)
+    elif p.integer and np.any(arr != np.round(arr)):
+        return bad(param_allowed(p), value)
+    elif not np.all(within(arr, p.low, p.high, p.low_open)):
+        return bad(param_allowed(p) + (f" {p.unit}" if p.unit else ""), value)
+    if n_agents is not None:
+        if p.per_agent and arr.shape not in ((), (n_agents,)):
+            return bad(f"a number or a list of n_agents = {n_agents} numbers", value)
+        if p.shape is not None:
+            if arr.shape != tuple(n_agents if d == "n" else d for d in p.shape):
+                return bad(f"of shape {shape_text(p.shape)} ({shape_text(p.shape, n_agents)})", value)
+    return None
+
+
+# ------------------------------------------------------------------ spec tables (SpecError naming the key path)
+
+def check_keys(where: str, table, allowed) -> None:
+    """SpecError naming the first key of ``table`` that is not ``allowed`` (``where`` + key)."""
+    for key in table:
+        if key not in allowed:
+            raise SpecError(f"{where}{key_text(key)}: unknown key{suggest(key, allowed)}; allowed: {', '.join(allowed)}")
+
+
+def count(where: str, value, low: int, high: int) -> int:
+    """An integer count in [low, high] (a boolean or a float is no count)."""
+    if not is_int(value) or not low <= value <= high:
+        raise SpecError(f"{where}: must be an integer in [{low}, {high}]; got {show(value)}")
+    return value
+
+
+def number(where: str, value, *, positive: bool = False, nonneg: bool = False) -> float:
+    """A finite number (> 0 with ``positive``, >= 0 with ``nonneg``), as a float."""
+    if not is_number(value) or not math.isfinite(value) or (positive and value <= 0) or (nonneg and value < 0):
+        what = "a number > 0" if positive else "a number >= 0" if nonneg else "a finite number"
+        raise SpecError(f"{where}: must be {what}; got {show(value)}")
+    return float(value)
+
+
+def choice(where: str, value, allowed, *, hint: bool = False):
+    """``value`` if it is one of ``allowed`` (with ``hint``: a string gets the did-you-mean hint)."""
+    if value not in allowed:
+        tip = suggest(value, allowed) if hint and isinstance(value, str) else ""
+        raise SpecError(f"{where}: must be one of {', '.join(allowed)}; got {show(value)}{tip}")
+    return value
+
+
+def subtable(where: str, data: dict, key: str) -> dict:
+    """``data[key]``, which must be a table (``{}`` when missing)."""
+    value = data.get(key, {})
+    if not isinstance(value, dict):
+        raise SpecError(f"{where}{key}: must be a table ([{key}] with one key = value per line); got {show(value)}")
+    return value
+
+
+def check_text(where: str, data: dict, key: str) -> None:
+    """SpecError unless ``data[key]``, when given, is a string."""
+    if key in data and not isinstance(data[key], str):
+        raise SpecError(f"{where}{key}: must be a string; got {show(data[key])}")
+
+
+# ------------------------------------------------------------------ reading TOML
+
+def read_toml(path: Path, what: str) -> dict:
+    """A TOML file read as UTF-8 (a byte-order mark is skipped); SpecError in one line when it
+    is missing, a folder, unreadable, not UTF-8 or not TOML."""
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise SpecError(f"{what} not found: {path}") from None
+    except IsADirectoryError:
+        raise SpecError(f"{what} {path} is a folder, not a TOML file") from None
+    except OSError as exc:
+        raise SpecError(f"{what} {path} cannot be read: {exc.strerror or exc}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise SpecError(f"{path}: not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}); "
+                        f"save it as UTF-8") from None
+    try:
+        return tomllib.loads(text.removeprefix("\ufeff"))
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{path}: not valid TOML: {one_line(exc)}") from None
+
+
+def set_value(raw: str):
+    """A ``--set`` value: TOML (``80e3``, ``true``, ``"name"``, ``[1, 2]``), else a bracketed
+    list of bare words (``[name1,name2]``), else the text itself (``name``)."""
+    try:
+        return tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        pass
+    if raw.startswith("[") and raw.endswith("]"):
+        items = [item.strip() for item in raw[1:-1].split(",")]
+        return [set_value(item) for item in items if item]
+    return raw
