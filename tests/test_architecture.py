@@ -118,7 +118,7 @@ def test_architecture_lists_every_module_and_only_modules_that_exist():
 LAYERS = [
     {"validation", "units", "contract", "smoothing", "envvars", "files", "interrupt", "jaxcompat", "runtime", "numerics", "results"},
     {"models"},
-    {"graph"},
+    {"graph", "robustness"},
     {"metrics"},
     {"filters"},
     {"planning"},

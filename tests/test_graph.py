@@ -17,7 +17,7 @@ import networkx as nx
 import numpy as np
 import pytest
 
-from mcjax import graph
+from mcjax import graph, robustness
 
 jax.config.update("jax_enable_x64", True)
 
@@ -41,9 +41,9 @@ class F:
     metropolis_weights = staticmethod(fast_jit(graph.metropolis_weights))
     max_degree_weights = staticmethod(fast_jit(graph.max_degree_weights))
     consensus_weights = staticmethod(fast_jit(graph.consensus_weights, static_argnames="kind"))
-    pair_robustness = staticmethod(fast_jit(graph.pair_robustness))
-    connectivity_robustness = staticmethod(fast_jit(graph.connectivity_robustness))
-    smooth_connectivity_robustness = staticmethod(fast_jit(graph.smooth_connectivity_robustness))
+    pair_robustness = staticmethod(fast_jit(robustness.pair_robustness))
+    connectivity_robustness = staticmethod(fast_jit(robustness.connectivity_robustness))
+    smooth_connectivity_robustness = staticmethod(fast_jit(robustness.smooth_connectivity_robustness))
 
 
 N_RANGE = range(2, 9)  # agent counts of the random groups
@@ -139,15 +139,15 @@ def _metrics(pos, radius, alive, info, prev, eps):
         "metropolis": graph.consensus_weights(adj, "metropolis"),
         "max_degree": graph.consensus_weights(adj, "max_degree"),
         "hyst": graph.hysteresis_adjacency(prev, pos, radius, eps),
-        "rho": graph.pair_robustness(pos, radius),
-        "r_i": graph.connectivity_robustness(pos, radius),
-        "r_i_info": graph.connectivity_robustness(pos, radius, info),
+        "rho": robustness.pair_robustness(pos, radius),
+        "r_i": robustness.connectivity_robustness(pos, radius),
+        "r_i_info": robustness.connectivity_robustness(pos, radius, info),
     }
 
 
 _metrics_j = fast_jit(_metrics)
 adjacency_j = fast_jit(graph.adjacency)
-smooth_j = fast_jit(graph.smooth_connectivity_robustness)
+smooth_j = fast_jit(robustness.smooth_connectivity_robustness)
 
 
 @functools.lru_cache(maxsize=None)
@@ -460,7 +460,7 @@ def test_rho_sign_is_path_existence_and_least_extra_range():
 
 
 TEMPERATURES = np.array([1.0, 0.1, 0.01, 0.001])
-_smooth_over_t = fast_jit(jax.vmap(graph.smooth_connectivity_robustness, in_axes=(None, None, 0, None)))
+_smooth_over_t = fast_jit(jax.vmap(robustness.smooth_connectivity_robustness, in_axes=(None, None, 0, None)))
 
 
 def test_smooth_robustness_converges_to_exact():
@@ -525,7 +525,7 @@ def test_smooth_robustness_is_genuinely_smooth_at_finite_temperature():
 
 
 def _weighted_soft(p, radius, temperature, info, w):
-    soft = graph.smooth_connectivity_robustness(p, radius, temperature, info)
+    soft = robustness.smooth_connectivity_robustness(p, radius, temperature, info)
     return jnp.dot(w, jnp.where(jnp.isfinite(soft), soft, 0.0))  # drop +inf (no info neighbour)
 
 
@@ -549,7 +549,7 @@ def test_gradients_finite_with_coincident_agents():
     def exact_losses(p):
         margins = graph.link_margins(p, radius)
         return (
-            jnp.sum(graph.connectivity_robustness(p, radius))
+            jnp.sum(robustness.connectivity_robustness(p, radius))
             + jnp.sum(graph.pairwise_distances(p))
             + jnp.sum(jnp.where(jnp.isfinite(margins), margins, 0.0))
         )
@@ -584,9 +584,9 @@ def _per_graph(pos, radius, alive, info):
         "lambda2_alive": graph.algebraic_connectivity(adj),
         "sizes_alive": graph.component_sizes(adj),
         "metropolis_alive": graph.consensus_weights(adj, "metropolis"),
-        "rho": graph.pair_robustness(pos, radius),
-        "r_i_info": graph.connectivity_robustness(pos, radius, info),
-        "soft": graph.smooth_connectivity_robustness(pos, radius, 0.2, info),
+        "rho": robustness.pair_robustness(pos, radius),
+        "r_i_info": robustness.connectivity_robustness(pos, radius, info),
+        "soft": robustness.smooth_connectivity_robustness(pos, radius, 0.2, info),
     }
 
 
@@ -618,8 +618,8 @@ def test_float32_inputs_stay_float32():
         return {
             "adj": a,
             "margins": graph.link_margins(p, 5.0),
-            "r_i": graph.connectivity_robustness(p, 5.0),
-            "soft": graph.smooth_connectivity_robustness(p, 5.0, 0.1),
+            "r_i": robustness.connectivity_robustness(p, 5.0),
+            "soft": robustness.smooth_connectivity_robustness(p, 5.0, 0.1),
             "metropolis": graph.metropolis_weights(a),
             "sizes": graph.component_sizes(a),
             "lambda2": graph.algebraic_connectivity(a),

@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mcjax import engine, graph
+from mcjax import engine, robustness
 from mcjax.contract import FAST_COMPILE
 from mcjax.planning import PlannerOptions, solve
 from mcjax.scenarios.leader_follower.horizon import Dynamics, Problem, horizon_cost, horizon_plan_cost
@@ -29,9 +29,9 @@ def jit(fun):
     return jax.jit(fun, compiler_options=FAST)
 
 
-exact_pairs = jit(graph.connectivity_robustness)
-exact_tree = jit(graph.tree_connectivity_robustness)
-smooth_tree = jit(graph.smooth_tree_connectivity_robustness)
+exact_pairs = jit(robustness.connectivity_robustness)
+exact_tree = jit(robustness.tree_connectivity_robustness)
+smooth_tree = jit(robustness.smooth_tree_connectivity_robustness)
 
 
 def _cases(count, seed=0):
@@ -86,7 +86,7 @@ def test_smooth_tree_robustness_gradient_matches_central_differences():
     radius = rng.uniform(2.0, 4.0, 8)
 
     def f(p):
-        r = graph.smooth_tree_connectivity_robustness(p, radius, 0.5, alive)
+        r = robustness.smooth_tree_connectivity_robustness(p, radius, 0.5, alive)
         return jnp.sum(jnp.where(jnp.asarray(alive), r, 0.0) * jnp.arange(1.0, 9.0))
 
     h = 1e-6
@@ -107,8 +107,8 @@ def test_smooth_tree_gradient_finite_for_coincident_agents_and_lone_agent():
     pos = jnp.asarray([[0.0, 0.0], [0.0, 0.0], [3.0, 1.0]])
     # one jitted program (eager, the tree's many small operations cost most of the test's time)
     g, alone = jit(lambda p: (
-        jax.grad(lambda q: jnp.sum(graph.smooth_tree_connectivity_robustness(q, 2.0, 0.3)))(p),
-        graph.smooth_tree_connectivity_robustness(p, 2.0, 0.3, np.array([True, False, False]))))(pos)
+        jax.grad(lambda q: jnp.sum(robustness.smooth_tree_connectivity_robustness(q, 2.0, 0.3)))(p),
+        robustness.smooth_tree_connectivity_robustness(p, 2.0, 0.3, np.array([True, False, False]))))(pos)
     assert np.all(np.isfinite(np.asarray(g)))
     assert np.all(np.isinf(np.asarray(alone)))
 
@@ -179,5 +179,5 @@ def test_closed_loop_of_twelve_uavs_runs_on_the_tree():
     points = engine.stack_points([sc.default_params(cfg, **values)])
     [(_, _, _, rec)] = list(engine.run_chunks(sc, cfg, points, 2, chunk_size=2, records=True))
     assert np.all(np.isfinite(rec.plan_cost)) and np.all(np.isfinite(rec.positions))
-    ref = np.asarray(jit(jax.vmap(jax.vmap(lambda p: graph.connectivity_robustness(p, 100e3))))(rec.positions))
+    ref = np.asarray(jit(jax.vmap(jax.vmap(lambda p: robustness.connectivity_robustness(p, 100e3))))(rec.positions))
     np.testing.assert_array_equal(rec.robustness, ref)

@@ -9,7 +9,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from mcjax import graph
+from mcjax import graph, robustness
 from mcjax.filters.consensus import filter_step
 from mcjax.models.sensors import measure_range_bearing, range_bearing
 from mcjax.scenarios import faults
@@ -56,7 +56,7 @@ def sense_and_link(key, target, sensors, params, sensing, comm, alive, fault, sm
     ``smoothing`` (a scenario's smoothing switch with ``sensing`` and ``comm`` temperatures; None:
     exact) swaps the range gate for soft gates (:func:`soft_team_measurements`) and the comm graph
     for soft links (:func:`mcjax.graph.soft_adjacency`), with the same random draws, and gives the
-    soft component sizes (:func:`mcjax.graph.soft_component_sizes`), which see lost agents, not lost links."""
+    soft component sizes (:func:`mcjax.robustness.soft_component_sizes`), which see lost agents, not lost links."""
     if smoothing is None:
         z = faults.measurements(team_measurements(key, target, sensors, params.sigma_range, params.sigma_bearing,
                                                   sensing, alive), fault)
@@ -65,7 +65,7 @@ def sense_and_link(key, target, sensors, params, sensing, comm, alive, fault, sm
         z, gates = soft_team_measurements(key, target, sensors, params.sigma_range, params.sigma_bearing,
                                           sensing, alive, smoothing.sensing)
         z = faults.measurements(z, fault)
-        sizes = graph.soft_component_sizes(sensors, comm, smoothing.comm, alive & faults.alive(fault, sensors.shape[0]))
+        sizes = robustness.soft_component_sizes(sensors, comm, smoothing.comm, alive & faults.alive(fault, sensors.shape[0]))
     return Sensed(z, *link(sensors, comm, fault, smoothing, alive), gates, sizes)
 
 

@@ -19,7 +19,7 @@ falls toward and below 0 (docs/equations.md §6.1).
 
 Every non-smooth piece has a smooth form at the temperature ``T`` (metres): the gate
 becomes ``sigmoid((R_s − r)/T)``, the max/min of R_I become soft max/min
-(:func:`mcjax.graph.smooth_connectivity_robustness`), the hinges become ``T·softplus(·/T)``
+(:func:`mcjax.robustness.smooth_connectivity_robustness`), the hinges become ``T·softplus(·/T)``
 and ``1/|R|`` becomes ``1/√(R² + T²)``. ``smooth=False`` gives the exact cost, which is
 what the planners report and what the sampled planners minimise
 (:func:`mcjax.scenarios.leader_follower.horizon.horizon_plan_cost` packs both for
@@ -36,16 +36,16 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from mcjax import graph
+from mcjax import robustness
 from mcjax.numerics import matmul, spd_inverse, wrap_angle
 
 #: ε of the regularised distance √(|Δ|² + ε²), m.
 DISTANCE_EPS = 1.0
 ROBUSTNESS_PENALTIES = ("barrier", "inverse")
 #: How R_I is computed (Config.robustness_paths): "all_pairs" = the widest path of every pair
-#: (Floyd–Warshall, O(n³); smooth: :func:`mcjax.graph.smooth_connectivity_robustness`),
+#: (Floyd–Warshall, O(n³); smooth: :func:`mcjax.robustness.smooth_connectivity_robustness`),
 #: "spanning_tree" = the same exact numbers from a maximum spanning tree in O(n²), smooth: a softmin
-#: over the tree's links (:func:`mcjax.graph.smooth_tree_connectivity_robustness`, a different
+#: over the tree's links (:func:`mcjax.robustness.smooth_tree_connectivity_robustness`, a different
 #: surrogate), "auto" = all pairs up to :data:`TREE_ABOVE` agents, the tree above.
 ROBUSTNESS_PATHS = ("auto", "all_pairs", "spanning_tree")
 #: "auto" takes the spanning tree above this many agents (ours, chosen before measuring: every
@@ -191,13 +191,13 @@ def step_terms(Y, uavs, prev_headings, commands, target_xy, p: CostParams, *,
     neighbours = alive[:, None] & alive[None, :]
     if resolve_paths(paths, xy.shape[0]) == "spanning_tree":
         if smooth:
-            R = graph.smooth_tree_connectivity_robustness(xy, p.comm_radius, p.temperature, alive)
+            R = robustness.smooth_tree_connectivity_robustness(xy, p.comm_radius, p.temperature, alive)
         else:
-            R = graph.tree_connectivity_robustness(xy, p.comm_radius, alive)
+            R = robustness.tree_connectivity_robustness(xy, p.comm_radius, alive)
     elif smooth:
-        R = graph.smooth_connectivity_robustness(xy, p.comm_radius, p.temperature, neighbours)
+        R = robustness.smooth_connectivity_robustness(xy, p.comm_radius, p.temperature, neighbours)
     else:
-        R = graph.connectivity_robustness(xy, p.comm_radius, neighbours)
+        R = robustness.connectivity_robustness(xy, p.comm_radius, neighbours)
     pen = robustness_penalty(R, penalty, p.robustness_scale, p.temperature, smooth)
     control = jnp.abs(wrap_angle(commands - prev_headings))
     return CostTerms(

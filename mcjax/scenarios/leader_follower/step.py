@@ -9,7 +9,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from mcjax import graph, metrics
+from mcjax import graph, metrics, robustness
 from mcjax.filters.consensus import Measurements, init_states, per_agent
 from mcjax.filters.gaussian import first_step_model
 from mcjax.models.motion import cv_matrices, cv_process_noise, cv_step
@@ -73,7 +73,7 @@ class Smoothing(NamedTuple):
     """Temperatures (m) of the smoothing switch (:func:`step` with ``smoothing``): the sensing
     gate ``sigmoid((R_s − r)/T)`` and the comm links ``sigmoid((min(R_i, R_j) − l_ij)/T)``
     (:func:`mcjax.scenarios.kit.soft_team_measurements`, :func:`mcjax.graph.soft_adjacency`,
-    :func:`mcjax.graph.soft_component_sizes`); ours."""
+    :func:`mcjax.robustness.soft_component_sizes`); ours."""
 
     sensing: float = 1e3
     comm: float = 1e3
@@ -162,7 +162,7 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
 
     ``smoothing`` (the smoothing switch, :class:`Smoothing`; None: the exact simulation) swaps
     the sensing gate and the comm graph for their smooth versions (:func:`kit.soft_team_measurements`,
-    :func:`graph.soft_adjacency`, :func:`graph.soft_component_sizes`) for training by gradient and for
+    :func:`graph.soft_adjacency`, :func:`robustness.soft_component_sizes`) for training by gradient and for
     sensitivities; dynamics (eqs. 1, 3–4), filters (eqs. 8–12) and the planner (eq. 16, whose
     gradient planner descends its own smooth cost) are the same, with the same random draws.
     The graph statistics are then those of the soft links' weights.
@@ -179,9 +179,9 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
         nees=ne,
         lambda2=graph.algebraic_connectivity(s.carried),
         degrees=graph.degree(s.carried),
-        robustness=(graph.tree_connectivity_robustness(s.sensors, comm)  # the same numbers in O(n^2)
+        robustness=(robustness.tree_connectivity_robustness(s.sensors, comm)  # the same numbers in O(n^2)
                     if resolve_paths(cfg.robustness_paths, n) == "spanning_tree"
-                    else graph.connectivity_robustness(s.sensors, comm)),
+                    else robustness.connectivity_robustness(s.sensors, comm)),
         n_seeing=jnp.sum(jnp.all(jnp.isfinite(s.z), axis=-1)),
         positions=s.sensors,
         target=s.target,

@@ -82,7 +82,7 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
     the sonar's range gate, the comm links (and so the Metropolis weights of Ren & Lv 2017's
     consensus, eq. 8, built from them), the component sizes of the information weighting and
     the IMM's "likelier mode" indicator for their smooth versions (:func:`kit.soft_team_measurements`,
-    :func:`graph.soft_adjacency`, :func:`graph.soft_component_sizes`, :func:`mode_hits`), with the same
+    :func:`graph.soft_adjacency`, :func:`robustness.soft_component_sizes`, :func:`mode_hits`), with the same
     random draws. The target's mode jumps stay exact (rough). The graph statistics are then
     those of the soft links' weights and ``n_seeing`` is the sum of the soft gates."""
     n, dtype = cfg.n_agents, jnp.dtype(cfg.dtype)
