@@ -1,13 +1,10 @@
 """The report's "What this shows": sentences about a sweep generated from its data, each
-backed by the intervals it quotes; a glossary from the dataset's declarations; the base
-Params table.
+backed by the intervals it quotes (the glossary and the base Params table beside them:
+:mod:`mcjax.glossary`).
 
 * :func:`findings` -- per swept axis, two to four :class:`Finding` sentences: which filter
   has the lowest mean error where, how the error changes along the axis, where runs diverge,
   where the comm graph disconnects. Every number comes with its 95 % interval.
-* :func:`glossary` -- ``(term, words)`` for the filters, the error metric, the divergence
-  flag, the graph statistics, the swept axes and the intervals, from the declarations.
-* :func:`params_table` -- the base Params of the dataset with their units and descriptions.
 * :func:`percent` -- a rate with its interval as ``"2.0 % [0.6, 7.0]"``.
 
 The rule of every sentence: an order between two filters (or between two values of an axis)
@@ -33,7 +30,7 @@ import pandas as pd
 from mcjax import tables
 from mcjax.statistics import CONFIDENCE, mean_ci, wilson_interval
 
-__all__ = ["PCT", "Finding", "findings", "glossary", "params_table", "percent", "quote", "declared_words"]
+__all__ = ["PCT", "Finding", "findings", "percent", "quote"]
 
 PCT = f"{100 * CONFIDENCE:g} %"
 
@@ -330,102 +327,3 @@ def findings(df: pd.DataFrame, metadata: Mapping[str, Any] | tables.Schema,
 
 
 # ------------------------------------------------------------------------------ glossary
-
-#: What each role means, in words that hold for any scenario (the roles of mcjax.contract).
-ROLE_WORDS = {
-    "error": "the metric the report leads with; the mean over runs comes with its {pct} Student-t interval",
-    "divergence": "a run counts as diverged when this flag is set; the divergence rate is the percentage of runs "
-                  "flagged, with its {pct} Wilson interval",
-    "nonfinite": "a run whose estimate went NaN or infinite (it counts as diverged)",
-    "connectivity_mean": "λ2, the algebraic connectivity: the second-smallest eigenvalue of the comm graph's "
-                         "Laplacian; 0 when the graph has fallen apart, larger when it is better connected",
-    "connectivity_min": "the same λ2 at the run's worst step: 0 means the graph was disconnected at least once",
-    "disconnected_steps": "how many of the run's steps the comm graph was in pieces (λ2 = 0): agents in "
-                          "different pieces cannot share estimates",
-}
-
-
-def declared_words(name: str, sch: tables.Schema) -> str:
-    """The declared description of an output or Param column ("" without one)."""
-    decl = sch.outputs.get(name) if name in sch.outputs else sch.params.get(name)
-    return str((decl or {}).get("description") or "").strip() if isinstance(decl, Mapping) else ""
-
-
-def glossary(metadata: Mapping[str, Any], axes: Sequence[str] = (), *, tuned: bool = False) -> list[tuple[str, str]]:
-    """``(term, words)`` for the words of the page: each filter (its declared words from the
-    metadata's ``filter_descriptions`` where the scenario gives them, else the scenario's own
-    title), the error metric, the divergence flag (with the config's threshold), the graph
-    statistics, each swept axis (``tuned``: each tuned Param of a tune's evaluation), the base
-    Params and the two kinds of interval."""
-    sch = tables.schema(metadata)
-    pct = PCT
-    out: list[tuple[str, str]] = []
-    described = metadata.get("filter_descriptions") if isinstance(metadata, Mapping) else None
-    described = described if isinstance(described, Mapping) else {}
-    missing = [f for f in sch.filters if not described.get(f)]
-    for f in sch.filters:
-        if described.get(f):
-            out.append((f, str(described[f])))
-    if missing:
-        out.append((", ".join(missing), "the estimators compared, run side by side on the same measurements in "
-                    "every run (one row per run and filter)" + (f"; the scenario's own words: {sch.title}"
-                                                                if sch.title else "")))
-    config = metadata.get("config") if isinstance(metadata.get("config"), Mapping) else {}
-    for role in ("error", "divergence", "nonfinite", "connectivity_mean", "connectivity_min", "disconnected_steps"):
-        name = getattr(sch, role)
-        if not name:
-            continue
-        u = tables.unit(name, sch)
-        words = declared_words(name, sch)
-        text = (words + " — " if words else "") + ROLE_WORDS[role].format(pct=pct)
-        if role == "divergence" and "divergence_threshold" in config:
-            text += f" (in this config divergence_threshold = {tables.format_number(config['divergence_threshold'])})"
-        out.append((f"{name} [{u}]" if u else name, text))
-    for a in axes:
-        shown = tables.display(a, sch)[0]
-        out.append((f"{a} [{shown}]" if shown else a, (declared_words(a, sch) or "a Param")
-                    + (" — tuned by gradient through the closed loop" if tuned else " — swept")))
-    out.append(("Params", "the scenario's parameters a sweep may vary without recompiling (radii, noise levels, "
-                          "weights)" + ("" if tuned else "; their values in this dataset are in the table "
-                                                         "'Base Params'")))
-    out.append((f"{pct} interval", "a mean's Student-t interval, a rate's Wilson score interval: where two "
-                                   "intervals do not overlap, the report calls one value lower"))
-    return out
-
-
-def params_table(metadata: Mapping[str, Any], axes: Sequence[str] = ()) -> tuple[list[list[str]], str]:
-    """The base Params as rows ``[name, value, unit, description]`` and a note on where the
-    values come from: the metadata's ``base_params`` (the Params every point starts from,
-    written by the sweep) when the dataset has them; else ``base_params_file`` (the base config
-    file's ``[params]`` as :func:`mcjax.report.base_params_from_files` read them); else only the
-    spec's ``[params]`` table. The note says which."""
-    sch = tables.schema(metadata)
-    values = metadata.get("base_params")
-    files = metadata.get("base_params_file")
-    if isinstance(values, Mapping) and values:
-        note = "The Params every point starts from (the base config with the spec's [params] and --set applied)."
-    elif isinstance(files, Mapping) and isinstance(files.get("values"), Mapping):
-        values = files["values"]
-        note = (f"The dataset does not record its base Params (written by an older mcjax): these are the [params] "
-                f"of its base config file {files.get('path')} as that file is now, with the spec's [params] over "
-                f"them; if the file changed since the sweep ran, they may differ from what ran.")
-    else:
-        spec = metadata.get("spec") if isinstance(metadata.get("spec"), Mapping) else {}
-        values = spec.get("params") if isinstance(spec.get("params"), Mapping) else {}
-        base = spec.get("base")
-        note = ("This dataset does not record its base Params (written by an older mcjax): only the spec's "
-                "[params] are shown" + (f"; the rest are those of its base config, {base}" if base else "") + ".")
-    rows = []
-    for name in list(sch.params) + [k for k in values if k not in sch.params]:
-        if name not in values and name not in axes:
-            continue
-        value = f"swept ({name} is an axis)" if name in axes else tables.format_number(
-            _plain(values[name]), tables.KEY_DIGITS)
-        rows.append([name, value, tables.unit(name, sch), declared_words(name, sch)])
-    return rows, note
-
-
-def _plain(value: Any) -> Any:
-    if isinstance(value, list):
-        return tuple(_plain(v) for v in value)
-    return value

@@ -31,7 +31,7 @@ from typing import Any, Mapping, Sequence
 import pandas as pd
 import tomli_w
 
-from mcjax import findings, tables
+from mcjax import findings, glossary, tables
 from mcjax.files import atomic_write
 from mcjax.statistics import CONFIDENCE
 
@@ -269,9 +269,9 @@ def page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, An
 
     # glossary and base Params
     parts.append('<section id="glossary"><h2>Glossary</h2><dl>' + "".join(
-        f"<dt>{_e(term)}</dt><dd>{_e(words)}</dd>" for term, words in findings.glossary(metadata, axes))
+        f"<dt>{_e(term)}</dt><dd>{_e(words)}</dd>" for term, words in glossary.glossary(metadata, axes))
         + "</dl></section>")
-    rows, note = findings.params_table(metadata, axes)
+    rows, note = glossary.params_table(metadata, axes)
     parts.append(f'<section id="params"><h2>Base Params</h2><p>{_e(note)}</p>')
     parts.append(html_table(["Param", "value", "unit", "what it is"], rows) if rows else "<p>(None recorded.)</p>")
     parts.append("</section>")

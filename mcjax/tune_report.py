@@ -29,7 +29,7 @@ from typing import Any, Mapping
 import numpy as np
 import pandas as pd
 
-from mcjax import findings, html_report, tables
+from mcjax import findings, glossary, html_report, tables
 from mcjax.files import atomic_write
 from mcjax.statistics import mean_ci, paired_by_seed, wilson_interval
 
@@ -234,7 +234,7 @@ def page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, An
         else:
             continue
         value_rows.append([n, tables.format_number(a, 6), tables.format_number(b, 6), tables.unit(n, sch),
-                           findings.declared_words(n, sch)])
+                           glossary.declared_words(n, sch)])
     parts.append(html_report.html_table(["Param", "initial", "tuned", "unit", "what it is"], value_rows)
                  if value_rows else "<p>(The folder records no tuned values.)</p>")
     parts.append("</section>")
@@ -278,7 +278,7 @@ def page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, An
     parts.append("</section>")
 
     parts.append('<section id="glossary"><h2>Glossary</h2><dl>' + "".join(
-        f"<dt>{_e(t)}</dt><dd>{_e(w)}</dd>" for t, w in findings.glossary(metadata, names, tuned=True))
+        f"<dt>{_e(t)}</dt><dd>{_e(w)}</dd>" for t, w in glossary.glossary(metadata, names, tuned=True))
         + "</dl></section>")
     parts.append('<section id="spec"><h2>Spec</h2>')
     if tune_spec:

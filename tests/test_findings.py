@@ -14,7 +14,7 @@ import pytest
 from scipy import stats
 from test_tables import make_metadata
 
-from mcjax import findings
+from mcjax import findings, glossary
 
 KM = {"display_unit": "km", "display_factor": 1e-3}
 
@@ -139,7 +139,7 @@ def test_percent(rate, low, high, text):
 def test_glossary_from_the_declarations():
     meta = _meta([50e3, 100e3])
     meta["config"] = {"divergence_threshold": 1000.0}
-    terms = dict(findings.glossary(meta, ["comm_radius"]))
+    terms = dict(glossary.glossary(meta, ["comm_radius"]))
     assert any(t.startswith("icf, cif") for t in terms)  # no words declared per filter: one entry, the title's words
     assert "toy: a synthetic scenario" in terms[next(t for t in terms if t.startswith("icf, cif"))]
     for name in ("rmse [m]", "diverged", "lambda2_mean", "lambda2_min", "disconnected_steps", "comm_radius [km]",
@@ -148,16 +148,16 @@ def test_glossary_from_the_declarations():
     assert terms["rmse [m]"].startswith("rmse over the run")  # the declaration's own words first
     assert "divergence_threshold = 1000" in terms["diverged"]
     meta["filter_descriptions"] = {"icf": "the information consensus filter", "cif": "the centralised filter"}
-    terms = dict(findings.glossary(meta, ["comm_radius"]))
+    terms = dict(glossary.glossary(meta, ["comm_radius"]))
     assert terms["icf"] == "the information consensus filter" and terms["cif"] == "the centralised filter"
 
 
 def test_base_params_table():
     meta = _meta([50e3, 100e3])
-    rows, note = findings.params_table(meta, ["comm_radius"])
+    rows, note = glossary.params_table(meta, ["comm_radius"])
     assert "does not record its base Params" in note and "configs/x.toml" in note
     meta["base_params"] = {"comm_radius": 1e5, "eps": 0.5}
-    rows, note = findings.params_table(meta, ["comm_radius"])
+    rows, note = glossary.params_table(meta, ["comm_radius"])
     table = {r[0]: r for r in rows}
     assert table["comm_radius"][1].startswith("swept") and table["eps"][1] == "0.5"
     assert table["comm_radius"][2] == "m"
