@@ -11,7 +11,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 import conftest  # noqa: E402,F401  (the suite's environment: XLA flags, one CPU device)
 
-from golden_cases import CASES, case_rows  # noqa: E402
+from golden_cases import CASES, FAULT_CASES, case_rows, fault_rows  # noqa: E402
 
 
 if __name__ == "__main__":
@@ -19,3 +19,8 @@ if __name__ == "__main__":
         df = case_rows(name)
         df.to_parquet(HERE / f"{name}.parquet", index=False)
         print(name, df.shape)
+    for name in FAULT_CASES:
+        runs, series = fault_rows(name)
+        runs.to_parquet(HERE / f"{name}_faults.parquet", index=False)
+        series.to_parquet(HERE / f"{name}_faults_timeseries.parquet", index=False)
+        print(name, "faults", runs.shape, series.shape)
