@@ -123,7 +123,7 @@ LAYERS = [
     {"filters"},
     {"planning"},
     {"scenarios"},
-    {"engine", "statistics"},
+    {"engine", "statistics", "verdicts"},
     {"study", "tables", "schema", "plots", "listing"},
     {"tune"},
     {"report", "html_report", "findings", "glossary", "tune_report"},
@@ -161,7 +161,8 @@ def test_no_module_imports_from_a_layer_above():
 def test_no_scenario_filter_or_unit_names_above_the_scenarios():
     words = re.compile(r"\b(leader_follower|uuv_imm|modified_icf|cif|icf|kcf|imm|lambda2_min|mean_error)\b")
     above = ["engine", "results.py", "report.py", "html_report.py", "tables.py", "statistics.py", "cli.py",
-             "listing.py", "files.py", "interrupt.py", "study", "plots", "findings.py", "tune_report.py", "schema.py", "glossary.py"]
+             "listing.py", "files.py", "interrupt.py", "study", "plots", "findings.py", "tune_report.py", "schema.py", "glossary.py",
+             "verdicts.py"]
     paths = [p for name in above for p in ((PACKAGE / name).rglob("*.py") if (PACKAGE / name).is_dir()
                                             else [PACKAGE / name])]
     assert len(paths) > 15
