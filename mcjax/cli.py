@@ -1,5 +1,5 @@
-"""The ``mcjax`` command line: ``mcjax sweep``, ``mcjax run``, ``mcjax report``, ``mcjax tune``,
-``mcjax list``
+"""The ``mcjax`` command line: ``mcjax sweep``, ``mcjax run``, ``mcjax check``, ``mcjax report``,
+``mcjax tune``, ``mcjax list``
 (``mcjax --help`` lists every command with one line each; ``docs/cli.md`` holds every
 command's ``--help``).
 
@@ -242,6 +242,87 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
                f"({result.runs_run / max(result.seconds, 1e-9):.1f} runs/s incl. compilation)")
     _print_summary(result.rows, s)
     finish(stop)
+
+
+@main.command(short_help="Check a paper's claims file: run its sweeps, a verdict per claim with its interval.")
+@click.argument("claims", type=click.Path(path_type=Path))
+@click.option("--seeds", type=click.IntRange(min=1), default=None,
+              help="Runs per point of every sweep [default: the claims file's `seeds`, else each sweep's].")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Output folder [default: results/check_<claims file name>].")
+@click.option("--resume", is_flag=True, help="Finish an interrupted check in --out (the same file and --seeds).")
+@click.option("--force", is_flag=True, help="Replace an existing output folder that holds a previous check.")
+@click.option("--strict", is_flag=True, help="Exit 1 when any claim fails (default: exit 0 whatever the verdicts).")
+@click.option("--format", "fmt", type=click.Choice(["text", "markdown", "csv"]), default="text", show_default=True,
+              help="Format of the printed verdict table (markdown: for docs).")
+@click.option("--executor", type=click.Choice(["local", "dask"]), default="local", show_default=True,
+              help="Where the chunks are computed: this process, or a Dask cluster (pip install -e \".[dask]\").")
+@click.option("--scheduler", default=None, metavar="ADDRESS", help="With --executor dask: a running cluster.")
+@click.option("--workers", default=None, type=int, metavar="N",
+              help="With --executor dask: start a cluster of N worker processes on this machine.")
+def check(claims, seeds, out_dir, resume, force, strict, fmt, executor, scheduler, workers):
+    """Check the claims file CLAIMS (benchmarks/claims/*.toml): run the sweeps it names through
+    the study pipeline into OUT/<sweep>/ (resume, locks, Dask and the program store as for
+    `mcjax sweep`; claims that share a sweep share its runs), then give every claim a verdict
+    from 95 % intervals — holds (the interval lies on the claimed side), fails (on the other),
+    undecided (it straddles; with roughly the runs that would decide it) — written to
+    OUT/claims.parquet and printed beside the paper's figures. `mcjax report OUT` shows it again
+    with each sweep's figures.
+
+    A malformed claims file exits 2 with one line naming the claim and the field, before
+    anything runs. The first Ctrl-C stops after the chunk in flight (exit 130) and prints the
+    command that resumes.
+    """
+    state = {"out": out_dir, "started": False, "words": ""}
+
+    def hint() -> str:
+        if not state["started"]:
+            return "interrupted before the check started; nothing was written"
+        return (f"interrupted: the chunks written stay in {state['out']}; finish with: mcjax check "
+                f"{shlex.quote(str(claims))} --out {shlex.quote(str(state['out']))} --resume"
+                + (f" --seeds {seeds}" if seeds else "") + state["words"])
+
+    with ctrl_c(hint, ACK_DASK if executor == "dask" else ACK) as stop:
+        remote = _executor_options(executor, scheduler, workers)
+        state["words"] = remote.words
+        from mcjax.claims import runner
+        from mcjax.claims.report import verdict_text
+        from mcjax.claims.spec import ClaimsError, load_claims
+        from mcjax.study import ChunkError, OutputError
+
+        try:
+            checked = load_claims(claims, seeds=seeds)  # the whole file checked before any folder is touched
+        except ClaimsError as exc:
+            _fail(str(exc))
+        state["out"] = out_dir = out_dir or runner.default_out_dir(claims)
+        bars = Bars(**{name: "chunk" for name in checked.sweeps})
+
+        def progress(name, at) -> None:
+            state["started"] = True
+            bars.show(name, at.chunks_done, at.chunks)
+
+        with _executor(remote) as ex, bars:
+            try:
+                result = runner.run_check(claims, out_dir=out_dir, seeds=seeds, resume=resume, force=force,
+                                          executor=ex, message=bars.echo, warn=lambda line: click.echo(line, err=True),
+                                          progress=progress, should_stop=stop.is_set)
+            except (OutputError, ClaimsError) as exc:
+                _fail(str(exc))
+            except ChunkError as exc:
+                click.echo(f"error: {exc}; the chunks written stay in {out_dir} (finish with --resume)", err=True)
+                if own_process():
+                    exit_now(1)
+                sys.exit(1)
+        if result.stopped:
+            click.echo(hint(), err=True)
+            exit_now(130)
+        meta = {"paper": result.claims.paper, "claims_file": str(claims),
+                "seeds": {k: s.seeds for k, s in result.claims.sweeps.items()}}
+        click.echo(verdict_text(result.table, meta, fmt))
+        click.echo(f"verdicts: {out_dir / runner.TABLE_FILE}")
+        finish(stop)
+        if strict and (result.table["verdict"] == "fails").any():
+            sys.exit(1)
 
 
 @main.command(short_help="Run one point of a config (configs/*.toml); print a summary.")

@@ -151,7 +151,9 @@ def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
     unless ``plots=False``, writes the figures of :func:`mcjax.plots.write_plots` to
     ``OUT/report/`` and then the self-contained page ``OUT/report/index.html``
     (:mod:`mcjax.html_report`: description, spec, provenance, tables, every plot with its
-    caption), whose path is the last of the returned paths. The folder of a tune (``tune.json``,
+    caption), whose path is the last of the returned paths. The folder of ``mcjax check``
+    (``check.json``) gets its verdict table first, then each of its sweeps' reports
+    (:func:`mcjax.claims.report.report_check`). The folder of a tune (``tune.json``,
     ``trace.parquet``) gets :mod:`mcjax.tune_report`'s table (a ``role`` column first) and page
     instead, and no plots; a folder of
     datasets (e.g. ``results/``) gets :func:`listing` as its text and no files. A dataset with
@@ -169,6 +171,15 @@ def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
     if not isinstance(out_dir, (str, os.PathLike)) or str(out_dir) == "":
         raise TypeError(f"out_dir must be a non-empty str or os.PathLike, got {out_dir!r}")
     out = Path(out_dir)
+    from mcjax.claims.folder import is_check_folder
+
+    if is_check_folder(out):  # the verdict table first, then each sweep's report and figures
+        from mcjax.claims.report import report_check
+
+        try:
+            return report_check(out, fmt, plots=plots, warn=warn, sweep_report=report)
+        except FileNotFoundError as exc:
+            raise ValueError(str(exc)) from None
     try:
         df = results.read_table(out)
     except results.DamagedPartError as exc:  # name the spec to resume with, when the folder says it

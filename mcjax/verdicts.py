@@ -13,6 +13,12 @@ meet, judged by where the interval lies.
   **undecided** when it straddles — then, roughly, how many runs would decide it: the interval's
   half-width shrinks as 1/√n, so ``n (half-width / distance)²`` runs bring it to the distance
   between the estimate and the boundary (None when the estimate sits on it).
+* :func:`consistent` -- whether a paper's number, from its own ``runs``, is one those runs could
+  give if our estimate were the truth: it holds when the paper's value lies within our estimate ±
+  √(h² + h_paper²), ``h`` our interval's half-width and ``h_paper`` the half-width an interval of
+  the paper's run count would have with our spread (mean: t·s/√runs, s from our interval; rate:
+  z·√(p(1 − p)/runs)), and fails otherwise — a two-sample comparison in which the paper's sampling
+  error, usually the larger, is estimated from ours since papers seldom print their spread.
 * :func:`ordered` -- an order of several estimates (each of its own runs): holds when every
   neighbouring pair's intervals are apart in the claimed direction, fails when one pair's are apart
   the other way, undecided otherwise (apart intervals: a conservative test, as in the report's
@@ -29,7 +35,7 @@ from typing import Iterable, NamedTuple, Sequence
 
 import numpy as np
 
-from mcjax.statistics import CONFIDENCE, mean_ci, wilson_interval
+from mcjax.statistics import CONFIDENCE, mean_ci, t_critical, wilson_interval
 
 STATISTICS = ("mean", "median", "quantile", "rate")
 RELATIONS = ("below", "above", "within")
@@ -144,6 +150,24 @@ def compare(est: Estimate, relation: str, value: float | None = None,
         return Verdict("fails")
     edge = lo if abs(est.value - lo) <= abs(est.value - hi) else hi
     return Verdict("undecided", _runs_to_decide(est, edge))
+
+
+def consistent(est: Estimate, paper: float, runs: int, confidence: float = CONFIDENCE) -> Verdict:
+    """The verdict of the paper's ``paper`` (a mean or a rate of its ``runs`` runs) being consistent
+    with ``est`` (module docstring); undecided when ``est`` has no interval."""
+    if est.statistic not in ("mean", "rate"):
+        raise ValueError(f"consistent takes a mean or a rate; got {est.statistic!r}")
+    if runs < 2 or not (math.isfinite(est.low) and math.isfinite(est.high)) or est.n < 2:
+        return Verdict("undecided")
+    half = (est.high - est.low) / 2.0
+    if est.statistic == "mean":
+        spread = half * math.sqrt(est.n) / t_critical(est.n - 1, confidence)
+        paper_half = t_critical(runs - 1, confidence) * spread / math.sqrt(runs)
+    else:
+        from scipy.stats import norm
+
+        paper_half = float(norm.ppf(0.5 + confidence / 2)) * math.sqrt(est.value * (1.0 - est.value) / runs)
+    return Verdict("holds" if abs(paper - est.value) <= math.hypot(half, paper_half) else "fails")
 
 
 def ordered(estimates: Sequence[Estimate], decreasing: bool = False) -> Verdict:
