@@ -323,7 +323,8 @@ def _claim(path: Path, i: int, raw: Any, studies: dict, seen: set) -> Claim:
             sw = studies.get(raw.get("sweep"), next(iter(studies.values())))
             raise _err(f"{where}along", f"must be an axis of the sweep ({', '.join(sw.axes) or 'none'}); got "
                        f"{show(free)}")
-    side = _side(where, side_keys, studies, free=free)
+    # an order's own keys are only the defaults of its sides
+    side = None if relation == "ordered" else _side(where, side_keys, studies, free=free)
     others: tuple[Side, ...] = ()
     if relation == "monotone":
         side, others = side[0], tuple(side)
@@ -343,6 +344,7 @@ def _claim(path: Path, i: int, raw: Any, studies: dict, seen: set) -> Claim:
             raise _err(f"{where}order", f"must be a list of two or more sides; got {show(order)}")
         others = tuple(_side(f"{where}order[{k}].", _override(where, raw, f"order[{k}]", o), studies)
                        for k, o in enumerate(order))
+        side = others[0]
     value = band = None
     if operands["value"]:
         value = _number(f"{where}value", raw["value"])
