@@ -320,8 +320,10 @@ def check(claims, seeds, out_dir, resume, force, strict, fmt, executor, schedule
                 "seeds": {k: s.seeds for k, s in result.claims.sweeps.items()}}
         click.echo(verdict_text(result.table, meta, fmt))
         click.echo(f"verdicts: {out_dir / runner.TABLE_FILE}")
-        finish(stop)
-        if strict and (result.table["verdict"] == "fails").any():
+        failed = strict and bool((result.table["verdict"] == "fails").any())
+        if own_process():  # leave now, so no Ctrl-C can land in the teardown (mcjax.interrupt.finish)
+            exit_now(130 if stop.is_set() else int(failed))
+        if failed:
             sys.exit(1)
 
 

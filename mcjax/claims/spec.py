@@ -301,6 +301,8 @@ def _claim(path: Path, i: int, raw: Any, studies: dict, seen: set) -> Claim:
                 "than": relation in ("below", "above") and "than" in raw,
                 "band": relation == "within", "tolerance": relation == "equal", "order": relation == "ordered",
                 "along": relation == "monotone"}
+    if relation in ("below", "above") and "than" in raw and "value" in raw:
+        raise _err(f"{where}value", f"relation {relation!r} takes a value or than (another side), not both")
     for key, needed in operands.items():
         if needed and key not in raw:
             what = {"value": "a value (or than = {...}, another side)", "band": "band = [low, high]",
@@ -309,8 +311,6 @@ def _claim(path: Path, i: int, raw: Any, studies: dict, seen: set) -> Claim:
             raise _err(f"{where}{key}", f"missing; relation {relation!r} needs {what}")
         if not needed and key in raw:
             raise _err(f"{where}{key}", f"does not apply to relation {relation!r}")
-    if relation in ("below", "above") and "than" in raw and "value" in raw:
-        raise _err(f"{where}value", f"relation {relation!r} takes a value or than (another side), not both")
     if relation != "monotone" and "direction" in raw and relation != "ordered":
         raise _err(f"{where}direction", f"does not apply to relation {relation!r}")
     if "minus" in raw and relation in ("ordered", "monotone"):
@@ -333,8 +333,11 @@ def _claim(path: Path, i: int, raw: Any, studies: dict, seen: set) -> Claim:
         if side.statistic not in ("mean", "rate") or other.statistic != side.statistic:
             raise _err(f"{where}statistic", "a paired difference (minus) takes statistic = \"mean\" or \"rate\" on "
                        "both sides")
-        if other.sweep != side.sweep and studies[other.sweep].seeds != studies[side.sweep].seeds:
-            raise _err(f"{where}minus.sweep", "a paired difference needs the same seeds on both sides")
+        a, b = studies[side.sweep], studies[other.sweep]
+        if (a.seeds, a.base_seed) != (b.seeds, b.base_seed):
+            raise _err(f"{where}minus.sweep", f"a paired difference needs the same seeds on both sides; sweep "
+                       f"{side.sweep} runs {a.seeds} seed(s) from base_seed {a.base_seed}, sweep {other.sweep} "
+                       f"{b.seeds} from base_seed {b.base_seed}")
         side = side._replace(minus=other)
     if relation in ("below", "above") and "than" in raw:
         others = (_side(f"{where}than.", _override(where, raw, "than", raw["than"]), studies),)
@@ -376,9 +379,15 @@ def load_claims(path: str | Path, *, seeds: int | None = None) -> ClaimsFile:
     Raises :class:`ClaimsError` (one line naming the claim and the field)."""
     path = Path(path)
     try:
-        data = read_toml(path, "claims file")
-    except SpecError as exc:
+        return _load(path, seeds)
+    except ClaimsError:
+        raise
+    except SpecError as exc:  # the shared validation's messages (unknown keys, reading the TOML)
         raise ClaimsError(str(exc)) from None
+
+
+def _load(path: Path, seeds: int | None) -> ClaimsFile:
+    data = read_toml(path, "claims file")
     check_keys(f"{path.name}: ", data, FILE_KEYS)
     paper = _text(f"{path.name}: ", data, "paper", required=True)
     title = _text(f"{path.name}: ", data, "title")
