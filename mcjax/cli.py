@@ -9,17 +9,16 @@ tqdm draws the progress bar.
 
 from __future__ import annotations
 
-import contextlib
 import shlex
 import sys
 import tomllib
 from pathlib import Path
-from typing import NamedTuple
 
 import click
 
 from mcjax import configure, envvars
 from mcjax.interrupt import ACK, ACK_DASK, ctrl_c, exit_now, finish, own_process
+from mcjax.cli_executor import Remote, executor_options, open_executor
 from mcjax.progress import Bars
 
 def _parse_set(values: tuple[str, ...]) -> dict:
@@ -126,66 +125,12 @@ def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, execut
                 f"{shlex.quote(str(spec))} --out {shlex.quote(str(state['out']))} --resume{state['words']}")
 
     with ctrl_c(hint, ACK_DASK if executor == "dask" else ACK) as stop:
-        remote = _executor_options(executor, scheduler, workers)
+        remote = executor_options(executor, scheduler, workers)
         state["words"] = remote.words
         _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state, stop, hint, remote)
 
 
-class _Remote(NamedTuple):
-    """Where a sweep's chunks are computed: ``dask`` False (this process), or a Dask cluster at
-    ``scheduler`` or of ``workers`` local processes; ``words``: the options, for the resume hint."""
-
-    dask: bool = False
-    scheduler: str | None = None
-    workers: int | None = None
-    words: str = ""
-
-
-def _executor_options(executor: str, scheduler: str | None, workers: int | None) -> _Remote:
-    """Check --executor, --scheduler and --workers together (a one-line error and exit 2 for
-    a combination that makes no sense, or for --executor dask without Dask installed)."""
-    if executor != "dask":
-        if scheduler is not None or workers is not None:
-            _fail(f"{'--scheduler' if scheduler is not None else '--workers'} needs --executor dask")
-        return _Remote()
-    if scheduler is not None and workers is not None:
-        _fail("--scheduler and --workers exclude each other: --scheduler uses a running cluster, --workers starts "
-              "one on this machine")
-    if scheduler is None and workers is None:
-        _fail("--executor dask needs --scheduler ADDRESS (a running cluster, e.g. tcp://10.0.0.5:8786) or --workers N "
-              "(a cluster of N processes on this machine)")
-    if workers is not None and workers < 1:
-        _fail(f"--workers must be at least 1; got {workers}")
-    if scheduler is not None and not scheduler.strip():
-        _fail("--scheduler must be an address such as tcp://10.0.0.5:8786")
-    from mcjax.study.dask import DaskMissing, load_distributed
-
-    try:
-        load_distributed()
-    except DaskMissing as exc:
-        _fail(str(exc))
-    words = f" --executor dask --scheduler {shlex.quote(scheduler)}" if scheduler else f" --executor dask --workers {workers}"
-    return _Remote(True, scheduler, workers, words)
-
-
-@contextlib.contextmanager
-def _executor(remote: _Remote):
-    """The executor of a sweep: None (this process), or one on a Dask cluster, connected here
-    (a one-line error and exit 2 when the scheduler cannot be reached) and closed after."""
-    if not remote.dask:
-        yield None
-        return
-    from mcjax.study.dask import connect
-
-    with contextlib.ExitStack() as stack:
-        try:
-            executor = stack.enter_context(connect(remote.scheduler, remote.workers))
-        except OSError as exc:
-            _fail(str(exc))
-        yield executor
-
-
-def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state, stop, hint, remote=_Remote()):
+def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state, stop, hint, remote=Remote()):
     from mcjax import study
 
     state["out"] = out_dir = out_dir or study.default_out_dir(spec)
@@ -219,10 +164,10 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
         bars.show("sweep", at.chunks_done - before[0], at.chunks - before[0])
 
     # the cluster first: a scheduler that cannot be reached leaves the output folder untouched
-    with _executor(remote) as executor, bars:
+    with open_executor(remote) as ex, bars:
         try:
             result = study.run_sweep_folder(s, spec_file=spec, out_dir=out_dir, resume=resume, force=force,
-                                            executor=executor, message=bars.echo,
+                                            executor=ex, message=bars.echo,
                                             warn=lambda line: click.echo(line, err=True), progress=progress,
                                             should_stop=stop.is_set)
         except study.OutputError as exc:
@@ -283,7 +228,7 @@ def check(claims, seeds, out_dir, resume, force, strict, fmt, executor, schedule
                 + (f" --seeds {seeds}" if seeds else "") + state["words"])
 
     with ctrl_c(hint, ACK_DASK if executor == "dask" else ACK) as stop:
-        remote = _executor_options(executor, scheduler, workers)
+        remote = executor_options(executor, scheduler, workers)
         state["words"] = remote.words
         from mcjax.claims import runner
         from mcjax.claims.report import verdict_text
@@ -301,7 +246,7 @@ def check(claims, seeds, out_dir, resume, force, strict, fmt, executor, schedule
             state["started"] = True
             bars.show(name, at.chunks_done, at.chunks)
 
-        with _executor(remote) as ex, bars:
+        with open_executor(remote) as ex, bars:
             try:
                 result = runner.run_check(claims, out_dir=out_dir, seeds=seeds, resume=resume, force=force,
                                           executor=ex, message=bars.echo, warn=lambda line: click.echo(line, err=True),

@@ -116,7 +116,8 @@ def test_architecture_lists_every_module_and_only_modules_that_exist():
 
 #: Layers from the bottom: a module may import its own layer or lower ones only.
 LAYERS = [
-    {"validation", "units", "contract", "smoothing", "envvars", "files", "interrupt", "jaxcompat", "runtime", "numerics", "results"},
+    {"validation", "units", "contract", "smoothing", "envvars", "files", "interrupt", "jaxcompat", "runtime", "numerics", "results",
+     "peers"},
     {"models"},
     {"graph", "robustness"},
     {"metrics"},
@@ -125,9 +126,9 @@ LAYERS = [
     {"scenarios"},
     {"engine", "statistics", "verdicts"},
     {"study", "tables", "schema", "plots", "listing"},
-    {"tune"},
+    {"tune", "claims"},
     {"report", "html_report", "findings", "glossary", "tune_report"},
-    {"cli", "clidoc", "__main__", "progress"},
+    {"cli", "cli_executor", "clidoc", "__main__", "progress"},
 ]
 
 
@@ -162,7 +163,7 @@ def test_no_scenario_filter_or_unit_names_above_the_scenarios():
     words = re.compile(r"\b(leader_follower|uuv_imm|modified_icf|cif|icf|kcf|imm|lambda2_min|mean_error)\b")
     above = ["engine", "results.py", "report.py", "html_report.py", "tables.py", "statistics.py", "cli.py",
              "listing.py", "files.py", "interrupt.py", "study", "plots", "findings.py", "tune_report.py", "schema.py", "glossary.py",
-             "verdicts.py"]
+             "verdicts.py", "claims"]
     paths = [p for name in above for p in ((PACKAGE / name).rglob("*.py") if (PACKAGE / name).is_dir()
                                             else [PACKAGE / name])]
     assert len(paths) > 15

@@ -1,17 +1,14 @@
-"""The benchmark peers of benchmarks/filter_throughput.py agree with mcjax to 1e-9 relative:
+"""The benchmark peers of benchmarks/speed/filter_throughput.py agree with mcjax to 1e-9 relative:
 filterpy's ExtendedKalmanFilter loop (local filter) and the numba kernels (local filter, modified
 ICF; skipped when numba is not installed — it is a benchmark-only dependency)."""
 
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from mcjax.filters import run_filter
 
-sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
-import filter_throughput as bench  # noqa: E402
+from mcjax.peers import filterpy_peer as bench
 
 TOL = 1e-9
 
@@ -45,7 +42,7 @@ def test_filterpy_loop_matches_mcjax_local(tiny):
 @pytest.mark.xdist_group("test_filter_peers")  # one worker builds the module fixture once
 def test_numba_kernel_matches_mcjax(tiny, kind, options):
     pytest.importorskip("numba")
-    import numba_peer
+    from mcjax.peers import numba_peer
 
     x, P = run_filter(kind, **tiny, **options)
     xn, Pn = numba_peer.run_filter_numba(kind, **tiny, **options)

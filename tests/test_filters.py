@@ -1,15 +1,12 @@
 """mcjax.filters against an independent numpy implementation and against invariants."""
 
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from mcjax.filters import run_filter
 
-sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
-import numpy_peer  # noqa: E402  (plain-numpy filters written from the equations)
+from mcjax.peers import numpy_peer  # plain-numpy filters written from the equations
 
 KM = 1e3
 

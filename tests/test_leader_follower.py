@@ -1,8 +1,6 @@
 """The leader–follower scenario (Sun et al. 2011) wired correctly: records checked against
 independent computations from the recorded positions, measurements and graph."""
 
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,8 +8,7 @@ import pytest
 from mcjax import engine
 from mcjax.scenarios import leader_follower as lf
 
-sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
-import numpy_peer  # noqa: E402
+from mcjax.peers import numpy_peer
 
 CFG = lf.Config(n_steps=60, warmup_steps=5)
 

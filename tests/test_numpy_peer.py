@@ -1,4 +1,4 @@
-"""Validate the plain-numpy peer (benchmarks/numpy_peer.py) against independent references.
+"""Validate the plain-numpy peer (mcjax/peers/numpy_peer.py) against independent references.
 
 References: filterpy's ExtendedKalmanFilter (single agent; sequential updates), exact
 algebraic identities of the consensus filters (complete graph → centralised, empty graph →
@@ -8,15 +8,12 @@ local), and hand-computed consensus weights.
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 from filterpy.kalman import ExtendedKalmanFilter
 
-sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
-import numpy_peer as peer  # noqa: E402
+from mcjax.peers import numpy_peer as peer
 
 # ---------------------------------------------------------------- seed-000-like scenario
 

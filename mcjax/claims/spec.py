@@ -15,12 +15,12 @@ A claims file holds a paper's name, the sweeps its claims need and the claims::
 
     [[claim]]
     id = "case2-diverges-less"
-    claim = "weighting the connectivity robustness makes the modified ICF diverge less often"
+    claim = "weighting the connectivity robustness makes my filter diverge less often"
     where = "Table 1"
     paper = "0 of 20 vs 16 of 20"
     sweep = "table1"                         # optional when the file has one sweep
     output = "diverged"
-    filter = "modified_icf"
+    filter = "my_filter"
     at = { alpha_I = 1000.0 }                # the design point (axes left out: free if one value)
     statistic = "rate"
     minus = { at = { alpha_I = 0.0 } }       # a difference paired by seed with another side

@@ -19,7 +19,7 @@ from mcjax.scenarios.flocking.model import (  # the model, also read from here b
     potential_curvature, potential_forces, potential_slope,
 )
 
-_pair_vectors = pair_vectors  # the name benchmarks/flocking_integrator.py reads
+_pair_vectors = pair_vectors  # the name benchmarks/papers/flocking_integrator.py reads
 
 
 def _rk4_substep(f, s: FlockState, tau, h) -> FlockState:
@@ -161,7 +161,7 @@ _DP_E = (71 / 57600, 0.0, -71 / 16695, 71 / 1920, -17253 / 339200, 22 / 525, -1 
 #: The share of the tolerance each sub-step's error estimate may use (ours): a step's error adds
 #: up over its sub-steps (~10 in steady flight, ~100 in the first second). With the whole
 #: tolerance per sub-step, one 0.1 s step erred by up to 2.2x it (velocity, transient; 100
-#: states, 2026-12-03); a tenth keeps the step's error within the tolerance (benchmarks/flocking_integrator.py).
+#: states, 2026-12-03); a tenth keeps the step's error within the tolerance (benchmarks/papers/flocking_integrator.py).
 SUBSTEP_SHARE = 0.1
 
 

@@ -7,8 +7,8 @@ time); the sweep's own "N runs in X s" line gives its time (compilation included
 store is warm after the first of them). Printed: runs, wall, ms per run, peak RSS, rows, dataset
 size (and per run), ``mcjax report``'s wall and peak RSS.
 
-    python benchmarks/million_runs.py                       # 100,000 then 1,000,000 runs
-    python benchmarks/million_runs.py --runs 10000 100000   # a quick look
+    python benchmarks/speed/million_runs.py                       # 100,000 then 1,000,000 runs
+    python benchmarks/speed/million_runs.py --runs 10000 100000   # a quick look
 
 The datasets go to ``--out`` (default ``results/million``, ~0.5 GB at a million runs); delete
 them afterwards.
@@ -24,9 +24,9 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
-SPEC = """description = "One million runs: Sun et al. 2011, open loop, 50 steps (benchmarks/million_runs.py)"
+SPEC = """description = "One million runs: Sun et al. 2011, open loop, 50 steps (benchmarks/speed/million_runs.py)"
 base = "{base}"
 seeds = {runs}
 chunk_size = {chunk}

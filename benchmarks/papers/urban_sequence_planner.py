@@ -33,9 +33,9 @@ What is run, on ``configs/chen2022.toml`` (the default set-up, the paper's weigh
 
 How to run::
 
-    python benchmarks/urban_sequence_planner.py --time-only          # step 1 only
-    python benchmarks/urban_sequence_planner.py                      # 1,000 runs per planner
-    python benchmarks/urban_sequence_planner.py --runs 100 --iterations 4 --state-seeds 2
+    python benchmarks/papers/urban_sequence_planner.py --time-only          # step 1 only
+    python benchmarks/papers/urban_sequence_planner.py                      # 1,000 runs per planner
+    python benchmarks/papers/urban_sequence_planner.py --runs 100 --iterations 4 --state-seeds 2
 
 Exit status 0 when it ran; 1 if a closed-loop run entered a building or broke a limit.
 """
@@ -62,7 +62,7 @@ from mcjax.study.spec import build_spec
 
 configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "configs" / "chen2022.toml"
 #: The sequence planner's Adam steps per plan for the closed loop: the largest count whose time per
 #: plan was at most the grid's in step 1 (``--time-only``), fixed before the closed-loop comparison.

@@ -26,7 +26,7 @@ What is run.
 
 How to run (one CPU device: flocking programs on two devices deadlock)::
 
-    MCJAX_CPU_DEVICES=1 python benchmarks/flocking_integrator.py [--runs 10] [--cost-runs 100]
+    MCJAX_CPU_DEVICES=1 python benchmarks/papers/flocking_integrator.py [--runs 10] [--cost-runs 100]
 
 diffrax (not a dependency of mcjax; its rows are left out when it is not installed) has no closing-speed cap on the sub-step and takes the link margin and the
 smallest distance at the sub-step ends (no Hermite interpolant); it is here for the comparison
@@ -38,7 +38,6 @@ from __future__ import annotations
 import argparse
 import os
 import subprocess
-import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -48,15 +47,13 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.integrate import solve_ivp
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "benchmarks"))
-jax.config.update("jax_enable_x64", True)
+from mcjax import configure, engine
+from mcjax.scenarios.flocking import dynamics as dyn
+from mcjax.scenarios.flocking import scenario as sc
+from mcjax.study import load_config_file
 
-from flocking_lou2013 import setup  # noqa: E402
-
-from mcjax import engine  # noqa: E402
-from mcjax.scenarios.flocking import dynamics as dyn  # noqa: E402
-from mcjax.scenarios.flocking import scenario as sc  # noqa: E402
+configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
+ROOT = Path(__file__).resolve().parents[2]
 
 CONFIG = ROOT / "configs" / "lou2013.toml"
 TRANSIENT = 20
@@ -216,7 +213,8 @@ def main(argv=None) -> int:
     ap.add_argument("--max-substeps", type=int, default=4000, help="cap of the accuracy comparison's integrators")
     args = ap.parse_args(argv)
     os.environ.setdefault("MCJAX_CPU_DEVICES", "1")
-    _, cfg, p = setup(CONFIG)
+    scenario, cfg, values = load_config_file(CONFIG)
+    p = scenario.default_params(cfg, **values)
     p = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), p)
     tol = cfg.tolerance
     print(f"load: {subprocess.run(['uptime'], capture_output=True, text=True).stdout.strip()}")

@@ -5,8 +5,8 @@ the compiled program (arguments, outputs, temporaries); with ``--run`` it also r
 gradient pass and prints the process's peak resident memory (``ru_maxrss``) before compiling,
 after compiling and after the pass.
 
-    python benchmarks/tune_memory.py --modes reverse forward --block 10
-    MCJAX_CPU_DEVICES=1 python benchmarks/tune_memory.py --modes forward --run   # docs/tune.md
+    python benchmarks/speed/tune_memory.py --modes reverse forward --block 10
+    MCJAX_CPU_DEVICES=1 python benchmarks/speed/tune_memory.py --modes forward --run   # docs/tune.md
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import argparse
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def main() -> None:

@@ -18,8 +18,8 @@ divergence; its statistics over many runs are compared in docs/benchmarks.md).
 
 How to run (~3 min per round on the 2-core VM)::
 
-    python benchmarks/closed_loop_options.py
-    python benchmarks/closed_loop_options.py --rounds 1 --runs 50 --steps 100
+    python benchmarks/speed/closed_loop_options.py
+    python benchmarks/speed/closed_loop_options.py --rounds 1 --runs 50 --steps 100
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from mcjax import configure  # noqa: E402
 
 configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _variants(sc, cfg) -> dict:

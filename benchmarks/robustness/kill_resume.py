@@ -23,8 +23,8 @@ kills land in loading, computing and writing alike. ``MCJAX_CPU_DEVICES=1``.
 
 Usage::
 
-    python benchmarks/kill_resume.py                  # 20 trials
-    python benchmarks/kill_resume.py --trials 4 --seed 1
+    python benchmarks/robustness/kill_resume.py                  # 20 trials
+    python benchmarks/robustness/kill_resume.py --trials 4 --seed 1
 
 Exit code 0 when every trial held, 1 otherwise.
 """
@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CLI = [sys.executable, "-m", "mcjax.cli"]
 LOCK = ".mcjax.lock"
 

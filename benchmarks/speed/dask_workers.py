@@ -19,9 +19,9 @@ worker is one core and "2 workers" means twice the cores of "1 worker"):
 
 How to run::
 
-    python benchmarks/dask_workers.py                        # ~10 min on a 2-core machine
-    python benchmarks/dask_workers.py --seeds 50 --chunk-size 100
-    python benchmarks/dask_workers.py --overhead-only          # the cost per chunk only (~1 min)
+    python benchmarks/speed/dask_workers.py                        # ~10 min on a 2-core machine
+    python benchmarks/speed/dask_workers.py --seeds 50 --chunk-size 100
+    python benchmarks/speed/dask_workers.py --overhead-only          # the cost per chunk only (~1 min)
 
 Needs Dask (``pip install -e ".[dask]"``).
 """
@@ -38,7 +38,7 @@ from pathlib import Path
 
 os.environ["MCJAX_CPU_DEVICES"] = "1"  # before mcjax starts JAX: one core per process
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _echo(rows):

@@ -10,7 +10,7 @@ mean over runs of the per-run absolute difference, and the 95 % t-interval of th
 difference smooth − exact (is a gap of the means resolved by the runs?). The figure (``--figure``) draws the largest
 relative gap of the means against the level, one line per scenario.
 
-    python benchmarks/smoothing_levels.py --runs 50 --figure docs/smoothing_levels.png
+    python benchmarks/papers/smoothing_levels.py --runs 50 --figure docs/smoothing_levels.png
 
 The temperatures are passed to one compiled program as arrays (one compilation per scenario for
 the three levels; the exact program is a second one).
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = ("sun2011", "ren2017", "chen2013", "lou2013", "chen2022")
 LEVELS = (1.0, 0.1, 0.01)
 

@@ -10,8 +10,8 @@ with its output shape and the operation JAX named it after (to find it in the so
 
 How to run (sets ``XLA_FLAGS`` itself; ~1 min)::
 
-    python benchmarks/profile_closed_loop.py
-    python benchmarks/profile_closed_loop.py --match dynamic-update-slice
+    python benchmarks/speed/profile_closed_loop.py
+    python benchmarks/speed/profile_closed_loop.py --match dynamic-update-slice
 
 The per-kernel times are wall times of a shared machine: compare versions side by side, in
 turn, more than once (docs/benchmarks.md, 2026-12-02).
@@ -42,7 +42,7 @@ from mcjax import configure  # noqa: E402
 
 configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def kernel_times(trace_dir: Path) -> tuple[collections.Counter, collections.Counter]:

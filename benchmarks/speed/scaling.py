@@ -18,10 +18,10 @@ arguments, outputs and temporaries, divided by the runs in the batch). Each row 
 
 How to run (≈ 20–30 min on the 2-core VM at the default sizes)::
 
-    python benchmarks/scaling.py                       # all four curves, PNG + markdown table
-    python benchmarks/scaling.py --curves runs agents --steps 50
-    python benchmarks/scaling.py --curves agents --steps 50 --filters modified_icf   # the swarm curve, one filter
-    MCJAX_CPU_DEVICES=1 python benchmarks/scaling.py   # one core
+    python benchmarks/speed/scaling.py                       # all four curves, PNG + markdown table
+    python benchmarks/speed/scaling.py --curves runs agents --steps 50
+    python benchmarks/speed/scaling.py --curves agents --steps 50 --filters modified_icf   # the swarm curve, one filter
+    MCJAX_CPU_DEVICES=1 python benchmarks/speed/scaling.py   # one core
 
 Writes ``--out`` (default ``results/scaling``): ``scaling.csv``, ``scaling.png`` and the
 markdown table it prints.
@@ -45,7 +45,7 @@ from mcjax import configure
 
 configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CURVES = ("runs", "agents", "horizon", "consensus")
 
 

@@ -18,8 +18,8 @@ without a dataset. What must hold:
 
 Usage::
 
-    python benchmarks/sigint_stress.py                 # 10 trials per scenario and command
-    python benchmarks/sigint_stress.py --trials 3 --seed 1
+    python benchmarks/robustness/sigint_stress.py                 # 10 trials per scenario and command
+    python benchmarks/robustness/sigint_stress.py --trials 3 --seed 1
 
 The processes run with ``MCJAX_CACHE_DIR=off``, so every one traces and compiles (the longest
 window for a Ctrl-C inside XLA). With the persistent cache of commit 423cd6f on, a run that
@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CLI = [sys.executable, "-m", "mcjax.cli"]
 ACK = "stopping after the chunk in flight"
 

@@ -16,9 +16,9 @@ Figures in OUT: ``trace.png`` (the tune's loss and weights per step) and
 ``path_heatmap.png`` (the tune's path through (α_I, α_L) over the grid's divergence rate on
 the training seeds, at the grid's α_C nearest the tuned one). ``summary.md`` holds the table.
 
-    python benchmarks/tune_sun2011.py                                   # 128 training, 1,000 held-out seeds
-    python benchmarks/tune_sun2011.py --train-seeds 32 --heldout-seeds 200 --steps 4   # a quick look
-    python benchmarks/tune_sun2011.py --train-seeds 64 --n-steps 100 --steps 10 --heldout-seeds 500 \
+    python benchmarks/papers/tune_sun2011.py                                   # 128 training, 1,000 held-out seeds
+    python benchmarks/papers/tune_sun2011.py --train-seeds 32 --heldout-seeds 200 --steps 4   # a quick look
+    python benchmarks/papers/tune_sun2011.py --train-seeds 64 --n-steps 100 --steps 10 --heldout-seeds 500 \
         --gradient-window 10 --out results/tune_sun2011_w10          # the run in docs/tune.md
 """
 
@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _stats(df: pd.DataFrame) -> dict:
@@ -154,7 +154,7 @@ def main() -> None:
     import os
 
     log = {"date": str(date.today()), "load_average_start": list(os.getloadavg()),
-           "command": "python benchmarks/tune_sun2011.py " + " ".join(
+           "command": "python benchmarks/papers/tune_sun2011.py " + " ".join(
         f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items() if v is not None and k not in ("spec", "replot"))}
 
     # ---- tune (resumes from OUT/tune when it was interrupted)

@@ -18,8 +18,8 @@ every output is bit-identical to the first variant's.
 
 How to run::
 
-    python benchmarks/closed_loop_speed.py                      # 400 runs x 200 steps (~5 min)
-    python benchmarks/closed_loop_speed.py --runs 200 --steps 60
+    python benchmarks/speed/closed_loop_speed.py                      # 400 runs x 200 steps (~5 min)
+    python benchmarks/speed/closed_loop_speed.py --runs 200 --steps 60
 
 Run it with ``MCJAX_CPU_DEVICES=1`` to time one core (the default uses every core).
 """
@@ -41,7 +41,7 @@ from mcjax import configure
 
 configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 VARIANTS = (("every step", dict(plan_period=0, max_horizon=8)),
             ("when due", dict(plan_period=3, max_horizon=8)),
             ("when due, t_r rollout", dict(plan_period=3, max_horizon=5)))

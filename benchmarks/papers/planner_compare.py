@@ -11,8 +11,8 @@ Printed per planner and budget: the mean *exact* cost reached, the mean gap to t
 cost any planner found on each problem (in % of the warm start's cost above that best),
 how often it is within 0.1 % of the best, and the wall time per plan.
 
-    python benchmarks/planner_compare.py
-    python benchmarks/planner_compare.py --problems 500 --horizon 8
+    python benchmarks/papers/planner_compare.py
+    python benchmarks/papers/planner_compare.py --problems 500 --horizon 8
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from mcjax import configure
 
 configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 BUDGETS = [("gradient", dict(iterations=k)) for k in (5, 10, 20, 40)] + \
           [("random", dict(samples=s)) for s in (64, 256, 1024)] + \
           [("cem", dict(iterations=4, samples=s)) for s in (64, 256, 1024)]

@@ -31,7 +31,7 @@ shadow's hold (``max_hold_steps``). No error or estimate is read: this is geomet
 
 How to run::
 
-    python benchmarks/urban_dwell_times.py [--runs 200] [--config configs/chen2022.toml]
+    python benchmarks/papers/urban_dwell_times.py [--runs 200] [--config configs/chen2022.toml]
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ from mcjax.study import build_spec
 
 configure()
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 LOS, REFL, SHADOW = 0, 1, 2
 NAMES = ("LOS", "reflected", "shadow")
 

@@ -41,9 +41,9 @@ measured).
 
 How to run::
 
-    python benchmarks/urban_layout_check.py                                  # configs/chen2022.toml
-    python benchmarks/urban_layout_check.py --config configs/chen2022_wide_prior.toml
-    python benchmarks/urban_layout_check.py --buildings "[[4950,4650,5050,4750,200],[5270,5300,5400,5400,100]]"
+    python benchmarks/papers/urban_layout_check.py                                  # configs/chen2022.toml
+    python benchmarks/papers/urban_layout_check.py --config configs/chen2022_wide_prior.toml
+    python benchmarks/papers/urban_layout_check.py --buildings "[[4950,4650,5050,4750,200],[5270,5300,5400,5400,100]]"
 
 Exit status 0 when every criterion holds, 1 otherwise.
 """
@@ -64,7 +64,7 @@ from mcjax.scenarios.urban_bearing import environment as env
 
 configure()
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 STEPS, SPEED, DT = 250, 25.0, 2.0
 NEAR = 500.0     # m: "near the emitter"
 WINDOW = 3000.0  # m: where C4 looks for each building's regions

@@ -19,8 +19,8 @@ Workloads (each from its config as shipped):
 
 How to run::
 
-    python benchmarks/cores.py                         # all three, default run counts (~5 min)
-    python benchmarks/cores.py --workloads closed --runs 400
+    python benchmarks/speed/cores.py                         # all three, default run counts (~5 min)
+    python benchmarks/speed/cores.py --workloads closed --runs 400
 
 Prints one row per workload: runs, wall time per run on 1 and on N devices (compilation
 excluded), their ratio, the time until the batch programs are ready on N devices with an
@@ -40,7 +40,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 WORKLOADS = {
     "closed": ("configs/sun2011.toml", {"filters": ("icf", "modified_icf", "cif")}, 400),
     "imm": ("configs/ren2017.toml", {}, 2000),

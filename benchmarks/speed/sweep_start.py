@@ -21,9 +21,9 @@ from a cache must also run).
 
 How to run (~1 min per round on the 2-core VM)::
 
-    python benchmarks/sweep_start.py
-    python benchmarks/sweep_start.py --rounds 3 --warm 2 --spec sweeps/default.toml
-    python benchmarks/sweep_start.py --rounds 3 --warm 1 --jax-cache --full
+    python benchmarks/speed/sweep_start.py
+    python benchmarks/speed/sweep_start.py --rounds 3 --warm 2 --spec sweeps/default.toml
+    python benchmarks/speed/sweep_start.py --rounds 3 --warm 1 --jax-cache --full
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 # Run in the child: time marks against the parent's launch time (argv[1]), then the CLI.
 CHILD = r"""

@@ -9,8 +9,8 @@ device count when they run at once.
 
 How to run (the peer is the one-device run, in a second process)::
 
-    MCJAX_CPU_DEVICES=1 python benchmarks/device_dispatch.py
-    python benchmarks/device_dispatch.py                  # every core
+    MCJAX_CPU_DEVICES=1 python benchmarks/speed/device_dispatch.py
+    python benchmarks/speed/device_dispatch.py                  # every core
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from mcjax import configure
 
 configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def main(argv=None) -> int:

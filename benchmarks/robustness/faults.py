@@ -11,8 +11,8 @@ noise: paired). Writes each sweep's dataset (``mcjax report OUT/<name>`` draws i
 ``OUT/faults.png``. Then times the closed loop of Sun et al. 2011 with the fault model off and
 on, side by side in this process.
 
-    python benchmarks/faults.py                    # 500 runs per point (~10 min on 2 cores)
-    python benchmarks/faults.py --runs 50 --out /tmp/faults-quick
+    python benchmarks/robustness/faults.py                    # 500 runs per point (~10 min on 2 cores)
+    python benchmarks/robustness/faults.py --runs 50 --out /tmp/faults-quick
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from mcjax.study import build_spec, load_spec, prepare_output, run_sweep
 
 configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 SWEEPS = {"sun2011": "faults_sun2011.toml", "ren2017": "faults_ren2017.toml"}
 RATES = (0.1, 0.2, 0.3, 0.5)
 
