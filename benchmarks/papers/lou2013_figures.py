@@ -18,7 +18,7 @@ How to run::
     python benchmarks/papers/lou2013_figures.py               # 1,000 runs (~40 min on 2 loaded shared cores)
     python benchmarks/papers/lou2013_figures.py --runs 20     # a quick look
     python benchmarks/papers/lou2013_figures.py [--runs 1000] [--out DIR] [--no-figures] [--ideal-runs 100]
-                                                [--rk4-runs 100] [--nx-runs 5] [--nx-init 200]
+                                                [--rk4-runs 100]
 
 What it prints.
 
@@ -27,11 +27,7 @@ What it prints.
 2. The extremes — smallest distance, smallest link margin R − r, largest rise of Q — and their
    change when the 10 runs nearest each are re-run at 100x tighter tolerance; (``--rk4-runs``)
    the first runs again with the RK4 sub-steps used before: their cost and extremes.
-3. λ2 cross-checked with networkx: (a) ``--nx-runs`` runs re-run step by step with the engine's
-   keys, the hysteresis graph rebuilt in numpy from the positions, its λ2 by
-   ``networkx.algebraic_connectivity`` beside the step's λ2 and the engine's series; (b) the
-   initial graphs (distance < R) of ``--nx-init`` draws, and the start rules.
-4. Energy Q = φ of eq. 15 (Fig. 5), over the runs whose flock stayed finite: the runs whose Q(t)
+3. Energy Q = φ of eq. 15 (Fig. 5), over the runs whose flock stayed finite: the runs whose Q(t)
    never rises (Wilson interval), every rise attributed to a step that formed a new link (its
    potential enters Q) or not; the four terms of Q for seed 0; the same rises for
    ``--ideal-runs`` runs of the ideal case, where Theorem 2 makes Q non-increasing between new
@@ -57,7 +53,7 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from mcjax import engine, graph
+from mcjax import engine
 from mcjax.scenarios.flocking import target_state
 from mcjax.statistics import t_critical, wilson_interval
 from mcjax.study import build_spec
@@ -156,6 +152,12 @@ def trajectory(scenario, cfg, p, seed_index: int, base_seed: int = 0) -> dict:
                 **{k: stack(getattr(r, k) for r in recs) for k in ("lambda2", "edges", "energy")})
 
 
+def _distances(q: np.ndarray) -> np.ndarray:
+    d = np.sqrt(np.sum((q[:, None, :] - q[None, :, :]) ** 2, -1))
+    np.fill_diagonal(d, np.inf)
+    return d
+
+
 def energy_terms(cfg, p, tr: dict, k: int) -> dict:
     """The four terms of Q = φ (Lou et al. 2013 eq. 15, l = c2) for state index ``k`` of a
     :func:`trajectory`, in numpy: the potential of eq. 12 over links, type-I tracking
@@ -171,86 +173,6 @@ def energy_terms(cfg, p, tr: dict, k: int) -> dict:
     return dict(potential=0.5 * psi.sum(), tracking=0.5 * np.sum(h * c1 * np.sum((q - x[[0, 2]]) ** 2, -1)),
                 kinetic=0.5 * np.sum((v - x[[1, 3]]) ** 2),
                 gains=0.5 * np.sum(np.where(adj, (b - l) ** 2, 0.0).sum(1) * (1 - h) / (2 * kk)))
-
-
-def _distances(q: np.ndarray) -> np.ndarray:
-    d = np.sqrt(np.sum((q[:, None, :] - q[None, :, :]) ** 2, -1))
-    np.fill_diagonal(d, np.inf)
-    return d
-
-
-def rebuild_hysteresis(q: np.ndarray, R: float, eps: float) -> np.ndarray:
-    """The hysteresis graph (Lou et al. 2013 §1.1) rebuilt in numpy from positions (T+1, N, 2):
-    rule 1, links below R at the start; rule 2, a new link forms below R − ε; rule 3, a link
-    breaks at R."""
-    a = [_distances(q[0]) < R]
-    for k in range(1, len(q)):
-        d = _distances(q[k])
-        a.append(np.where(a[-1], d < R, d < R - eps))
-    return np.stack(a)
-
-
-def nx_lambda2(adj: np.ndarray) -> tuple[float, bool]:
-    """networkx's algebraic connectivity (TraceMIN-LU, its own Laplacian) and connectedness."""
-    import networkx as nx
-
-    g = nx.from_numpy_array(adj.astype(float))
-    if not nx.is_connected(g):
-        return 0.0, False
-    return float(nx.algebraic_connectivity(g, method="tracemin_lu", tol=1e-12)), True
-
-
-def crosscheck_trajectories(scenario, cfg, p, series: dict, seeds: list[int], base_seed: int):
-    """(a) of the module docstring. Returns the printed lines, the seed-0 trajectory, and
-    whether every comparison agreed."""
-    R, eps = float(p.R), float(p.epsilon)
-    lines, ok, traj0 = [], True, None
-    for s in seeds:
-        tr = trajectory(scenario, cfg, p, s, base_seed)
-        traj0 = tr if s == seeds[0] else traj0
-        rebuilt = rebuild_hysteresis(tr["q"], R, eps)
-        adj_diff = int(np.sum(rebuilt != (tr["adj"] > 0.5)) // 2)
-        lam_nx = np.array([nx_lambda2(a)[0] for a in rebuilt[1:]])
-        d_step = float(np.max(np.abs(lam_nx - tr["lambda2"])))
-        d_engine = float(np.max(np.abs(tr["lambda2"] - series["lambda2"][s])))
-        edges_same = bool(np.array_equal(tr["edges"], series["edges"][s]))
-        ok &= adj_diff == 0 and d_step < 1e-6
-        lines.append(f"| {s} | {len(rebuilt) - 1} | {adj_diff} | {np.min(lam_nx):.4f} | {np.min(tr['lambda2']):.4f} | "
-                     f"{d_step:.1e} | {d_engine:.1e} | {'yes' if edges_same else 'no'} |")
-    head = ["| seed | steps | links differing (numpy rebuild vs the step's graph) | min λ2 networkx | "
-            "min λ2 mcjax | max abs diff networkx vs mcjax | max abs diff loop vs engine series | "
-            "same link counts as the engine |", "|---|---|---|---|---|---|---|---|"]
-    return head + lines, traj0, ok
-
-
-def crosscheck_init(scenario, cfg, p, n: int, base_seed: int) -> str:
-    """(b) of the module docstring: ``flocking.init`` for the main runs' first ``n`` keys; the
-    graph distance < R rebuilt from the positions, λ2 by networkx vs
-    ``mcjax.graph.algebraic_connectivity`` on the state's graph; the start rules checked.
-    Returns the printed line."""
-    keys = jax.vmap(lambda s: engine.init_key(engine.run_key(base_seed, s)))(np.arange(n, dtype=np.uint32))
-    states = jax.jit(jax.vmap(lambda k: scenario.init(cfg, p, k)))(keys)
-    q, adj = np.asarray(states.flock.q), np.asarray(states.adj)
-    lam = np.asarray(graph.algebraic_connectivity(states.adj))
-    failed = np.asarray(states.start_failed)
-    R, margin, dmin0 = float(p.R), float(p.start_margin), float(p.start_min_distance)
-    diffs, adj_diff, rule_breaks = [], 0, 0
-    for i in range(n):
-        d = _distances(q[i])
-        rebuilt = d < R
-        adj_diff += int(np.sum(rebuilt != (adj[i] > 0.5)) // 2)
-        lam_nx, connected = nx_lambda2(rebuilt)
-        diffs.append(abs(lam_nx - lam[i]))
-        if not failed[i]:
-            rule_breaks += int((not connected) or np.any((d >= R - margin) & (d < R)) or np.min(d) < dmin0)
-    return (f"(b) initial graphs (distance < R, rebuilt from flocking.init's positions) of the first {n} seeds: "
-            f"max |λ2 networkx − λ2 mcjax| = {np.max(diffs):.1e}; links differing from the state's graph: "
-            f"{adj_diff}; initial λ2 min / median / max {lam.min():.3f} / {np.median(lam):.3f} / {lam.max():.3f}; "
-            f"start_failed {int(failed.sum())}; accepted draws breaking a start rule (connected, no pair in "
-            f"[R − {margin}, R), none closer than {dmin0} m): {rule_breaks}")
-
-
-# --------------------------------------------------------------------------- energy
 
 
 def fmt_frac(k: int, n: int) -> str:
@@ -500,23 +422,8 @@ def print_extremes(args, r: Runs) -> None:
               f"per run, largest |rk4 − dopri5| {np.max(np.abs(old_v - new_v)):.3g}")
 
 
-def print_crosschecks(args, r: Runs) -> dict | None:
-    """Section 3: the networkx cross-checks. Returns the seed-0 trajectory of (a), if run."""
-    seeds = list(range(min(args.nx_runs, args.runs)))
-    traj0 = None
-    if seeds:
-        lines, traj0, nx_ok = crosscheck_trajectories(r.scenario, r.cfg, r.p, r.series, seeds, args.base_seed)
-        print(f"\n### λ2 cross-checked with networkx\n\n(a) seeds {seeds[0]}–{seeds[-1]} re-run step by step; "
-              f"λ2 of the graph rebuilt in numpy by networkx (TraceMIN-LU) vs mcjax, and vs the engine's series:\n")
-        print("\n".join(lines))
-        print(f"\n(a) agrees: {nx_ok}")
-    if args.nx_init > 0:
-        print(crosscheck_init(r.scenario, r.cfg, r.p, args.nx_init, args.base_seed))
-    return traj0
-
-
 def print_energy(args, r: Runs, traj0: dict) -> None:
-    """Section 4: the rises of Q, its terms for seed 0, and the ideal case."""
+    """Section 3: the rises of Q, its terms for seed 0, and the ideal case."""
     cfg, p, out = r.cfg, r.p, r.out
     blown = blow_ups(r.series)
     print("\n### Energy Q(t) = φ of eq. 15 (Fig. 5)\n")
@@ -552,8 +459,6 @@ def main(argv=None) -> int:
     ap.add_argument("--ideal-runs", type=int, default=100, help="runs of Theorem 2's ideal case (0: skip)")
     ap.add_argument("--rk4-runs", type=int, default=100,
                     help="the first runs again with the RK4 sub-steps used before, for their cost (0: skip)")
-    ap.add_argument("--nx-runs", type=int, default=5, help="runs re-run step by step for the networkx cross-check")
-    ap.add_argument("--nx-init", type=int, default=200, help="initial draws for the networkx cross-check (0: skip)")
     args = ap.parse_args(argv)
     if args.runs < 1:
         ap.error(f"--runs must be >= 1; got {args.runs}")
@@ -561,9 +466,7 @@ def main(argv=None) -> int:
     paper = simulate(args.config, {}, {}, args.runs, args.base_seed, "paper set-up")
     print_speed(args, paper)
     print_extremes(args, paper)
-    traj0 = print_crosschecks(args, paper)
-    if traj0 is None:  # the terms of Q and the seed-0 figure need it; (a) did not run
-        traj0 = trajectory(paper.scenario, paper.cfg, paper.p, 0, args.base_seed)
+    traj0 = trajectory(paper.scenario, paper.cfg, paper.p, 0, args.base_seed)  # the terms of Q, the seed-0 figure
     print_energy(args, paper, traj0)
     if not args.no_figures:
         args.out.mkdir(parents=True, exist_ok=True)
