@@ -1,43 +1,20 @@
-"""Chen & Hao 2022: does planning a manoeuvre instead of a constant command help? The grid planner
-of Alg. 1 (one constant command (θ, ω) held over the horizon, the best of a grid by the track
-score of eq. 20) against the sequence planner (ours, ``Config.planner = "sequence"``: a command
-per step of the horizon by projected Adam on the smooth score, warm-started from the best
-constant command of a coarser grid, kept only if its exact score beats that command's; the first
-command flies and the UAV re-plans every step, as with the grid). Issue 34, item 3.
+"""Chen & Hao 2022: the time per plan of the grid planner of Alg. 1 (one constant command (θ, ω) held
+over the horizon, the best of a grid by the track score of eq. 20) and of our sequence planner
+(``Config.planner = "sequence"``: a command per step of the horizon by projected Adam on the smooth
+score, warm-started from the best constant command of a coarser grid), at each Adam-step count of
+``--scan``. The rule, fixed before any closed-loop run (configs/chen2022.toml): the sequence planner
+gets the largest count whose time per plan is at most the grid's. The closed-loop comparison of the
+planners is a claims file: ``mcjax check benchmarks/claims/chen2022_planners.toml``.
 
-What is run, on ``configs/chen2022.toml`` (the default set-up, the paper's weights):
+Planning states: the grid planner's closed-loop states of seeds 0 … ``--state-seeds``−1 (250 steps
+each), re-plan steps only (command not held), rebuilt by scanning the scenario's ``init`` / ``step``
+with the engine's keys. On a batch of up to 1,000 of them (vmap, jit, after compilation) the planners
+are timed interleaved: the process's CPU time per plan (median of ``--repeats`` rounds; the best wall
+time beside it). On the same states: each planner's mean exact score J and how often the sequence
+beat its warm start (information, not used to choose).
 
-1. Time per plan, before any closed-loop run. Planning states: the grid planner's closed-loop
-   states of seeds 0 … ``--state-seeds``−1 (250 steps each), re-plan steps only (command not
-   held). On a batch of up to 1,000 of them (vmap, jit, after compilation, best of
-   ``--repeats`` calls) the grid planner and the sequence planner at each iteration count of
-   ``--scan`` are timed, interleaved: the process's CPU time per plan (median of ``--repeats``
-   rounds; the best wall time is printed beside it, but it moved with the other jobs on the
-   shared machine). The rule fixed before the run (configs/chen2022.toml):
-   the sequence planner's count is the largest whose time per plan is at most the grid's;
-   ``--time-only`` stops here and prints it. On the same states: each planner's mean exact
-   score J and how often the sequence beat its warm start (information, not used to choose).
-2. Closed loop (``--runs`` seeds, the SAME seed indices for every planner, 250 steps): the grid
-   planner, the sequence planner at ``--iterations`` (default: :data:`ITERATIONS`, set from
-   step 1's timing before the closed-loop comparison), and the same sequence planner warm-started
-   on the full grid (``sequence_grid_stride = 1``: the grid's own best constant command, refined;
-   more time per plan); and, as a control added after the first closed-loop run (which showed the
-   time-matched sequence planner ahead while the full-grid one was not), the grid planner on the
-   sequence planner's coarse lattice (steps 2°, 1°/s: its warm start, constant commands, no Adam),
-   to tell the manoeuvre from the coarser grid (paired: sequence − grid on the coarse lattice).
-   Printed per planner: the IMM-EKF's final error (eq. 23, the paper's
-   "RMSE"), steps in the shadow, with an NLOS measurement, holding: mean [95 % t]; then the paired
-   differences sequence − grid (same seeds) with 95 % t intervals; the runs that entered a
-   building or broke a limit (must be 0); time per plan side by side (step 1's batched timing at
-   the count used) and each closed loop's wall time.
-
-How to run::
-
-    python benchmarks/papers/urban_sequence_planner.py --time-only          # step 1 only
-    python benchmarks/papers/urban_sequence_planner.py                      # 1,000 runs per planner
-    python benchmarks/papers/urban_sequence_planner.py --runs 100 --iterations 4 --state-seeds 2
-
-Exit status 0 when it ran; 1 if a closed-loop run entered a building or broke a limit.
+    python benchmarks/papers/urban_sequence_planner.py
+    python benchmarks/papers/urban_sequence_planner.py --state-seeds 2 --scan 4,6,8 --repeats 5
 """
 
 from __future__ import annotations
@@ -65,7 +42,7 @@ configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "configs" / "chen2022.toml"
 #: The sequence planner's Adam steps per plan for the closed loop: the largest count whose time per
-#: plan was at most the grid's in step 1 (``--time-only``), fixed before the closed-loop comparison.
+#: plan was at most the grid's (this script), fixed before the closed-loop comparison.
 #: Measured 2026-12-03 on 609 re-plan states of seeds 0–3, load average 5.5–7.1 on the shared 2 cores:
 #: wall time, best of 5 interleaved rounds: grid 204 µs per plan, sequence 6 steps 181 µs, 8 steps 251 µs;
 #: again, as the wall time proved noisy (6 steps 256, 8 steps 236 µs in a second run), the process's CPU
@@ -183,86 +160,22 @@ def step1(cfg, params, sc, args) -> tuple[str, int]:
     return "\n".join(lines), chosen
 
 
-def closed_loop(sc, cfg, params, runs: int):
-    """Every run's summary (``reduce``), seeds 0 … runs−1, and the wall time (compilation included)."""
-    pp = jax.tree.map(lambda a: np.asarray(a)[None], params)
-    t0 = time.perf_counter()
-    chunks = [o for *_, o in engine.run_chunks(sc, cfg, pp, runs, base_seed=0, chunk_size=runs)]
-    out = {k: np.concatenate([c[k] for c in chunks]) for k in chunks[0]}
-    return out, time.perf_counter() - t0
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--runs", type=int, default=1000)
-    ap.add_argument("--iterations", type=int, default=ITERATIONS)
-    ap.add_argument("--time-only", action="store_true")
     ap.add_argument("--state-seeds", type=int, default=4)
     ap.add_argument("--repeats", type=int, default=15)
     ap.add_argument("--scan", type=lambda s: tuple(int(x) for x in s.split(",")), default=SCAN)
     args = ap.parse_args(argv)
     t_all = time.perf_counter()
-    sc, cfg, params = study(args.runs)
+    sc, cfg, params = study(1)
     print(f"Chen & Hao 2022, configs/chen2022.toml: {cfg.n_steps} steps of {cfg.dt:g} s, horizon {cfg.horizon}, "
           f"weights ({float(params.c1):g}, {float(params.c2):g}, {float(params.c3):g}); "
           f"{len(jax.devices())} CPU device(s), load average {os.getloadavg()[0]:.1f}\n")
-    if args.time_only or args.iterations is None:
-        text, chosen = step1(cfg, params, sc, args)
-        print(text + "\n")
-        if args.time_only or chosen is None:
-            print(f"total wall time {time.perf_counter() - t_all:.0f} s")
-            return 0
-        args.iterations = chosen
-    K = args.iterations
-    variants = {"grid": dataclasses.replace(cfg, planner="grid"),
-                "grid on the coarse lattice": dataclasses.replace(cfg, planner="grid", theta_step=2 * cfg.theta_step,
-                                                                  omega_step=2 * cfg.omega_step),
-                "sequence": dataclasses.replace(cfg, planner="sequence", plan_iterations=K, sequence_grid_stride=2),
-                "sequence on the full grid": dataclasses.replace(cfg, planner="sequence", plan_iterations=K,
-                                                                 sequence_grid_stride=1)}
-    # time per plan side by side at the count used (the same states and protocol as step 1)
-    states, keys = planning_states(sc, cfg, params, args.state_seeds)
-    m = keys.shape[0]
-    fns = {name: planner_fn(c) for name, c in variants.items()}
-    for fn in fns.values():
-        jax.block_until_ready(fn(params, states, keys))
-    tpp = timings(fns, (params, states, keys), m, args.repeats)
-
-    summ, wall = {}, {}
-    for name, c in variants.items():
-        summ[name], wall[name] = closed_loop(sc, c, params, args.runs)
-        print(f"closed loop {name}: {args.runs} runs in {wall[name]:.0f} s (compilation included), "
-              f"load average {os.getloadavg()[0]:.1f}", flush=True)
-    imm = cfg.filters.index("imm")
-    cols = (("final_error", "IMM-EKF final error, m", lambda s: s["final_error"][:, imm]),
-            ("shadow_steps", "steps in the shadow", lambda s: s["shadow_steps"]),
-            ("nlos_steps", "steps with an NLOS measurement", lambda s: s["nlos_steps"]),
-            ("held_steps", "steps holding", lambda s: s["held_steps"]))
-    lines = ["", f"Closed loop: {args.runs} runs per planner, seeds 0–{args.runs - 1} for every planner; sequence "
-             f"planner {K} Adam steps per plan.", "",
-             "| planner | time per plan, CPU (median) / wall (best), µs (batched, " + f"{m} states) | " + " | ".join(f"{c[1]}: mean [95 % t]"
-                                                                                  for c in cols)
-             + " | IMM-EKF final error, median, m | runs in a building / breaking a limit | closed-loop wall, s |",
-             "|---|---|" + "---|" * len(cols) + "---|---|---|"]
-    problems = 0
-    for name in variants:
-        s = summ[name]
-        nb, nv = int(np.sum(s["building_steps"] > 0)), int(np.sum(s["limit_violations"] > 0))
-        problems += nb + nv
-        lines.append(f"| {name} | {tpp[name][1] * 1e6:.0f} / {tpp[name][0] * 1e6:.0f} | " + " | ".join(fmt_ci(mean_ci(c[2](s)), 2) for c in cols)
-                     + f" | {np.median(cols[0][2](s)):.2f} | {nb} / {nv} | {wall[name]:.0f} |")
-    lines += ["", "Paired differences (same seeds): mean [95 % t interval]; the last row is the manoeuvre alone (the "
-              "same warm-start lattice, with and without Adam on the sequence)", "",
-              "| difference | " + " | ".join(c[1] for c in cols) + " | runs with a lower / higher final error |",
-              "|---|" + "---|" * len(cols) + "---|"]
-    pairs = [(name, "grid") for name in list(variants)[1:]] + [("sequence", "grid on the coarse lattice")]
-    for name, base in pairs:
-        d = [c[2](summ[name]) - c[2](summ[base]) for c in cols]
-        lines.append(f"| {name} − {base} | " + " | ".join(fmt_ci(mean_ci(x), 2) for x in d)
-                     + f" | {int(np.sum(d[0] < 0))} / {int(np.sum(d[0] > 0))} |")
-    print("\n".join(lines))
-    print(f"\ntotal wall time {time.perf_counter() - t_all:.0f} s")
-    return 1 if problems else 0
+    text, chosen = step1(cfg, params, sc, args)
+    print(text + "\n")
+    print(f"the rule's count: {chosen} (configs/chen2022.toml and benchmarks/claims/chen2022_planners.toml use "
+          f"{ITERATIONS}); total wall time {time.perf_counter() - t_all:.0f} s")
+    return 0
 
 
 if __name__ == "__main__":
