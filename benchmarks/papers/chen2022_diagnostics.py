@@ -10,7 +10,8 @@ records, for the default set-up (``sweeps/chen2022_table1.toml``) and the first 
 default set-up with ``params.max_hold_steps = N``.
 
     python benchmarks/papers/chen2022_diagnostics.py                 # 1,000 runs per weight vector
-    python benchmarks/papers/chen2022_diagnostics.py --runs 100 --compare-planners
+    python benchmarks/papers/chen2022_diagnostics.py --runs 100 --sweep-old ''
+
 
 Printed per set-up: the flight table — mean steps in the shadow, with a reflected (NLOS)
 measurement and holding the previous command; the locked runs (Wilson interval: a run is locked
@@ -24,18 +25,13 @@ per weight vector over the buildings, with the true shadow and reflection region
 ``error_over_time.png`` — the mean error per step (eq. 23) per weight vector with its 95 % band and
 the median, log scale.
 
-Planner comparison (``--compare-planners``; default set-up only): grid (the paper's search over
-(θ, ω)) vs gradient (optax Adam on the smooth surrogate) on the SAME planning states — the grid's
-closed-loop states of the first ``--runs-compare`` seeds, rebuilt by scanning the scenario's own
-``init`` / ``step`` with the engine's keys (checked to reproduce the engine's records) — then each
-planner in closed loop on those seeds: mean exact score per re-plan, time per plan (batched and one
-state), final errors, and runs that entered a building or broke a limit.
+The planners on the same states: ``benchmarks/papers/urban_planners.py``; in closed loop:
+``mcjax check benchmarks/claims/chen2022_planners.toml``.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import time
 from pathlib import Path
@@ -45,11 +41,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax import engine
-from mcjax.filters.imm import combine
 from mcjax.scenarios.urban_bearing import environment as env
-from mcjax.scenarios.urban_bearing import score as urban
-from mcjax.scenarios import kit, urban_bearing as ub
-from mcjax.statistics import mean_ci, t_critical, wilson_interval
+from mcjax.scenarios import urban_bearing as ub
+from mcjax.statistics import t_critical, wilson_interval
 from mcjax.study import load_spec
 from mcjax import configure
 
@@ -67,10 +61,6 @@ LARGE_ERROR = 100.0   # m: a run "failed to localise" above this final error (ou
 ALTITUDE = 200.0      # m: altitude of the drawn shadow / reflection regions (the start altitude)
 ZOOM = 800.0          # m: half-width of the zoomed panel of paths.png
 COLORS = ("tab:blue", "tab:red", "tab:green")
-
-
-def fmt_ci(ci, digits: int = 1) -> str:
-    return f"{ci.mean:.{digits}f} [{ci.low:.{digits}f}, {ci.high:.{digits}f}]"
 
 
 def fmt_wilson(k: int, n: int) -> str:
@@ -228,147 +218,6 @@ def figures(spec, trk, records, runs: int, imm: int, ekf: int | None, out_dir: P
     return paths
 
 
-# --------------------------------------------------------------------------- planner comparison
-
-
-def state_scan(sc, cfg):
-    """``(params, run key) -> (State before every step, Record of every step)``: the engine's
-    ``_run`` with the same keys, keeping the states."""
-    def one(params, key):
-        state = sc.init(cfg, params, engine.init_key(key))
-
-        def body(s, t):
-            s2, rec = sc.step(cfg, params, s, jax.random.fold_in(key, t))
-            return s2, (s, rec)
-
-        _, (states, recs) = jax.lax.scan(body, state, jnp.arange(cfg.n_steps))
-        return states, recs
-    return jax.jit(jax.vmap(one, in_axes=(None, 0)))
-
-
-def planner_fn(cfg, batched: bool = True):
-    """``(params, State, step key) -> (command, exact score J, admissible)`` with the inputs
-    built as ``urban_bearing.step`` builds them."""
-    def plan(params, state, key):
-        p = kit.cast(params, jnp.dtype(cfg.dtype))
-        imm = state.filters[cfg.filters.index("imm")]
-        xy, _ = combine(imm)
-        _, sig = ub.mode_models(p, "imm")
-        belief = urban.Belief(xy, imm.x, imm.mu, state.fim, sig)
-        k_plan, _ = jax.random.split(key)
-        return ub.plan_command(cfg, p, ub.buildings_of(p), state.uav, state.command, belief, k_plan)
-    return jax.jit(jax.vmap(plan, in_axes=(None, 0, 0)) if batched else plan)
-
-
-def best_time(fn, *args, repeats: int = 3) -> float:
-    best = np.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        best = min(best, time.perf_counter() - t0)
-    return best
-
-
-def compare_planners(spec, trk, records, summ, runs: int, n_cmp: int, base_seed: int, imm: int):
-    """Returns (printed text, building/limit problems of the gradient closed loop)."""
-    sc, cfg = spec.scenario, spec.config
-    pp = spec.params
-    kinds = ("grid", "gradient")
-    cfgs = {k: dataclasses.replace(cfg, planner=k) for k in kinds}
-    scan = state_scan(sc, cfg)
-    batched = {k: planner_fn(c) for k, c in cfgs.items()}
-    single = {k: planner_fn(c, batched=False) for k, c in cfgs.items()}
-    keys = jax.vmap(lambda s: engine.run_key(base_seed, s))(jnp.arange(n_cmp, dtype=jnp.uint32))
-    T = cfg.n_steps
-    step_keys = jax.vmap(lambda k: jax.vmap(lambda t: jax.random.fold_in(k, t))(jnp.arange(T)))(keys)
-    step_keys = step_keys.reshape((-1,) + step_keys.shape[2:])
-    lines = [f"States: the grid planner's closed-loop states of seeds 0–{n_cmp - 1} of each weight vector "
-             f"({n_cmp} runs x {T} steps), re-plan steps only (command not held).", "",
-             "| weight vector | re-plan states | grid: mean J per re-plan [95 % t] | gradient: mean J per re-plan "
-             "[95 % t] | gradient J >= grid J (% [95 % Wilson]) | gradient J > grid J + 1e-9 | mean J_grid − "
-             "J_gradient | no admissible command (grid / gradient) |", "|---|---|---|---|---|---|---|---|"]
-    timing = {k: [] for k in kinds}
-    checks = []
-    t_start = time.perf_counter()
-    for k, t in enumerate(trk):
-        p = jax.tree.map(lambda a: a[k], pp)
-        states, recs = scan(p, keys)
-        # the scan must reproduce the engine's records of the same seeds
-        eng = jax.tree.map(lambda a: np.asarray(a)[k * runs:k * runs + n_cmp], records)
-        diff = max(float(np.nanmax(np.abs(np.asarray(recs.error) - eng.error))),
-                   float(np.max(np.abs(np.asarray(recs.uav) - eng.uav))))
-        checks.append(diff)
-        flat = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), states)
-        replan = ~np.asarray(recs.held).ravel()
-        score = {}
-        for kind in kinds:
-            _, s, _ = batched[kind](p, flat, step_keys)
-            score[kind] = np.asarray(s)
-        rec_score = np.asarray(recs.score).ravel()
-        checks.append(float(np.nanmax(np.abs(score["grid"][replan] - rec_score[replan]))))
-        g, d = score["grid"][replan], score["gradient"][replan]
-        ok = np.isfinite(g) & np.isfinite(d)
-        n = int(replan.sum())
-        ge = int(np.sum(d[ok] >= g[ok]))
-        gt = int(np.sum(d[ok] > g[ok] + 1e-9))
-        lines.append(f"| {t['name']} | {n} | {fmt_ci(mean_ci(g[ok]), 3)} | {fmt_ci(mean_ci(d[ok]), 3)} | "
-                     f"{fmt_wilson(ge, int(ok.sum()))} | {fmt_wilson(gt, int(ok.sum()))} | "
-                     f"{np.mean(g[ok] - d[ok]):.4f} | {int(np.sum(~np.isfinite(g)))} / "
-                     f"{int(np.sum(~np.isfinite(d)))} |")
-        # time per plan after compilation: a batch of up to 1,000 states, and one state
-        m = min(1000, flat.uav.shape[0])
-        sub = jax.tree.map(lambda a: a[:m], flat)
-        for kind in kinds:
-            one = jax.tree.map(lambda a: a[m // 2], flat)
-            jax.block_until_ready(single[kind](p, one, step_keys[m // 2]))       # compile
-            timing[kind].append((best_time(batched[kind], p, sub, step_keys[:m]) / m,
-                                 best_time(single[kind], p, one, step_keys[m // 2], repeats=20)))
-    lines.append("")
-    lines.append(f"Sanity: the state scan reproduces the engine's records (largest |difference| of error or UAV "
-                 f"position: {max(checks[0::2]):.1e} m) and the grid planner on those states reproduces the "
-                 f"records' score (largest |difference|: {max(checks[1::2]):.1e}).")
-    lines.append("")
-    lines.append("| planner | time per plan, batched (vmap over 1,000 states, best of 3), µs | time per plan, one "
-                 "state (jit, best of 20), µs |")
-    lines.append("|---|---|---|")
-    for kind in kinds:
-        tb, ts = np.array(timing[kind]).min(0)
-        name = "grid (the paper's)" if kind == "grid" else f"gradient (Adam, {cfg.plan_iterations} steps)"
-        lines.append(f"| {name} | {tb * 1e6:.0f} | {ts * 1e6:.0f} |")
-    same_state_wall = time.perf_counter() - t_start
-
-    # closed loop with the gradient planner on the same seeds; grid's from the Table 1 sweep
-    t0 = time.perf_counter()
-    chunks = [o for *_, o in engine.run_chunks(sc, cfgs["gradient"], pp, n_cmp, base_seed=base_seed,
-                                               chunk_size=spec.n_points * n_cmp, records=True)]
-    grec = jax.tree.map(lambda *xs: np.concatenate(xs), *chunks)
-    loop_wall = time.perf_counter() - t0
-    lines += ["", f"Closed loop, seeds 0–{n_cmp - 1} of each weight vector (each planner flies its own states, so J "
-              "is not comparable state by state):", "",
-              "| weight vector | planner | mean J per re-plan (admissible) | re-plans with no admissible command "
-              "(J = −inf) | IMM-EKF final error, m: mean [95 % t] | median, m | runs with final error > 100 m | "
-              "runs that entered a building | runs that broke a limit |",
-              "|---|---|---|---|---|---|---|---|---|"]
-    problems = 0
-    for k, t in enumerate(trk):
-        grid_sl = slice(k * runs, k * runs + n_cmp)
-        gr_sl = slice(k * n_cmp, (k + 1) * n_cmp)
-        for kind, rec_score, fe, inb, vio in (
-                ("grid", records.score[grid_sl], summ["final_error"][grid_sl, imm],
-                 summ["building_steps"][grid_sl], summ["limit_violations"][grid_sl]),
-                ("gradient", grec.score[gr_sl], grec.error[gr_sl, -1, imm, 0],
-                 grec.in_building[gr_sl].sum(1), grec.violation[gr_sl].sum(1))):
-            nb, nv = int(np.sum(inb > 0)), int(np.sum(vio > 0))
-            problems += (nb + nv) if kind == "gradient" else 0
-            rec_score = np.asarray(rec_score)
-            lines.append(f"| {t['name']} | {kind} | {np.mean(rec_score[np.isfinite(rec_score)]):.3f} | "
-                         f"{int(np.sum(np.isneginf(rec_score)))} | {fmt_ci(mean_ci(fe))} | "
-                         f"{np.median(fe):.2f} | {int(np.sum(fe > LARGE_ERROR))} | {nb} | {nv} |")
-    lines.append("")
-    lines.append(f"Planner comparison wall time: same states {same_state_wall:.1f} s (state scans, 4 compiled planner "
-                 f"programs, timing repeats); gradient closed loop {spec.n_points} x {n_cmp} runs {loop_wall:.1f} s "
-                 f"including compilation.")
-    return "\n".join(lines), problems
 
 
 # --------------------------------------------------------------------------- locks and holds
@@ -436,14 +285,9 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "chen2022_diagnostics")
     ap.add_argument("--base-seed", type=int, default=None, help="default: the sweep spec's")
     ap.add_argument("--no-figures", action="store_true")
-    ap.add_argument("--compare-planners", dest="compare_planners", action="store_true", default=False,
-                    help="also grid vs gradient planner on the default set-up (default: off)")
-    ap.add_argument("--runs-compare", type=int, default=100, help="seeds per weight vector for the planner comparison")
     args = ap.parse_args(argv)
     if args.runs < 2:
         ap.error(f"--runs must be >= 2; got {args.runs}")
-    if args.runs_compare < 1:
-        ap.error(f"--runs-compare must be >= 1; got {args.runs_compare}")
     runs = args.runs
     setups = [("default set-up", "default", args.sweep, {})]
     if args.max_hold > 0:
@@ -452,7 +296,6 @@ def main(argv=None) -> int:
     if args.sweep_old:
         setups.append(("first set-up (wide prior)", "wide_prior", Path(args.sweep_old), {}))
 
-    default = None
     for label, tag, sweep, overrides in setups:
         spec = load_spec(sweep, seeds=runs, overrides=overrides)
         base_seed = spec.base_seed if args.base_seed is None else args.base_seed
@@ -468,19 +311,8 @@ def main(argv=None) -> int:
             for path in figures(spec, trk, records, runs, imm, ekf, args.out / tag):
                 print(f"  figure: {path}")
         print(setup_tables(label, trk, summ, records, runs, imm))
-        if tag == "default":
-            default = (spec, trk, records, summ, base_seed, imm)
-        else:
-            del records
+        del records
 
-    if args.compare_planners:
-        spec, trk, records, summ, base_seed, imm = default
-        print("\nPlanner comparison on the default set-up: grid (the paper's search) vs gradient (optax Adam on the "
-              "smooth surrogate); J = c1 J_FIM + c2 J_T + c3 J_NLOS, exact, of the returned command\n", flush=True)
-        text_cmp, problems = compare_planners(spec, trk, records, summ, runs, min(args.runs_compare, runs), base_seed,
-                                              imm)
-        print(text_cmp)
-        print(f"\ngradient-planner closed-loop runs that entered a building or broke a limit: {problems}")
     print(f"\nwhole script {time.perf_counter() - t_script:.1f} s")
     return 0
 
