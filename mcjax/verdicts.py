@@ -12,7 +12,8 @@ meet, judged by where the interval lies.
   **holds** when the interval lies on the claimed side, **fails** when it lies on the other,
   **undecided** when it straddles — then, roughly, how many runs would decide it: the interval's
   half-width shrinks as 1/√n, so ``n (half-width / distance)²`` runs bring it to the distance
-  between the estimate and the boundary (None when the estimate sits on it).
+  between the estimate and the boundary (a rate: the fewest runs whose Wilson interval at the same
+  observed rate excludes the boundary; None when the estimate sits on it).
 * :func:`consistent` -- whether a paper's number, from its own ``runs``, is one those runs could
   give if our estimate were the truth: it holds when the paper's value lies within our estimate ±
   √(h² + h_paper²), ``h`` our interval's half-width and ``h_paper`` the half-width an interval of
@@ -114,11 +115,30 @@ def paired(a: Sequence[float], b: Sequence[float], seeds_a: Sequence[int], seeds
 
 
 def _runs_to_decide(est: Estimate, boundary: float) -> int | None:
-    """Runs that would shrink the interval's half-width to the estimate's distance from ``boundary``."""
+    """Runs that would shrink the interval's half-width to the estimate's distance from ``boundary``.
+    A rate's Wilson interval does not shrink as 1/√n near 0 or 1 (at 0 of n its upper end is about
+    z²/n): there, the fewest runs whose Wilson interval at the same observed rate leaves the boundary
+    outside (found by bisection)."""
     half, distance = (est.high - est.low) / 2.0, abs(est.value - boundary)
     if not (distance > 0 and math.isfinite(half) and est.n > 0):
         return None
-    return max(est.n + 1, math.ceil(est.n * (half / distance) ** 2))
+    guess = max(est.n + 1, math.ceil(est.n * (half / distance) ** 2))
+    if est.statistic != "rate" or not 0.0 <= boundary <= 1.0:
+        return guess
+
+    def apart(n: int) -> bool:
+        low, high = wilson_interval(round(est.value * n), n)
+        return high < boundary if est.value < boundary else low > boundary
+
+    lo, hi = est.n, max(guess, est.n + 1)
+    while not apart(hi):
+        lo, hi = hi, hi * 2
+        if hi > 10**12:
+            return None
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if apart(mid) else (mid, hi)
+    return hi
 
 
 def compare(est: Estimate, relation: str, value: float | None = None,

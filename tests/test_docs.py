@@ -276,7 +276,7 @@ class Runner:
                 args = [*args, "--no-plots"]  # plots are drawn for the README's report only (time)
         if sub not in main.commands and not sub.startswith("-"):
             return f"no command `mcjax {sub}`"
-        if sub and sub not in ("sweep", "run", "report", "list") and not sub.startswith("-"):
+        if sub and sub not in ("sweep", "run", "check", "report", "list") and not sub.startswith("-"):
             try:  # another engineer's command: its options are parsed, not run
                 main.commands[sub].make_context(sub, list(args[1:]))
             except Exception as exc:  # noqa: BLE001 - report what click says

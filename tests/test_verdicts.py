@@ -122,3 +122,14 @@ def test_an_order_holds_fails_or_is_undecided():
 def test_bad_arguments_are_one_line_errors(call, message):
     with pytest.raises(ValueError, match=message):
         call()
+
+
+def test_runs_to_decide_a_rate_near_zero_follow_the_wilson_interval_not_one_over_root_n():
+    """0 of 200 runs against a bound of 1 %: the Wilson interval's upper end is about z²/n, so the
+    runs that decide it are the fewest whose interval (scipy's) at 0 of n lies below 0.01."""
+    from scipy.stats import binomtest
+
+    v = compare(estimate(np.zeros(200, bool), "rate"), "below", 0.01)
+    assert v.verdict == "undecided"
+    n = next(n for n in range(201, 2000) if binomtest(0, n).proportion_ci(0.95, method="wilson").high < 0.01)
+    assert v.runs_to_decide == n
