@@ -13,7 +13,7 @@ from mcjax.contract import FAST_COMPILE
 from mcjax.scenarios import leader_follower as lf
 
 # One filter (the leader's): a smaller program. The paper's config in closed loop, with its Table 1
-# claims, runs in benchmarks/divergence_sun2011.py (1,000 runs per case).
+# claims, runs in benchmarks/claims/sun2011.toml (mcjax check; 1,000 runs per case).
 CFG = lf.Config(planner="gradient", filters=("modified_icf",), n_steps=24, warmup_steps=4,
                 plan_iterations=3)
 

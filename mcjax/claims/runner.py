@@ -113,6 +113,8 @@ def run_check(claims_file: str | Path, *, out_dir: str | Path | None = None, see
                                       should_stop=stop)
             if result.stopped:
                 return CheckResult(claims, out, None, True)
+            if result.runs_run:
+                say(f"sweep {name}: {result.runs_run} runs in {result.seconds:.1f} s (compilation included)")
             rows[name] = result.rows
         table = verdict_table(claims, rows)
         write_table(out / TABLE_FILE, table, {"paper": claims.paper, "title": claims.title,

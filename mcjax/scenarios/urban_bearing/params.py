@@ -59,7 +59,7 @@ Config = config_type("Config", dict(
 _POS = dict(low=0.0, low_open=True)
 _PROB = dict(low=0.0, high=1.0)
 #: Our building layout (the paper gives heights only): rows [x_lo, y_lo, x_hi, y_hi, height] in m, chosen by
-#: the criterion of benchmarks/papers/urban_layout_check.py (configs/chen2022.toml; the first layout is in
+#: the criterion of tests/test_urban_layout.py (configs/chen2022.toml; the first layout is in
 #: configs/chen2022_wide_prior.toml).
 DEFAULT_BUILDINGS = np.array([[4950.0, 4650.0, 5050.0, 4750.0, 200.0],
                               [5270.0, 5300.0, 5400.0, 5400.0, 100.0]])
