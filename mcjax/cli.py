@@ -189,7 +189,7 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
     finish(stop)
 
 
-@main.command(short_help="Check a paper's claims file: run its sweeps, a verdict per claim with its interval.")
+@main.command(short_help="Check a claims file: its sweeps, then a verdict per claim.")
 @click.argument("claims", type=click.Path(path_type=Path))
 @click.option("--seeds", type=click.IntRange(min=1), default=None,
               help="Runs per point of every sweep [default: the claims file's `seeds`, else each sweep's].")
