@@ -309,3 +309,60 @@ def test_check_cli_strict_report_and_markdown(tmp_path):
     report = runner.invoke(main, ["report", str(out)])
     assert report.exit_code == 0 and "page: " + str(out / "s" / "report" / "index.html") in report.output
     assert json.loads((out / "check.json").read_text())["seeds"] == {"s": 4}
+
+
+def test_a_check_killed_mid_run_resumes_to_the_same_claims_parquet(tmp_path):
+    """kill -9 while the sweep's chunks are written, then --resume in a new process: the same
+    verdict table in claims.parquet as an uninterrupted check (its provenance metadata differs). The sweep is the one
+    tests/test_cli.py kills, so the session's program store holds its program."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    claims = tmp_path / "claims.toml"
+    claims.write_text(textwrap.dedent(f"""
+        paper = "kill test"
+        [sweeps.open]
+        base = "{(ROOT / 'configs' / 'sun2011.toml').as_posix()}"
+        seeds = 500
+        chunk_size = 100
+        config = {{ n_steps = 10, warmup_steps = 2, planner = "none", filters = ["cif", "modified_icf"] }}
+        grid = {{ comm_radius = [60e3, 80e3, 100e3] }}
+
+        [[claim]]
+        id = "cif-below-modified-icf"
+        claim = "the centralised filter is the more accurate at 60 km"
+        output = "rmse"
+        filter = "cif"
+        at = {{ comm_radius = 60e3 }}
+        minus = {{ filter = "modified_icf" }}
+        relation = "below"
+        value = 0.0
+
+        [[claim]]
+        id = "divergence-falls-with-radius"
+        claim = "the modified ICF diverges less often as the comm radius grows"
+        output = "diverged"
+        filter = "modified_icf"
+        statistic = "rate"
+        relation = "monotone"
+        along = "comm_radius"
+        direction = "decreasing"
+        """), encoding="utf-8")
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "mcjax.cli", "check", str(claims), "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 300
+    while time.time() < deadline and not (out / "open" / "runs" / "point_id=0" / "part-000001.parquet").exists():
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    written = list((out / "open" / "runs").glob("*/*.parquet"))
+    assert 2 <= len(written) < 15 and not (out / "claims.parquet").exists(), written  # killed mid-way
+    r = subprocess.run([*cmd, "--resume"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert f"{len(written)} of 15 chunk(s) already written" in r.stdout
+    run_check(claims, out_dir=tmp_path / "whole")
+    resumed, whole = read_verdicts(out)[0], read_verdicts(tmp_path / "whole")[0]
+    pd.testing.assert_frame_equal(resumed, whole, check_exact=True)
