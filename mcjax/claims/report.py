@@ -28,6 +28,14 @@ def display_table(table: pd.DataFrame) -> pd.DataFrame:
                          "ours [95 %]": table["ours"], "runs": table["runs"], "verdict": verdict})
 
 
+def _shown(path: str) -> str:
+    """A path as the reader typed it, near enough: relative to the current folder when inside it."""
+    try:
+        return os.path.relpath(path) if not os.path.relpath(path).startswith("..") else path
+    except ValueError:  # another drive (Windows)
+        return path
+
+
 def verdict_text(table: pd.DataFrame, meta: dict, fmt: str = "text") -> str:
     """The verdict table with its header lines (paper, counts, what each statistic is)."""
     tables.check_format(fmt)
@@ -36,7 +44,7 @@ def verdict_text(table: pd.DataFrame, meta: dict, fmt: str = "text") -> str:
     counts = table["verdict"].value_counts()
     header = [f"{meta.get('paper', 'claims')}: {len(table)} claim(s) — "
               + ", ".join(f"{int(counts.get(v, 0))} {v}" for v in VERDICT_ORDER),
-              f"claims file: {meta.get('claims_file', '?')}; runs per point: "
+              f"claims file: {_shown(meta.get('claims_file', '?'))}; runs per point: "
               + ", ".join(f"{k} {v}" for k, v in (meta.get("seeds") or {}).items()),
               "ours: the statistic with its 95 % interval (mean and paired difference: Student-t; rate: Wilson; "
               "median and quantile: order statistics); holds / fails: the interval lies on the claimed / the "
