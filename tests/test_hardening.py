@@ -1,6 +1,6 @@
 """Issue 17: damaged datasets, resume that verifies, output folders that cannot escape, the
 small CLI fixes, run_filter's errors and Ctrl-C on real processes (the corpus of malformed
-specs is in test_hardening_corpus.py; the many-SIGINT stress is benchmarks/robustness/sigint_stress.py)."""
+specs is in test_hardening_corpus.py; the many-SIGINT stress is benchmarks/robustness/interrupt_stress.py --signal int)."""
 
 from __future__ import annotations
 
