@@ -200,12 +200,13 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
 @click.option("--strict", is_flag=True, help="Exit 1 when any claim fails (default: exit 0 whatever the verdicts).")
 @click.option("--format", "fmt", type=click.Choice(["text", "markdown", "csv"]), default="text", show_default=True,
               help="Format of the printed verdict table (markdown: for docs).")
+@click.option("--markdown", is_flag=True, help="The same as --format markdown.")
 @click.option("--executor", type=click.Choice(["local", "dask"]), default="local", show_default=True,
               help="Where the chunks are computed: this process, or a Dask cluster (pip install -e \".[dask]\").")
 @click.option("--scheduler", default=None, metavar="ADDRESS", help="With --executor dask: a running cluster.")
 @click.option("--workers", default=None, type=int, metavar="N",
               help="With --executor dask: start a cluster of N worker processes on this machine.")
-def check(claims, seeds, out_dir, resume, force, strict, fmt, executor, scheduler, workers):
+def check(claims, seeds, out_dir, resume, force, strict, fmt, markdown, executor, scheduler, workers):
     """Check the claims file CLAIMS (benchmarks/claims/*.toml): run the sweeps it names through
     the study pipeline into OUT/<sweep>/ (resume, locks, Dask and the program store as for
     `mcjax sweep`; claims that share a sweep share its runs), then give every claim a verdict
@@ -219,6 +220,7 @@ def check(claims, seeds, out_dir, resume, force, strict, fmt, executor, schedule
     command that resumes.
     """
     state = {"out": out_dir, "started": False, "words": ""}
+    fmt = "markdown" if markdown else fmt
 
     def hint() -> str:
         if not state["started"]:
@@ -316,8 +318,9 @@ def run(config, seeds, sets):
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--format", "fmt", type=click.Choice(["text", "csv", "markdown"]), default="text", show_default=True,
               help="Format of the printed summary table.")
+@click.option("--markdown", is_flag=True, help="The same as --format markdown (a check folder's verdict table for docs).")
 @click.option("--no-plots", is_flag=True, help="Print the table only; write no PNG or HTML files.")
-def report(out_dir, fmt, no_plots):
+def report(out_dir, fmt, markdown, no_plots):
     """Summarise the sweep dataset in OUT_DIR; write plots and one self-contained HTML page
     (OUT_DIR/report/index.html: findings with intervals, plots, tables, glossary, Params, spec,
     provenance). A tune's folder gets its own page (no sweep plots); a folder of datasets is listed.
@@ -332,6 +335,7 @@ def report(out_dir, fmt, no_plots):
     """
     from mcjax.report import report as make_report
 
+    fmt = "markdown" if markdown else fmt
     warn = (lambda text: click.echo(f"warning: {text}", err=True)) if fmt == "csv" else None
     try:
         table, plots = make_report(out_dir, fmt, plots=not no_plots, warn=warn)
