@@ -1,37 +1,21 @@
-"""Lou, Cui & Li 2013 Figs. 3–6 over N runs, and the diagnostics a claims file cannot give: a
-flocking sensor network tracks a target with the Kalman-consensus filter while keeping every
-link of its hysteresis graph. The paper's claims (KCF beats KF, λ2 > 0, no link breaks, no
-collision, links stable by 15 s, spacing 6.5 m, energy falls, the ideal case) live in
-``benchmarks/claims/lou2013.toml`` (``mcjax check benchmarks/claims/lou2013.toml``); this
-script draws and prints, checks nothing, and exits 0 when it ran.
+"""Lou, Cui & Li 2013 Figs. 3–6 over N runs, and the diagnostics a claims file cannot give. The
+paper's claims (KCF beats KF, λ2 > 0, no link breaks, no collision, links stable by 15 s, spacing
+6.5 m, energy falls, Theorem 2's ideal case) are ``benchmarks/claims/lou2013.toml``
+(``mcjax check benchmarks/claims/lou2013.toml``); the integrators compared:
+``benchmarks/papers/flocking_integrator.py``; the cost from 20 to 100 nodes:
+``benchmarks/speed/flocking_scaling.py``. This script draws and prints, and checks nothing.
 
-What is run. The scenario ``flocking`` with ``configs/lou2013.toml`` as it stands (20 nodes, the
-first 10 measure a target on y = sin x and run the Kalman-consensus filter beside a standalone
-Kalman filter), N seeds (default 1,000; the paper shows single runs) of 300 steps of 0.1 s
-through ``mcjax.engine.run_chunks`` (per-run summaries and per-step series from one
-simulation); then Theorem 2's ideal case (``control_reference = "truth"``, ``target_path =
-"line"``, ``n_sensing = n_agents``). The cost from 20 to 100 nodes is
-``benchmarks/speed/flocking_scaling.py``.
-
-How to run::
+What is run: ``configs/lou2013.toml`` as it stands, N seeds (default 1,000) of 300 steps of 0.1 s
+through ``mcjax.engine.run_chunks`` (per-run summaries and per-step series from one simulation).
 
     python benchmarks/papers/lou2013_figures.py               # 1,000 runs (~40 min on 2 loaded shared cores)
     python benchmarks/papers/lou2013_figures.py --runs 20     # a quick look
-    python benchmarks/papers/lou2013_figures.py [--runs 1000] [--out DIR] [--no-figures] [--ideal-runs 100]
-                                                [--rk4-runs 100]
 
-What it prints.
-
-1. Wall time of the N runs (with and without compilation) and the sub-steps per 0.1 s step
-   (the config's integrator: the error-controlled Dormand–Prince pair, attempts counted).
-2. The extremes — smallest distance, smallest link margin R − r, largest rise of Q — and their
-   change when the 10 runs nearest each are re-run at 100x tighter tolerance; (``--rk4-runs``)
-   the first runs again with the RK4 sub-steps used before: their cost and extremes.
-3. Energy Q = φ of eq. 15 (Fig. 5), over the runs whose flock stayed finite: the runs whose Q(t)
-   never rises (Wilson interval), every rise attributed to a step that formed a new link (its
-   potential enters Q) or not; the four terms of Q for seed 0; the same rises for
-   ``--ideal-runs`` runs of the ideal case, where Theorem 2 makes Q non-increasing between new
-   links.
+What it prints: (1) the wall time and the sub-steps per 0.1 s step; (2) the extremes — smallest
+distance, smallest link margin R − r, largest rise of Q — and their change when the 10 runs nearest
+each are re-run at 100x tighter tolerance; (3) the energy Q = φ of eq. 15 (Fig. 5) over the runs
+whose flock stayed finite: the runs whose Q(t) never rises, every rise attributed to a step that
+formed a new link (its potential enters Q) or not, and the four terms of Q for seed 0.
 
 Figures (``--out``, default ``results/lou2013_figures/``; ``--no-figures``): errors over time
 (``fig3_errors.png``), the flock of seed 0 at t = 0, 15 and 30 s with its links, the target
@@ -68,10 +52,6 @@ PAPER_MIN_DISTANCE = 6.5
 #: A rise of Q between two steps above this fraction of Q after the first step is a rise.
 MONOTONE_RTOL = 1e-9
 SNAPSHOTS_S = (0.0, 15.0, 30.0)
-#: Theorem 2's ideal case (with ``n_sensing = n_agents``) and the RK4 sub-steps used before, as
-#: config overrides of the config file.
-IDEAL = {"control_reference": "truth", "target_path": "line"}
-RK4 = {"integrator": "rk4", "max_substeps": 200}
 
 
 # --------------------------------------------------------------------------- runs
@@ -85,7 +65,6 @@ class Runs(NamedTuple):
     out: dict       # per-run summaries
     series: dict    # per-step series, (runs, T, ...)
     wall: float     # seconds, compilation included
-    first: float    # seconds of the first chunk (it holds the compilation)
 
 
 def simulate(config: Path, config_over: dict, params_over: dict, runs: int, base_seed: int,
@@ -100,27 +79,16 @@ def simulate(config: Path, config_over: dict, params_over: dict, runs: int, base
     scenario, cfg, p = spec.scenario, spec.config, spec.base_params
     outs, series = [], []
     t0 = time.perf_counter()
-    first = None
     with tqdm(total=runs, desc=desc, unit="run") as bar:
         for _, start, stop, (o, s) in engine.run_chunks(scenario, cfg, engine.stack_points([p]), runs,
                                                         base_seed=base_seed, chunk_size=engine.BATCH_SIZE,
                                                         timeseries=True):
             outs.append(o)
             series.append(s)
-            first = time.perf_counter() - t0 if first is None else first
             bar.update(stop - start)
     wall = time.perf_counter() - t0
     cat = lambda parts: {k: np.concatenate([np.asarray(x[k]) for x in parts]) for k in parts[0]}  # noqa: E731
-    return Runs(scenario, cfg, p, cat(outs), cat(series), wall, first)
-
-
-def speed(r: Runs, runs: int) -> str:
-    """Wall time per run, with and without the first batch (it holds the compilation), and the
-    load: the machine is shared, so the wall clock needs it beside."""
-    b = engine.batch_size_for(runs)
-    later = f"; after the first, {(r.wall - r.first) / (runs - b) * 1e3:.0f} ms/run" if runs > b else ""
-    return (f"wall {r.wall:.1f} s including compilation ({r.wall / runs * 1e3:.0f} ms/run, batches of {b} runs"
-            f"{later}); load average {', '.join(f'{x:.1f}' for x in os.getloadavg())} on {os.cpu_count()} CPUs")
+    return Runs(scenario, cfg, p, cat(outs), cat(series), wall)
 
 
 # --------------------------------------------------------------------------- one run, step by step
@@ -391,7 +359,7 @@ def print_speed(args, r: Runs) -> None:
     print(f"\n## Lou, Cui & Li 2013 — {args.runs} runs x {cfg.n_steps} steps of {float(p.dt)} s "
           f"({cfg.n_agents} nodes, M = {int(p.n_sensing)} type I, R = {float(p.R)} m, ε = {float(p.epsilon)} m, "
           f"config {args.config.name}); the claims: mcjax check benchmarks/claims/lou2013.toml\n")
-    print(speed(r, args.runs))
+    print(f"wall {r.wall:.1f} s including compilation; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
     print(f"sub-steps ({cfg.integrator}; attempts if adaptive) per 0.1 s step: mean over runs "
           f"{out['substeps_mean'].mean():.2f} (run means: min {out['substeps_mean'].min():.2f}, max "
           f"{out['substeps_mean'].max():.2f}); steps at the cap of {cfg.max_substeps}: "
@@ -399,7 +367,7 @@ def print_speed(args, r: Runs) -> None:
 
 
 def print_extremes(args, r: Runs) -> None:
-    """Section 2: the extremes at 100x tighter tolerance, and the first runs with RK4 sub-steps."""
+    """Section 2: the extremes at 100x tighter tolerance."""
     conv, tight, n_conv, wall_conv = convergence(r.scenario, r.cfg, r.p, r.out, args.base_seed)
     print(f"\n### The integrator: {r.cfg.integrator}, tolerance {r.cfg.tolerance:g} (m, m/s) — extremes and their "
           f"convergence\n")
@@ -410,20 +378,11 @@ def print_extremes(args, r: Runs) -> None:
     for row in conv:
         print(f"| {row['label']} | {row['value']:.6g} | {row['seed']} | {row['tight']:.6g} | {row['change']:.1e} | "
               f"{row['max_change']:.1e} | {row['gap']:.1e} |")
-    if args.rk4_runs <= 0:
-        return
-    n_old = min(args.rk4_runs, args.runs)
-    old = simulate(args.config, RK4, {}, n_old, args.base_seed, "RK4 sub-steps (before)")
-    print(f"\nthe same first {n_old} runs with the RK4 sub-steps used before (integrator = rk4, max_substeps "
-          f"{RK4['max_substeps']}), {old.out['substeps_mean'].mean():.2f} sub-steps per step: {speed(old, n_old)}")
-    for name, label, pick in EXTREMES:
-        new_v, old_v = r.out[name][:n_old], old.out[name]
-        print(f"  {label} over these runs: {new_v[pick(new_v)]:.6g} (dopri5) vs {old_v[pick(old_v)]:.6g} (rk4); "
-              f"per run, largest |rk4 − dopri5| {np.max(np.abs(old_v - new_v)):.3g}")
 
 
 def print_energy(args, r: Runs, traj0: dict) -> None:
-    """Section 3: the rises of Q, its terms for seed 0, and the ideal case."""
+    """Section 3: the rises of Q and its terms for seed 0 (Theorem 2's ideal case, where Q never rises,
+    is a claim of benchmarks/claims/lou2013.toml)."""
     cfg, p, out = r.cfg, r.p, r.out
     blown = blow_ups(r.series)
     print("\n### Energy Q(t) = φ of eq. 15 (Fig. 5)\n")
@@ -440,13 +399,6 @@ def print_energy(args, r: Runs, traj0: dict) -> None:
     print("| t, s | Q (record) | sum of terms | potential ψ (eq. 12) | tracking c1‖q − q_γ‖² (type I) | kinetic "
           "‖p − p_γ‖² | adaptive gains (b − l)²/(2k) (type II) |\n|---|---|---|---|---|---|---|")
     print("\n".join(rows))
-    if args.ideal_runs <= 0:
-        return
-    ideal = simulate(args.config, IDEAL, {"n_sensing": cfg.n_agents}, args.ideal_runs, args.base_seed, "ideal case")
-    print(f"\nideal case of Theorem 2 (control_reference = truth, target_path = line, n_sensing = {cfg.n_agents}: "
-          f"every node steers to the true target on a straight line; {args.ideal_runs} runs in {ideal.wall:.1f} s "
-          f"incl. compilation):")
-    print("\n".join(energy_lines(energy_rises(ideal.series, ideal.out), "ideal case")))
 
 
 def main(argv=None) -> int:
@@ -456,9 +408,6 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "lou2013_figures")
     ap.add_argument("--base-seed", type=int, default=0)
     ap.add_argument("--no-figures", action="store_true")
-    ap.add_argument("--ideal-runs", type=int, default=100, help="runs of Theorem 2's ideal case (0: skip)")
-    ap.add_argument("--rk4-runs", type=int, default=100,
-                    help="the first runs again with the RK4 sub-steps used before, for their cost (0: skip)")
     args = ap.parse_args(argv)
     if args.runs < 1:
         ap.error(f"--runs must be >= 1; got {args.runs}")
