@@ -56,8 +56,6 @@ PAPER = {
     (0.2, 0.5, 0.0): ("track 2", "without the NLOS term", 98.4),
     (0.2, 0.0, 0.0): ("track 3", "FIM only", 6.5),
 }
-FULL, NO_NLOS, FIM_ONLY = PAPER
-LARGE_ERROR = 100.0   # m: a run "failed to localise" above this final error (our line, for a count)
 ALTITUDE = 200.0      # m: altitude of the drawn shadow / reflection regions (the start altitude)
 ZOOM = 800.0          # m: half-width of the zoomed panel of paths.png
 COLORS = ("tab:blue", "tab:red", "tab:green")
@@ -84,23 +82,17 @@ def tracks(spec) -> list[dict]:
 
 def run_sweep(spec, runs: int, base_seed: int):
     """Records (run axis first, point-major: run = point * runs + seed) of every point and
-    seed, the per-run summaries (``reduce``), the wall time including compilation, and the
-    compilation time alone."""
+    seed, the per-run summaries (``reduce``) and the wall time including compilation."""
     sc, cfg = spec.scenario, spec.config
     pp = spec.params
     n = spec.n_points * runs
     t0 = time.perf_counter()
-    # compile the engine's batch program ahead of time, to time compilation apart; the key is
-    # spelled as run_chunks spells it (engine.compiled is an lru_cache on its literal arguments)
-    b = engine.batch_size_for(n)
-    engine.compiled(sc, cfg, True, False).lower(*engine.chunk_inputs(pp, runs, base_seed, 0, b, b)).compile()
-    t_compile = time.perf_counter() - t0
     chunks = [o for *_, o in engine.run_chunks(sc, cfg, pp, runs, base_seed=base_seed, chunk_size=n, records=True)]
     records = jax.tree.map(lambda *xs: np.concatenate(xs), *chunks)
     per_run = jax.tree.map(lambda a: np.asarray(a)[np.arange(n) // runs], pp)
     summaries = jax.jit(jax.vmap(lambda r, p: sc.reduce(cfg, r, p)))(records, per_run)
     summaries = {k: np.asarray(v) for k, v in summaries.items()}
-    return records, summaries, time.perf_counter() - t0, t_compile
+    return records, summaries, time.perf_counter() - t0
 
 
 # --------------------------------------------------------------------------- figures
@@ -303,9 +295,9 @@ def main(argv=None) -> int:
         cfg = spec.config
         imm = cfg.filters.index("imm")
         ekf = cfg.filters.index("ekf") if "ekf" in cfg.filters else None
-        records, summ, wall, t_compile = run_sweep(spec, runs, base_seed)
-        print(f"{label}: {spec.n_points} weight vectors x {runs} runs in {wall:.1f} s wall, compilation included "
-              f"(compilation alone {t_compile:.1f} s); load average {os.getloadavg()[0]:.2f}", flush=True)
+        records, summ, wall = run_sweep(spec, runs, base_seed)
+        print(f"{label}: {spec.n_points} weight vectors x {runs} runs in {wall:.1f} s wall, compilation included; "
+              f"load average {os.getloadavg()[0]:.2f}", flush=True)
         if not args.no_figures:
             (args.out / tag).mkdir(parents=True, exist_ok=True)
             for path in figures(spec, trk, records, runs, imm, ekf, args.out / tag):

@@ -11,16 +11,12 @@ The runs are the check's sweep folders ``CHECK/sun2011`` and ``CHECK/ren2017``
     python benchmarks/robustness/faults_figure.py                    # results/check_faults/faults.png
     python benchmarks/robustness/faults_figure.py --check /tmp/faults_check --out /tmp/faults.png
 
-``--speed RUNS`` instead times Sun et al. 2011's default closed loop with the fault model off
-and on (no check needed)::
-
-    python benchmarks/robustness/faults_figure.py --speed 300
+The fault model's cost: ``python benchmarks/speed/closed_loop.py faults``.
 """
 
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 
 import pandas as pd
@@ -69,46 +65,12 @@ def plot(tables: dict[str, pd.DataFrame], path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
-def speed(runs: int, repeats: int = 3) -> dict[str, float]:
-    """Seconds per run of Sun et al. 2011's default closed loop: the fault model off (no fault
-    draws in the program), on with every rate 0, and on with faults drawn (link loss 0.2 in
-    bursts of 5, agent loss 0.002 per UAV and step, sensor dropout 0.05) — each compiled first,
-    then timed ``repeats`` times in turn; the best of each."""
-    from mcjax import configure
-    from mcjax.study import build_spec, run_sweep
-
-    configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
-    base = {"base": str(ROOT / "configs" / "sun2011.toml")}
-    on = {"config": {"faults": "on"}}
-    specs = {"off": build_spec(base, ROOT, seeds=runs),
-             "on, rates 0": build_spec({**base, **on}, ROOT, seeds=runs),
-             "on, faults drawn": build_spec({**base, **on, "params": {
-                 "link_loss": 0.2, "link_burst": 5.0, "agent_loss_rate": 0.002, "sensor_dropout": 0.05}},
-                 ROOT, seeds=runs)}
-    for s in specs.values():
-        run_sweep(s)  # compile (and warm up)
-    times = {k: [] for k in specs}
-    for _ in range(repeats):
-        for k, s in specs.items():
-            t0 = time.perf_counter()
-            run_sweep(s)
-            times[k].append((time.perf_counter() - t0) / runs)
-    return {k: min(v) for k, v in times.items()}
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--check", type=Path, default=Path("results/check_faults"),
                     help="the check's output folder (default: %(default)s)")
     ap.add_argument("--out", type=Path, help="the figure (default: CHECK/faults.png)")
-    ap.add_argument("--speed", type=int, metavar="RUNS", help="time the fault model instead (runs per timing)")
     args = ap.parse_args()
-    if args.speed:
-        s = speed(args.speed)
-        print(f"speed, Sun et al. 2011 closed loop, {args.speed} runs, best of 3 (ms per run; ratio to off)")
-        for k, v in s.items():
-            print(f"   {k:18s} {1e3 * v:7.2f}   {v / s['off']:.3f}")
-        return
     missing = [n for n in SWEEPS if not (args.check / n).is_dir()]
     if missing:
         raise SystemExit(f"{args.check}: no sweep folder {', '.join(missing)}; run mcjax check "
