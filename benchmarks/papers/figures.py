@@ -59,19 +59,28 @@ class Runs(NamedTuple):
 
 
 def run_records(config: str | Path, runs: int, *, config_over: dict | None = None, params_over: dict | None = None,
-                base_seed: int = 0, first: int = 0) -> Runs:
+                base_seed: int = 0, first: int = 0, series: bool = False) -> Runs:
     """``runs`` seeds of the config file's point — seed indices ``first``, ``first + 1``, … of
     ``base_seed``, the runs a sweep of that base seed draws — with ``config_over`` / ``params_over``
-    over its values, keeping every step's records."""
+    over its values, keeping every step's records (``series``: the per-run outputs and the
+    scenario's per-step series instead, as ``(outputs, series)``), with a progress bar."""
+    from tqdm import tqdm
+
     scenario, cfg, values = load_config_file(config)
     cfg = dataclasses.replace(cfg, **(config_over or {}))
     p = scenario.default_params(cfg, **{**values, **(params_over or {})})
-    t0 = time.perf_counter()
-    size = runs if first % runs == 0 else 1   # chunks of the plan that hold exactly the runs asked for
-    chunks = [o for *_, o in engine.run_chunks(scenario, cfg, engine.stack_points([p]), first + runs,
-                                               base_seed=base_seed, chunk_size=size, records=True,
-                                               chunks=list(range(first // size, (first + runs) // size)))]
-    records = jax.tree.map(lambda *xs: np.concatenate([np.asarray(x) for x in xs]), *chunks)
+    # the batch-aligned chunks that hold seeds first … first + runs − 1 (the runs before them in a chunk are cut)
+    plan = engine.chunk_plan(first + runs, engine.BATCH_SIZE)
+    chunks = [i for i, (a, b) in enumerate(plan) if b > first]
+    t0, parts = time.perf_counter(), []
+    with tqdm(total=runs, unit="run", disable=None) as bar:
+        for _, start, stop, out in engine.run_chunks(
+                scenario, cfg, engine.stack_points([p]), first + runs, base_seed=base_seed,
+                chunk_size=engine.BATCH_SIZE, chunks=chunks, **({"timeseries": True} if series else {"records": True})):
+            parts.append(out)
+            bar.update(stop - max(start, first))
+    records = jax.tree.map(lambda *xs: np.concatenate([np.asarray(x) for x in xs])[first - plan[chunks[0]][0]:],
+                           *parts)
     return Runs(scenario, cfg, p, records, time.perf_counter() - t0)
 
 

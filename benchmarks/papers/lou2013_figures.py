@@ -32,7 +32,6 @@ import math
 import os
 import time
 from pathlib import Path
-from typing import NamedTuple
 
 import jax
 import numpy as np
@@ -40,7 +39,7 @@ import numpy as np
 from mcjax import engine
 from mcjax.scenarios.flocking import target_state
 from mcjax.statistics import t_critical, wilson_interval
-from mcjax.study import build_spec
+from figures import run_records  # the one run set-up of the papers' figures (this folder)
 from mcjax import configure
 
 configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
@@ -55,40 +54,6 @@ SNAPSHOTS_S = (0.0, 15.0, 30.0)
 
 
 # --------------------------------------------------------------------------- runs
-
-
-class Runs(NamedTuple):
-    """What :func:`simulate` returns: the set-up, and the runs as numpy (run axis first)."""
-    scenario: object
-    cfg: object
-    p: object
-    out: dict       # per-run summaries
-    series: dict    # per-step series, (runs, T, ...)
-    wall: float     # seconds, compilation included
-
-
-def simulate(config: Path, config_over: dict, params_over: dict, runs: int, base_seed: int,
-             desc: str = "runs") -> Runs:
-    """The only way runs are set up here: the config file with overrides (validated like a sweep
-    spec), run through ``engine.run_chunks`` in chunks of one compiled batch with the scenario's
-    per-step series, with a progress bar."""
-    from tqdm import tqdm
-
-    spec = build_spec({"base": str(config.resolve()), "config": dict(config_over),
-                       "params": dict(params_over)}, config.parent, seeds=1)
-    scenario, cfg, p = spec.scenario, spec.config, spec.base_params
-    outs, series = [], []
-    t0 = time.perf_counter()
-    with tqdm(total=runs, desc=desc, unit="run") as bar:
-        for _, start, stop, (o, s) in engine.run_chunks(scenario, cfg, engine.stack_points([p]), runs,
-                                                        base_seed=base_seed, chunk_size=engine.BATCH_SIZE,
-                                                        timeseries=True):
-            outs.append(o)
-            series.append(s)
-            bar.update(stop - start)
-    wall = time.perf_counter() - t0
-    cat = lambda parts: {k: np.concatenate([np.asarray(x[k]) for x in parts]) for k in parts[0]}  # noqa: E731
-    return Runs(scenario, cfg, p, cat(outs), cat(series), wall)
 
 
 # --------------------------------------------------------------------------- one run, step by step
@@ -353,23 +318,23 @@ def figures(cfg, p, series: dict, out: dict, traj0: dict, out_dir: Path) -> list
 # --------------------------------------------------------------------------- main
 
 
-def print_speed(args, r: Runs) -> None:
+def print_speed(args, r) -> None:
     """Section 1: wall time and sub-steps of the paper's runs."""
-    cfg, p, out = r.cfg, r.p, r.out
+    cfg, p, out = r.config, r.params, r.records[0]
     print(f"\n## Lou, Cui & Li 2013 — {args.runs} runs x {cfg.n_steps} steps of {float(p.dt)} s "
           f"({cfg.n_agents} nodes, M = {int(p.n_sensing)} type I, R = {float(p.R)} m, ε = {float(p.epsilon)} m, "
           f"config {args.config.name}); the claims: mcjax check benchmarks/claims/lou2013.toml\n")
-    print(f"wall {r.wall:.1f} s including compilation; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
+    print(f"wall {r.seconds:.1f} s including compilation; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
     print(f"sub-steps ({cfg.integrator}; attempts if adaptive) per 0.1 s step: mean over runs "
           f"{out['substeps_mean'].mean():.2f} (run means: min {out['substeps_mean'].min():.2f}, max "
           f"{out['substeps_mean'].max():.2f}); steps at the cap of {cfg.max_substeps}: "
           f"{int(out['substeps_capped'].sum())} (in {int(np.sum(out['substeps_capped'] > 0))} runs)")
 
 
-def print_extremes(args, r: Runs) -> None:
+def print_extremes(args, r) -> None:
     """Section 2: the extremes at 100x tighter tolerance."""
-    conv, tight, n_conv, wall_conv = convergence(r.scenario, r.cfg, r.p, r.out, args.base_seed)
-    print(f"\n### The integrator: {r.cfg.integrator}, tolerance {r.cfg.tolerance:g} (m, m/s) — extremes and their "
+    conv, tight, n_conv, wall_conv = convergence(r.scenario, r.config, r.params, r.records[0], args.base_seed)
+    print(f"\n### The integrator: {r.config.integrator}, tolerance {r.config.tolerance:g} (m, m/s) — extremes and their "
           f"convergence\n")
     print(f"the {n_conv} runs nearest the three extremes re-run at {tight.tolerance:g} (100x tighter) in "
           f"{wall_conv:.1f} s incl. compilation\n")
@@ -380,13 +345,13 @@ def print_extremes(args, r: Runs) -> None:
               f"{row['max_change']:.1e} | {row['gap']:.1e} |")
 
 
-def print_energy(args, r: Runs, traj0: dict) -> None:
+def print_energy(args, r, traj0: dict) -> None:
     """Section 3: the rises of Q and its terms for seed 0 (Theorem 2's ideal case, where Q never rises,
     is a claim of benchmarks/claims/lou2013.toml)."""
-    cfg, p, out = r.cfg, r.p, r.out
-    blown = blow_ups(r.series)
+    cfg, p, out = r.config, r.params, r.records[0]
+    blown = blow_ups(r.records[1])
     print("\n### Energy Q(t) = φ of eq. 15 (Fig. 5)\n")
-    print("\n".join(energy_lines(energy_rises(r.series, out), f"paper's set-up ({args.runs} runs)")))
+    print("\n".join(energy_lines(energy_rises(r.records[1], out), f"paper's set-up ({args.runs} runs)")))
     print(f"  Q after the first step: median {np.median(out['energy_start'][~blown]):.4g}; at the end: median "
           f"{np.median(out['energy_end'][~blown]):.4g}")
     rows = []
@@ -412,15 +377,15 @@ def main(argv=None) -> int:
     if args.runs < 1:
         ap.error(f"--runs must be >= 1; got {args.runs}")
     wall0 = time.perf_counter()
-    paper = simulate(args.config, {}, {}, args.runs, args.base_seed, "paper set-up")
+    paper = run_records(args.config, args.runs, base_seed=args.base_seed, series=True)
     print_speed(args, paper)
     print_extremes(args, paper)
-    traj0 = trajectory(paper.scenario, paper.cfg, paper.p, 0, args.base_seed)  # the terms of Q, the seed-0 figure
+    traj0 = trajectory(paper.scenario, paper.config, paper.params, 0, args.base_seed)  # the terms of Q, the seed-0 figure
     print_energy(args, paper, traj0)
     if not args.no_figures:
         args.out.mkdir(parents=True, exist_ok=True)
         print()
-        for path in figures(paper.cfg, paper.p, paper.series, paper.out, traj0, args.out):
+        for path in figures(paper.config, paper.params, paper.records[1], paper.records[0], traj0, args.out):
             print(f"figure: {path}")
     print(f"\ntotal wall time {time.perf_counter() - wall0:.0f} s")
     return 0
