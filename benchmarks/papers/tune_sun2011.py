@@ -92,18 +92,6 @@ def path_heatmap(g: pd.DataFrame, trace: pd.DataFrame, best, final, n_seeds: int
     return path
 
 
-def replot(out: Path) -> None:
-    """Redraw path_heatmap.png from a finished run's files (no simulation)."""
-    trace = pd.read_parquet(out / "tune" / "trace.parquet")
-    gdf = pd.read_parquet(out / "grid_runs.parquet")
-    g = (gdf.groupby(["alpha_I", "alpha_L", "alpha_C"]).agg(div=("diverged", "mean"), rmse=("rmse", "mean"))
-         .reset_index())
-    best = g.sort_values(["div", "rmse"]).iloc[0]
-    final = trace.iloc[-1][["alpha_I", "alpha_L", "alpha_C"]].to_numpy(float)
-    n_seeds = int(gdf["seed_index"].max()) + 1
-    print(path_heatmap(g, trace, best, final, n_seeds, out / "path_heatmap.png"))
-
-
 def _cached_sweep(spec, path: Path):
     """The sweep's rows, read from ``path`` if an earlier (killed) run of this benchmark wrote
     them, else run and written there; and the wall seconds it took."""
@@ -127,16 +115,13 @@ def main() -> None:
     ap.add_argument("--gradient-window", type=int, default=None,
                     help="truncate the gradient to windows of this many steps (default: the spec's)")
     ap.add_argument("--out", default="results/tune_sun2011_benchmark")
-    ap.add_argument("--replot", action="store_true", help="only redraw path_heatmap.png of a finished --out")
     args = ap.parse_args()
-    if args.replot:
-        return replot(Path(args.out))
 
     import jax
 
     from mcjax.validation import read_toml
     from mcjax import engine, tune
-    from mcjax.study import build_spec, read_identity  # noqa: F401
+    from mcjax.study import build_spec
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -155,7 +140,7 @@ def main() -> None:
 
     log = {"date": str(date.today()), "load_average_start": list(os.getloadavg()),
            "command": "python benchmarks/papers/tune_sun2011.py " + " ".join(
-        f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items() if v is not None and k not in ("spec", "replot"))}
+        f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items() if v is not None and k != "spec")}
 
     # ---- tune (resumes from OUT/tune when it was interrupted)
     tdir = out / "tune"
@@ -230,7 +215,6 @@ def main() -> None:
     for pid, name in enumerate(cand):
         st = _stats(hdf[hdf["point_id"] == pid])
         rows.append({"weights": name, **{n: float(cand[name][i]) for i, n in enumerate(spec.names)}, **st})
-    table = pd.DataFrame(rows)
 
     # ---- figure: the path over the grid's heat maps (divergence rate, mean RMSE)
     path_heatmap(g, trace, best, final, spec.train_seeds, out / "path_heatmap.png")

@@ -40,17 +40,14 @@ import argparse
 import time
 from pathlib import Path
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcjax import configure, engine
 from mcjax.models.sensors import azimuth
 from mcjax.scenarios import urban_bearing as ub
 from mcjax.scenarios.urban_bearing import environment as env
-from mcjax.study import build_spec
+from figures import run_records  # the one run set-up of this folder's scripts
 
-configure()
 
 ROOT = Path(__file__).resolve().parents[2]
 LOS, REFL, SHADOW = 0, 1, 2
@@ -106,12 +103,9 @@ def main(argv=None) -> int:
     ap.add_argument("--base-seed", type=int, default=1000)
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
-    spec = build_spec({"base": str(args.config), "params": {"c1": 0.2, "c2": 0.0, "c3": 0.0}}, ROOT, seeds=args.runs)
-    cfg = spec.config
-    chunks = [o for *_, o in engine.run_chunks(spec.scenario, cfg, spec.params, args.runs, base_seed=args.base_seed,
-                                               chunk_size=args.runs, records=True)]
-    records = jax.tree.map(lambda *xs: np.concatenate(xs), *chunks)
-    cls, sign = classes(records, spec.base_params)
+    runs = run_records(args.config, args.runs, params_over={"c1": 0.2, "c2": 0.0, "c3": 0.0}, base_seed=args.base_seed)
+    cfg, records = runs.config, runs.records
+    cls, sign = classes(records, runs.params)
     print(f"FIM-only weight vector (0.2, 0, 0), {args.config.name}: {args.runs} runs x {cfg.n_steps} steps "
           f"(base seed {args.base_seed}), dt = {cfg.dt:g} s; {time.perf_counter() - t0:.1f} s\n")
     print("| class | steps (% of all) | mean stretch, steps (MLE, censored) | tau, s | p_ii = 1 - dt/tau | "
