@@ -38,6 +38,14 @@ def _fail(message: str) -> None:
     sys.exit(2)
 
 
+def _chunk_failed(message: str) -> None:
+    """A chunk failed (computing or writing): one line, exit 1 (at once in the command's own process)."""
+    click.echo(f"error: {message}", err=True)
+    if own_process():
+        exit_now(1)
+    sys.exit(1)
+
+
 def _check_environment() -> None:
     """The environment variables mcjax reads, checked before JAX starts (one line, exit 2)."""
     try:
@@ -175,11 +183,7 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
         except study.ChunkError as exc:
             failure = exc
     if failure is not None:
-        click.echo(f"error: {failure}; {state['done']} of {state['plan']} chunk(s) written to {out_dir} (they stay)",
-                   err=True)
-        if own_process():
-            exit_now(1)
-        sys.exit(1)
+        _chunk_failed(f"{failure}; {state['done']} of {state['plan']} chunk(s) written to {out_dir} (they stay)")
     if result.stopped:
         click.echo(hint(), err=True)
         exit_now(130)
@@ -256,10 +260,7 @@ def check(claims, seeds, out_dir, resume, force, strict, fmt, markdown, executor
             except (OutputError, ClaimsError) as exc:
                 _fail(str(exc))
             except ChunkError as exc:
-                click.echo(f"error: {exc}; the chunks written stay in {out_dir} (finish with --resume)", err=True)
-                if own_process():
-                    exit_now(1)
-                sys.exit(1)
+                _chunk_failed(f"{exc}; the chunks written stay in {out_dir} (finish with --resume)")
         if result.stopped:
             click.echo(hint(), err=True)
             exit_now(130)
