@@ -58,11 +58,11 @@ def _at(at: dict) -> str:
     return ", ".join(f"{k} = {json.dumps(v)}" for k, v in at.items())
 
 
-def describe_side(side: Side, filters: int = 2) -> str:
+def describe_side(side: Side) -> str:
     """The side in words: ``rate of diverged > 1000 (my_filter; alpha_I = 0)``."""
     what = f"{side.q:g}-quantile" if side.statistic == "quantile" else side.statistic
     bound = f" > {side.over:g}" if side.over is not None else f" < {side.under:g}" if side.under is not None else ""
-    where = "; ".join(x for x in (side.filter if filters > 1 else "", _at(side.at)) if x)
+    where = "; ".join(x for x in (side.filter, _at(side.at)) if x)
     text = f"{what} of {side.output}{bound}" + (f" ({where})" if where else "")
     if side.minus is not None:
         other = "; ".join(x for x in (f"sweep {side.minus.sweep}" if side.minus.sweep != side.sweep else "",

@@ -190,8 +190,12 @@ def _point(where: str, study: Study, at: Any, free: str | None = None) -> tuple[
         if axis == free:
             raise _err(f"{where}at.{key_text(axis)}", "must not pin the axis the claim is monotone along")
         col = points[axis].tolist()
-        hit = np.array([np.allclose(np.asarray(v, float), np.asarray(value, float)) if np.shape(v) == np.shape(value)
-                        else False for v in col])
+        try:
+            want = np.asarray(value, float)
+        except (TypeError, ValueError):  # not a number (or a list of numbers): no point has it
+            want = None
+        hit = np.array([want is not None and np.shape(v) == want.shape and np.allclose(np.asarray(v, float), want)
+                        for v in col])
         if not hit.any():
             values = list(dict.fromkeys(json.dumps(np.asarray(v).tolist()) for v in col))
             raise _err(f"{where}at.{key_text(axis)}", f"must be one of the sweep's values {', '.join(values)}; "
@@ -212,16 +216,22 @@ def _point(where: str, study: Study, at: Any, free: str | None = None) -> tuple[
     return int(ids[0]), dict(at)
 
 
-def _side(where: str, table: dict, studies: dict, *, free: str | None = None) -> Side | list[Side]:
-    """A side from the claim's keys (``table``: the claim's own, with any override merged in)."""
+def _sweep_name(where: str, table: dict, studies: dict) -> str:
+    """The sweep a side names (the file's only one when it names none)."""
     sweep = table.get("sweep")
     if sweep is None:
         if len(studies) != 1:
             raise _err(f"{where}sweep", f"missing; the file has {len(studies)} sweeps: {', '.join(studies)}")
-        sweep = next(iter(studies))
-    if sweep not in studies:
+        return next(iter(studies))
+    if not isinstance(sweep, str) or sweep not in studies:
         raise _err(f"{where}sweep", f"must be one of the file's sweeps {', '.join(studies)}; got {show(sweep)}"
                    f"{suggest(sweep, list(studies)) if isinstance(sweep, str) else ''}")
+    return sweep
+
+
+def _side(where: str, table: dict, studies: dict, *, free: str | None = None) -> Side | list[Side]:
+    """A side from the claim's keys (``table``: the claim's own, with any override merged in)."""
+    sweep = _sweep_name(where, table, studies)
     study = studies[sweep]
     outputs = study.scenario.outputs(study.config)
     output = table.get("output")
@@ -318,11 +328,9 @@ def _claim(path: Path, i: int, raw: Any, studies: dict, seen: set) -> Claim:
     side_keys = {k: v for k, v in raw.items() if k in SIDE_KEYS}
     free = raw.get("along") if relation == "monotone" else None
     if relation == "monotone":
-        if not isinstance(free, str) or free not in studies.get(raw.get("sweep", next(iter(studies))),
-                                                                 next(iter(studies.values()))).axes:
-            sw = studies.get(raw.get("sweep"), next(iter(studies.values())))
-            raise _err(f"{where}along", f"must be an axis of the sweep ({', '.join(sw.axes) or 'none'}); got "
-                       f"{show(free)}")
+        axes = studies[_sweep_name(where, side_keys, studies)].axes
+        if free not in axes:
+            raise _err(f"{where}along", f"must be an axis of the sweep ({', '.join(axes) or 'none'}); got {show(free)}")
     # an order's own keys are only the defaults of its sides
     side = None if relation == "ordered" else _side(where, side_keys, studies, free=free)
     others: tuple[Side, ...] = ()
