@@ -1,4 +1,4 @@
-"""Run metrics: position errors, RMSE, NEES, the divergence rule (docs/equations.md)."""
+"""Run metrics: position errors, RMSE, NEES and NIS, the divergence rule (docs/equations.md)."""
 
 from __future__ import annotations
 
@@ -18,6 +18,13 @@ def nees(estimate, information, truth):
     computed with the information matrix ``Y = P⁻¹`` (no inverse)."""
     e = estimate - truth
     return jnp.sum(e * matvec(information, e), axis=-1)
+
+
+def nis(innovation, innovation_information):
+    """Normalised innovation squared ``νᵀ S⁻¹ ν`` of an innovation ``ν = z − ẑ`` with the inverse of
+    its covariance ``S`` (Bar-Shalom, Li & Kirubarajan 2001, §5.4.2): χ² with dim(z) degrees of
+    freedom when the filter is consistent."""
+    return jnp.sum(innovation * matvec(innovation_information, innovation), axis=-1)
 
 
 def alive_weights(alive, n: int, dtype):

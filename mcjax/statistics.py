@@ -7,6 +7,10 @@ binomial proportion with its Wilson score interval.
   ``mean ± t·sd/√n`` (``sd`` with ``ddof=1``); NaN interval for fewer than two values.
 * :func:`wilson_interval` -- ``(low, high)``: Wilson score interval of ``k/n`` without
   continuity correction (``scipy.stats.binomtest(k, n).proportion_ci(method="wilson")``).
+* :func:`chi2_band` -- the two-sided band of an average of NEES (or NIS) values: for ``runs``
+  independent runs of a ``dof``-dimensional error of a consistent filter, ``N·ε̄`` is χ² with
+  ``N·dof`` degrees of freedom, so ``ε̄`` lies in ``[χ²_{N·dof}(α/2), χ²_{N·dof}(1 − α/2)] / N``
+  (Bar-Shalom, Li & Kirubarajan 2001, §5.4.2); :func:`consistency` says where an average lies.
 
 Both return :class:`typing.NamedTuple` records, which compare equal to plain tuples.
 Pure functions of numbers; no pandas, no JAX.
@@ -20,7 +24,11 @@ from typing import Iterable, NamedTuple
 import numpy as np
 from scipy import stats
 
-__all__ = ["CONFIDENCE", "MeanCI", "Interval", "t_critical", "mean_ci", "wilson_interval"]
+__all__ = ["CONFIDENCE", "MeanCI", "Interval", "t_critical", "mean_ci", "wilson_interval", "chi2_band",
+           "consistency", "CONSISTENCY"]
+
+#: What :func:`consistency` says of an average NEES or NIS against its band.
+CONSISTENCY = ("consistent", "over-confident", "under-confident")
 
 #: Confidence level of every interval in the report.
 CONFIDENCE = 0.95
@@ -95,6 +103,28 @@ def wilson_interval(k: int, n: int, confidence: float = CONFIDENCE) -> Interval:
     low = 0.0 if k == 0 else max(0.0, float(ci.low))  # exact ends (scipy's can be off by round-off)
     high = 1.0 if k == n else min(1.0, float(ci.high))
     return Interval(low, high)
+
+
+def chi2_band(dof: int, runs: int, confidence: float = CONFIDENCE) -> Interval:
+    """The two-sided ``confidence`` band of the average of ``runs`` independent NEES (or NIS)
+    values of a ``dof``-dimensional error, when the filter is consistent: the quantiles of
+    χ² with ``runs·dof`` degrees of freedom, divided by ``runs`` (Bar-Shalom, Li & Kirubarajan
+    2001, eq. 5.4.2-5; ``scipy.stats.chi2``). Its middle is ``dof``."""
+    confidence = _check_confidence(confidence)
+    if int(dof) < 1 or int(runs) < 1:
+        raise ValueError(f"chi2_band needs dof >= 1 and runs >= 1, got dof={dof}, runs={runs}")
+    k = int(dof) * int(runs)
+    low, high = stats.chi2.ppf([(1 - confidence) / 2, (1 + confidence) / 2], k)
+    return Interval(float(low) / runs, float(high) / runs)
+
+
+def consistency(average: float, band: Interval) -> str:
+    """Where an average NEES or NIS lies against its :func:`chi2_band`: ``"over-confident"``
+    above it (the errors are larger than the filter's covariance says), ``"under-confident"``
+    below it (smaller), ``"consistent"`` inside (one of :data:`CONSISTENCY`)."""
+    if not math.isfinite(average):
+        raise ValueError(f"consistency needs a finite average; got {average!r}")
+    return "over-confident" if average > band.high else "under-confident" if average < band.low else "consistent"
 
 
 def paired_by_seed(runs, columns: list[str], initial: int, tuned: int, filters) -> list[dict]:
