@@ -280,3 +280,21 @@ def test_faults_are_the_same_on_dask(lab, tmp_path):
     local = read_table(tmp_path / "local")
     assert local.agents_lost.sum() > 0
     pd.testing.assert_frame_equal(read_table(tmp_path / "dask"), local, check_exact=True)
+
+
+def test_a_check_on_dask_gives_the_local_verdicts(lab, tmp_path):
+    """`mcjax check --executor dask`: the sweep folder holds the local sweep's rows, byte for byte, and
+    claims.parquet the verdicts of a check in this process."""
+    from mcjax.claims.folder import read_verdicts
+    from mcjax.claims.runner import run_check
+
+    claims = lab.root / "claims.toml"
+    claims.write_text('paper = "probe"\n[sweeps.good]\nspec = "good.toml"\n\n'
+                      '[[claim]]\nid = "error-grows-with-r"\nclaim = "the error grows with the noise r"\n'
+                      'output = "rmse"\nfilter = "kf"\nrelation = "monotone"\nalong = "r"\n')
+    out = tmp_path / "dask"
+    r = CliRunner().invoke(main, ["check", str(claims), "--out", str(out), *_dask(lab)])
+    assert r.exit_code == 0, r.output
+    pd.testing.assert_frame_equal(read_table(out / "good"), lab.reference, check_exact=True)
+    run_check(claims, out_dir=tmp_path / "local")
+    pd.testing.assert_frame_equal(read_verdicts(out)[0], read_verdicts(tmp_path / "local")[0], check_exact=True)
