@@ -124,3 +124,31 @@ def test_an_ekf_on_range_bearing_data_is_not_below_the_bound():
     m = mean_ci(per_run)
     assert m.high >= floor[10:].mean(), (m, floor[10:].mean())
     assert m.mean < 1.2 * floor[10:].mean(), (m, floor[10:].mean())
+
+
+def _sun_open_loop(seeds=40, **params):
+    from mcjax.study import build_spec, run_sweep
+
+    spec = build_spec({"base": "../configs/sun2011.toml", "params": params,
+                       "config": {"bound": "on", "planner": "none", "n_steps": 60, "filters": ["cif", "local"]}},
+                      __import__("pathlib").Path(__file__).parent, seeds=seeds)
+    return run_sweep(spec)
+
+
+def test_in_sun2011_the_centralised_filter_is_not_below_its_floor():
+    """Sun et al. 2011 (open loop, 40 runs): the CIF's mean squared position error over the runs is not
+    below the bound's (the PCRB along each run, averaged: its interval reaches the floor)."""
+    df = _sun_open_loop()
+    cif = df[df["filter"] == "cif"]
+    m = mean_ci((cif["rmse"] ** 2).to_numpy())
+    floor = float(np.mean(cif["pcrb_rmse"] ** 2))
+    assert m.high >= floor, (m, floor)
+    assert np.all(np.isfinite(cif["pcrb_rmse"])) and np.all(cif["pcrb_rmse"] > 0)
+
+
+def test_in_sun2011_the_floor_falls_with_a_longer_sensing_range():
+    near = _sun_open_loop(seeds=10, sensing_radius=60e3)
+    far = _sun_open_loop(seeds=10, sensing_radius=150e3)
+    a = near[near["filter"] == "cif"].set_index("seed_index")["pcrb_rmse"]
+    b = far[far["filter"] == "cif"].set_index("seed_index")["pcrb_rmse"]
+    assert np.all(b <= a + 1e-9) and np.any(b < a - 1e-6)   # the same trajectories, more measurements

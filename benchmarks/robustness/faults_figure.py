@@ -24,7 +24,6 @@ import pandas as pd
 from mcjax.results import read_metadata, read_table
 from mcjax.statistics import wilson_interval
 
-ROOT = Path(__file__).resolve().parents[2]
 SWEEPS = ("sun2011", "ren2017")
 
 

@@ -1,6 +1,6 @@
 """What Sun et al. 2011's closed loop costs (``configs/sun2011.toml``: gradient planner, 10 Adam steps per
 plan, τ_r = 3, t_r = 5; filters ICF / modified ICF / CIF; ``--runs`` runs of ``--steps`` steps), in
-one process. Five measurements, a subcommand each:
+one process. Six measurements, a subcommand each:
 
 * ``due`` — what planning only when due buys: ``every step`` (``plan_period = 0``, ``max_horizon = 8``:
   plans at every step, rolls out 8 steps masking those past t_r), ``when due`` (``plan_period = 3``: the
@@ -21,6 +21,7 @@ one process. Five measurements, a subcommand each:
 * ``faults`` — the fault model's cost: ``off`` (no fault draws in the program), ``on, rates 0``, ``on,
   faults drawn`` (link loss 0.2 in bursts of 5, agent loss 0.002 per UAV and step, sensor dropout
   0.05): each run once, then timed ``--repeats`` times in turn, the best of each and its ratio to off.
+* ``bound`` — the cost of the posterior Cramér–Rao bound (``bound = "on"``), the same way.
 * ``profile`` — where the time goes: the runs in one call on one device (compiled by ``jax.jit``
   without the scenario's compiler options), called once, then once more under ``jax.profiler`` with
   XLA's per-kernel trace events on (sets ``XLA_FLAGS``). Prints the kernels' total time, the
@@ -65,8 +66,7 @@ from mcjax.study import load_config_file
 from mcjax import configure
 
 ROOT = Path(__file__).resolve().parents[2]
-#: the fault rates of the "faults drawn" variant: link loss 0.2 in bursts of 5, agent loss 0.002 per UAV and
-#: step, sensor dropout 0.05
+#: the fault rates of the "faults drawn" variant (per step; agent loss per UAV)
 FAULTS = dict(link_loss=0.2, link_burst=5.0, agent_loss_rate=0.002, sensor_dropout=0.05)
 VARIANTS = {  # measurement: (name, Scenario changes, Config changes) per variant
     "due": (("every step", {}, dict(plan_period=0, max_horizon=8)),
@@ -77,6 +77,7 @@ VARIANTS = {  # measurement: (name, Scenario changes, Config changes) per varian
                 ("older emitters, float32 planner", {}, dict(plan_dtype="float32"))),
     "dispatch": (("as shipped", {}, {}),),
     "faults": (("off", {}, {}), ("on, rates 0", {}, dict(faults="on")), ("on, faults drawn", {}, dict(faults="on"))),
+    "bound": (("off", {}, {}), ("bound on", {}, dict(bound="on"))),
     "profile": (("as shipped", {}, {}),),
 }
 
@@ -145,11 +146,11 @@ def dispatch(args, sc, base, points) -> int:
     return 0
 
 
-def faults(args, sc, base, points) -> int:
-    """The fault model's cost: every variant compiled and run once, then timed ``--repeats`` times in
-    turn; the best of each, and its ratio to the model switched off (no fault draws in the program)."""
+def timed(args, sc, base, points) -> int:
+    """The cost of an option (``faults``, ``bound``): every variant compiled and run once, then timed
+    ``--repeats`` times in turn; the best of each, and its ratio to the first (the option off)."""
     cases = []
-    for name, scenario, cfg in variants("faults", sc, base):
+    for name, scenario, cfg in variants(args.what, sc, base):
         p = points if name != "on, faults drawn" else points._replace(
             **{k: np.full_like(np.asarray(getattr(points, k)), v) for k, v in FAULTS.items()})
         run(scenario, cfg, p, args.runs, args.runs)
@@ -211,14 +212,16 @@ def main(argv=None) -> int:
                              ("options", 100, "older fusion emitters, float32 planner"),
                              ("dispatch", 400, "per chunk size on the CPU devices"),
                              ("profile", 100, "XLA's kernels of one batch call, summed by kind"),
-                             ("faults", 300, "the fault model off, on with rates 0, on with faults drawn")):
+                             ("faults", 300, "the fault model off, on with rates 0, on with faults drawn"),
+                             ("bound", 300, "the posterior Cramér–Rao bound off and on")):
         p = sub.add_parser(what, help=text)
         p.add_argument("--runs", type=int, default=runs)
         p.add_argument("--steps", type=int, default=200)
     sub.choices["options"].add_argument("--rounds", type=int, default=2)
     sub.choices["dispatch"].add_argument("--warmup", type=int, default=200)
     sub.choices["dispatch"].add_argument("--chunks", type=int, nargs="+", default=[200, 400])
-    sub.choices["faults"].add_argument("--repeats", type=int, default=3)
+    for what in ("faults", "bound"):
+        sub.choices[what].add_argument("--repeats", type=int, default=3)
     sub.choices["profile"].add_argument("--top", type=int, default=25, help="kinds of kernel to print")
     sub.choices["profile"].add_argument("--match", default=None,
                                         help="also print every kernel whose name contains this text")
@@ -238,7 +241,7 @@ def main(argv=None) -> int:
     print(f"Sun et al. 2011 closed loop, {args.runs} runs x {args.steps} steps, {runtime.settings()['cpu_devices']} "
           f"CPU device(s), load average {os.getloadavg()[0]:.2f}, {time.strftime('%Y-%m-%d %H:%M')}")
     return {"due": due, "options": options, "dispatch": dispatch, "profile": profile,
-            "faults": faults}[args.what](args, sc, base, points)
+            "faults": timed, "bound": timed}[args.what](args, sc, base, points)
 
 
 if __name__ == "__main__":

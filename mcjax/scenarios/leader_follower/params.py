@@ -70,6 +70,9 @@ Config = config_type("Config", dict(
                              "by soft Floyd-Warshall; spanning_tree = the same exact R_I in O(n^2), smooth by a "
                              "softmin over a maximum spanning tree's links (a different surrogate, ours); auto = "
                              "all pairs up to 10 UAVs, the tree above", choices=ROBUSTNESS_PATHS),
+    bound=Setting("off", "the posterior Cramér–Rao bound along the run (Tichavský et al. 1998): on adds pcrb_rmse, "
+                  "the floor of any filter of every UAV's measurements, and its per-step series; off is the "
+                  "program without it", choices=("off", "on")),
     **faults.SETTINGS,
     **faults.DELAY_SETTINGS,
 ), __name__, _check)

@@ -49,6 +49,10 @@ def summary(cfg, records: Record | None, params) -> dict:
         plan_cost_mean=(Output("", "mean exact eq. 16 cost of the plans in force (0 in open loop)", False),
                         lambda: jnp.mean(r.plan_cost)),
         **faults.summary_items(cfg, r and r.faults, switched_on),
+        **({} if cfg.bound != "on" else {"pcrb_rmse": (
+            Output("m", "the posterior Cramér–Rao bound's position RMSE after warm-up along the run: the floor of "
+                        "any filter of every UAV's measurements (Tichavský et al. 1998; compare rmse² over runs)",
+                   False), lambda: jnp.sqrt(jnp.mean(r.bound[w:])))}),
     )
 
 
@@ -67,6 +71,9 @@ def series(cfg, records: Record | None, params) -> dict:
         plan_cost=(Output("", "exact eq. 16 cost of the plan in force (0 in open loop)", False),
                    lambda: r.plan_cost),
         **faults.series_items(cfg, r and r.faults, switched_on),
+        **({} if cfg.bound != "on" else {"pcrb_error": (
+            Output("m", "the posterior Cramér–Rao bound's position error (square root of its variance)", False),
+            lambda: jnp.sqrt(r.bound))}),
     )
 
 
