@@ -152,3 +152,19 @@ def test_in_sun2011_the_floor_falls_with_a_longer_sensing_range():
     a = near[near["filter"] == "cif"].set_index("seed_index")["pcrb_rmse"]
     b = far[far["filter"] == "cif"].set_index("seed_index")["pcrb_rmse"]
     assert np.all(b <= a + 1e-9) and np.any(b < a - 1e-6)   # the same trajectories, more measurements
+
+
+def test_in_ren2017_no_filter_is_below_the_floor_given_the_modes():
+    """Ren & Lv 2017 (20 runs, the paper's turn): every filter's mean squared position error is not
+    below the bound given the true mode sequence, and the turn-aware IMM is the nearest to it."""
+    from mcjax.study import build_spec, run_sweep
+
+    spec = build_spec({"base": "../configs/ren2017.toml", "config": {"bound": "on"}},
+                      __import__("pathlib").Path(__file__).parent, seeds=20)
+    df = run_sweep(spec)
+    ratio = {}
+    for f, g in df.groupby("filter"):
+        m, floor = mean_ci((g["rmse"] ** 2).to_numpy()), float(np.mean(g["pcrb_rmse"] ** 2))
+        assert m.high >= floor, (f, m, floor)
+        ratio[f] = m.mean / floor
+    assert min(ratio, key=ratio.get) == "imm", ratio

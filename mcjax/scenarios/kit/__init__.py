@@ -13,6 +13,8 @@
   :func:`error_series_items`; :func:`error_outputs`, :data:`GRAPH_OUTPUTS`, ...), the weights of
   the agents switched on and alive (:func:`team_weights`), the training loss's errors and
   weights (:func:`training_errors`, :func:`training_weights`);
+* :mod:`~mcjax.scenarios.kit.bound` — the posterior Cramér–Rao bound carried step by step with
+  ``bound = "on"`` (its Config setting, update, outputs);
 * :func:`aliases` — a scenario module's usual names for its record's functions.
 """
 

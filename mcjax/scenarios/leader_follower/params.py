@@ -10,6 +10,7 @@ from mcjax.contract import Param, Setting, config_type, params_type
 from mcjax.filters.consensus import (CONTRIBUTION_KINDS, FILTER_KINDS, ICF_VARIANTS, KCF_GAINS, LATE_KINDS,
                                      WEIGHT_KINDS, FilterOptions)
 from mcjax.scenarios import faults, kit
+from mcjax.scenarios.kit import bound as kit_bound
 from mcjax.scenarios.leader_follower.objectives import ROBUSTNESS_PATHS, ROBUSTNESS_PENALTIES
 from mcjax.scenarios.leader_follower.planner import planner_options
 
@@ -70,9 +71,7 @@ Config = config_type("Config", dict(
                              "by soft Floyd-Warshall; spanning_tree = the same exact R_I in O(n^2), smooth by a "
                              "softmin over a maximum spanning tree's links (a different surrogate, ours); auto = "
                              "all pairs up to 10 UAVs, the tree above", choices=ROBUSTNESS_PATHS),
-    bound=Setting("off", "the posterior Cramér–Rao bound along the run (Tichavský et al. 1998): on adds pcrb_rmse, "
-                  "the floor of any filter of every UAV's measurements, and its per-step series; off is the "
-                  "program without it", choices=("off", "on")),
+    bound=kit_bound.SETTING,
     **faults.SETTINGS,
     **faults.DELAY_SETTINGS,
 ), __name__, _check)

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 from mcjax import metrics
 from mcjax.contract import FAST_COMPILE, Output, Scenario, declare
 from mcjax.scenarios import faults, kit
+from mcjax.scenarios.kit import bound as pcrb
 from mcjax.scenarios.leader_follower.params import NAME, Config, Params, check_params
 from mcjax.scenarios.leader_follower.step import ROUGH, Record, Smoothing, init, step
 from mcjax.smoothing import Smooth
@@ -49,10 +50,7 @@ def summary(cfg, records: Record | None, params) -> dict:
         plan_cost_mean=(Output("", "mean exact eq. 16 cost of the plans in force (0 in open loop)", False),
                         lambda: jnp.mean(r.plan_cost)),
         **faults.summary_items(cfg, r and r.faults, switched_on),
-        **({} if cfg.bound != "on" else {"pcrb_rmse": (
-            Output("m", "the posterior Cramér–Rao bound's position RMSE after warm-up along the run: the floor of "
-                        "any filter of every UAV's measurements (Tichavský et al. 1998; compare rmse² over runs)",
-                   False), lambda: jnp.sqrt(jnp.mean(r.bound[w:])))}),
+        **pcrb.summary_items(cfg, lambda: r.bound, w),
     )
 
 
@@ -71,9 +69,7 @@ def series(cfg, records: Record | None, params) -> dict:
         plan_cost=(Output("", "exact eq. 16 cost of the plan in force (0 in open loop)", False),
                    lambda: r.plan_cost),
         **faults.series_items(cfg, r and r.faults, switched_on),
-        **({} if cfg.bound != "on" else {"pcrb_error": (
-            Output("m", "the posterior Cramér–Rao bound's position error (square root of its variance)", False),
-            lambda: jnp.sqrt(r.bound))}),
+        **pcrb.series_items(cfg, lambda: r.bound),
     )
 
 

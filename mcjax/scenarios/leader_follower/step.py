@@ -10,14 +10,13 @@ import jax
 import jax.numpy as jnp
 
 from mcjax import graph, metrics, robustness
-from mcjax.filters.bounds import measurement_information, pcrb_step
 from mcjax.filters.consensus import Measurements, init_states, per_agent
 from mcjax.filters.gaussian import first_step_model
 from mcjax.models.motion import cv_matrices, cv_process_noise, cv_step
 from mcjax.models.platforms import UnicycleLimits, unicycle_step
 from mcjax.models.sensors import range_bearing
-from mcjax.numerics import spd_inverse
 from mcjax.scenarios import faults, kit
+from mcjax.scenarios.kit import bound as pcrb
 from mcjax.scenarios.leader_follower.objectives import resolve_paths
 from mcjax.scenarios.leader_follower.params import filter_options
 from mcjax.scenarios.leader_follower.planner import plan_if_due
@@ -70,13 +69,7 @@ def init(cfg, params, key) -> State:
     plan, cost = kit.per_run(params.dt, jnp.zeros((cfg.max_horizon, n), dtype), jnp.zeros((), dtype))
     return State(jnp.asarray(0, jnp.int32), x0, uavs, init_states(cfg.filters, x0, P0, n),
                  plan, plan, jnp.asarray(0, jnp.int32), cost, faults.init(cfg, key, params),
-                 kit.kcf_mailbox(cfg, params, x0), jnp.diag(1.0 / jnp.diag(P0)) if cfg.bound == "on" else None)
-
-
-def _position_variance(J):
-    """The bound's position variance ``P_xx + P_yy`` of ``P = J⁻¹``."""
-    P = spd_inverse(J)
-    return P[0, 0] + P[2, 2]
+                 kit.kcf_mailbox(cfg, params, x0), pcrb.initial(cfg, P0))
 
 
 class Smoothing(NamedTuple):
@@ -152,7 +145,10 @@ def _advance(cfg, params, state: State, key, smoothing):
     filters, mailbox = kit.filter_update(cfg.filters, filter_options(cfg), range_bearing, angle_mask, state.filters,
                                          meas, F, Q, jnp.asarray(params.kcf_epsilon, dtype), fault, state.mailbox)
 
-    bound = None if state.bound is None else _bound(state.bound, params, first, dt, target, sensors, z, R_inv)
+    # the bound (bound = "on"): the truth's motion model (target_sigma_accel, not the filters' sigma_accel)
+    bound = pcrb.update(state.bound, *first_step_model(first, cv_matrices(dt, dtype)[0],
+                                                        cv_process_noise(dt, params.target_sigma_accel, dtype)),
+                        range_bearing, target, sensors, z, R_inv)
     plan = (state.plan_u, state.plan_cmd, age, state.plan_cost)
     if cfg.planner != "none":
         team, leader = kit.agents(params.alive, n, dtype), 0
@@ -162,20 +158,6 @@ def _advance(cfg, params, state: State, key, smoothing):
                            team, leader)
     return (State(state.t + 1, target, uavs, filters, *plan, fault_state, mailbox, bound),
             _Step(target, sensors, z, adj, carried, fault, filters, bound))
-
-
-def _bound(J, params, first, dt, target, sensors, z, R_inv):
-    """The posterior Cramér–Rao bound's information after this step's measurements (Tichavský,
-    Muravchik & Nehorai 1998, eq. 21; :mod:`mcjax.filters.bounds`): the truth's motion model
-    (``target_sigma_accel``, not the filters' ``sigma_accel``; no prediction at step 0, as the
-    filters), plus ``Hᵀ R⁻¹ H`` at the true target of every range–bearing measurement taken (in
-    range, the UAV alive, no dropout). Along this run's true trajectory and, in closed loop, its
-    UAVs' paths: the bound conditioned on them (Zuo, Niu & Varshney 2011); J0 = diag(p0_diag)⁻¹,
-    the filters' prior, read as the distribution of the initial state."""
-    F, Q = first_step_model(first, cv_matrices(dt, J.dtype)[0], cv_process_noise(dt, params.target_sigma_accel, J.dtype))
-    taken = jnp.all(jnp.isfinite(z), axis=-1)
-    info = jax.vmap(lambda sensor, Ri, ok: measurement_information(lambda x: range_bearing(x, sensor), target, Ri, ok))
-    return pcrb_step(J, F, Q, jnp.sum(info(sensors, R_inv, taken), axis=0))
 
 
 def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> tuple[State, Record]:
@@ -215,7 +197,7 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
         adjacency=s.carried,
         plan_cost=new.plan_cost,
         faults=faults.record(s.comm_graph, s.carried, s.faults, kit.agents(params.alive, n, dtype) > 0.5),
-        bound=None if s.bound is None else _position_variance(s.bound),
+        bound=pcrb.position_variance(s.bound),
     )
     return new, rec
 

@@ -9,6 +9,7 @@ from mcjax.contract import Param, Setting, config_type, params_type
 from mcjax.filters.consensus_imm import LIKELIHOODS
 from mcjax.filters.gaussian import Unscented
 from mcjax.scenarios import faults, kit
+from mcjax.scenarios.kit import bound as kit_bound
 
 NAME = "uuv_imm"
 
@@ -34,6 +35,7 @@ Config = config_type("Config", dict(
     ut_beta=Setting(2.0, "unscented transform beta (ours)", low=0),
     ut_kappa=Setting(0.0, "unscented transform kappa (ours; > -4, the state has 4 components)", low=-4,
                      low_open=True),
+    bound=kit_bound.SETTING,
     **faults.SETTINGS,
 ), __name__, kit.check_common)
 

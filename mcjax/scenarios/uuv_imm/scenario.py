@@ -33,6 +33,7 @@ import jax.numpy as jnp
 from mcjax import metrics
 from mcjax.contract import Output, Scenario, declare
 from mcjax.scenarios import faults, kit
+from mcjax.scenarios.kit import bound as pcrb
 from mcjax.scenarios.uuv_imm.params import CT, NAME, Config, Params, check_params
 from mcjax.scenarios.uuv_imm.smoothing import Smoothing
 from mcjax.scenarios.uuv_imm.step import Record, init, step
@@ -96,6 +97,7 @@ def summary(cfg, records: Record | None, params) -> dict:
         mu_ct_during_ct=(Output("", "the IMM's mean CT probability while the target turns", False),
                          lambda: _masked_mean(faults.masked(r.mu_ct, alive()), (after() & in_ct())[:, None] * alive())),
         **faults.summary_items(cfg, r and r.faults, switched_on),
+        **pcrb.summary_items(cfg, lambda: r.bound, cfg.warmup_steps),
     )
 
 
@@ -111,6 +113,7 @@ def series(cfg, records: Record | None, params) -> dict:
                lambda: jnp.sum(faults.masked(r.mu_ct, alive()) * alive(), -1) / jnp.maximum(jnp.sum(alive(), -1), 1.0)),
         lambda2=(Output("", "algebraic connectivity of the comm graph", False), lambda: r.lambda2),
         **faults.series_items(cfg, r and r.faults, switched_on),
+        **pcrb.series_items(cfg, lambda: r.bound),
     )
 
 

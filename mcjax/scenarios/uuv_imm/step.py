@@ -16,6 +16,7 @@ from mcjax.models.motion import ct_matrix, cv_matrices, cv_process_noise
 from mcjax.models.sensors import range_bearing
 from mcjax.numerics import matvec, spd_inverse
 from mcjax.scenarios import faults, kit
+from mcjax.scenarios.kit import bound as pcrb
 from mcjax.scenarios.uuv_imm.params import CT, CV, FILTER_MODES, unscented
 from mcjax.scenarios.uuv_imm.smoothing import Smoothing, mode_hits
 
@@ -26,6 +27,7 @@ class State(NamedTuple):
     mode: jax.Array     # () int, the target's current mode (0 = CV, 1 = CT)
     filters: tuple      # one IMMState per filter, node axis first: μ (n, M), x (n, M, 4), P (n, M, 4, 4)
     faults: faults.State | None  # lost links and UUVs (None: faults off)
+    bound: jax.Array | None = None  # (4, 4) the PCRB's Fisher information of the target (None: bound = "off")
 
 
 class Record(NamedTuple):
@@ -39,6 +41,7 @@ class Record(NamedTuple):
     target: jax.Array   # (4,)
     measurements: jax.Array  # (n, 2) range–bearing, NaN where none
     faults: faults.Record | None  # the step's faults (None: off)
+    bound: jax.Array | None = None  # () the PCRB's position variance, m² (None: bound = "off")
 
 
 
@@ -57,7 +60,7 @@ def init(cfg, params, key) -> State:
         states.append(IMMState(jnp.broadcast_to(mu, (n, m)), jnp.broadcast_to(x0, (n, m, 4)),
                                jnp.broadcast_to(P0, (n, m, 4, 4))))
     return State(jnp.asarray(0, jnp.int32), x0, kit.per_run(params.dt, jnp.asarray(CV, jnp.int32)), tuple(states),
-                 faults.init(cfg, key, params))
+                 faults.init(cfg, key, params), pcrb.initial(cfg, P0))
 
 
 def _true_mode(cfg, params, state: State, key):
@@ -109,6 +112,10 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
         first, jnp.stack([F_cv, ct_matrix(dt, params.turn_rate + params.model_turn_rate_error, dtype)]),
         jnp.stack([Q, Q]))
     R = jnp.diag(jnp.stack([params.sigma_range**2, params.sigma_bearing**2]))
+    # the bound (bound = "on"), given the true mode sequence (a valid, looser floor than one over the modes)
+    bound = pcrb.update(state.bound, *first_step_model(first, F_true, cv_process_noise(dt, params.target_sigma_accel,
+                                                                                         dtype)),
+                        range_bearing, target, sensors, z, jnp.diag(1.0 / jnp.diag(R)))
     angle_mask = jnp.array([False, True])
 
     new_filters, err, ne = [], [], []
@@ -142,6 +149,7 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
         target=target,
         measurements=z,
         faults=faults.record(comm_graph, adj, fault, alive),
+        bound=pcrb.position_variance(bound),
     )
-    return State(state.t + 1, target, mode, tuple(new_filters), fault_state), rec
+    return State(state.t + 1, target, mode, tuple(new_filters), fault_state, bound), rec
 

@@ -1,0 +1,65 @@
+"""The posterior Cramér–Rao bound of a team's target, one step at a time (:mod:`mcjax.filters.bounds`,
+Tichavský, Muravchik & Nehorai 1998): what a scenario with ``bound = "on"`` carries in its state and
+records. The information of every measurement taken is added at the true target, so the bound is
+conditioned on the run's trajectory (and, in closed loop, on the agents' paths; Zuo, Niu & Varshney
+2011)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from mcjax.contract import Output, Setting
+from mcjax.filters.bounds import measurement_information, pcrb_step
+from mcjax.numerics import spd_inverse
+
+#: The Config switch (off: the program without the bound, bit for bit).
+SETTING = Setting("off", "the posterior Cramér–Rao bound along the run (Tichavský et al. 1998): on adds "
+                  "pcrb_rmse, the floor of any filter of every agent's measurements, and its per-step series; "
+                  "off is the program without it", choices=("off", "on"))
+
+
+def initial(cfg, P0):
+    """The bound's information before step 0: the filters' prior ``P0`` read as the initial state's
+    distribution (None when ``cfg.bound`` is off)."""
+    return spd_inverse(P0) if cfg.bound == "on" else None
+
+
+def update(J, F, Q, h, target, sensors, z, R_inv):
+    """The information after this step (eq. 21 for the truth's dynamics ``F``, ``Q``; at the first
+    measurement time the caller passes ``(I, 0)``, no prediction): ``h(x, sensor)`` the measurement
+    function, ``Hᵀ R⁻¹ H`` at the true ``target`` added for every agent whose measurement ``z`` (n, m)
+    was taken (finite: in range, the agent alive, no dropout). None stays None (off)."""
+    if J is None:
+        return None
+    taken = jnp.all(jnp.isfinite(z), axis=-1)
+    info = jax.vmap(lambda sensor, Ri, ok: measurement_information(lambda x: h(x, sensor), target, Ri, ok))
+    return pcrb_step(J, F, Q, jnp.sum(info(sensors, jnp.broadcast_to(R_inv, z.shape[:1] + R_inv.shape[-2:]), taken),
+                                      axis=0))
+
+
+def position_variance(J):
+    """The bound's position variance ``P_xx + P_yy`` of ``P = J⁻¹`` for a ``[x, ẋ, y, ẏ]`` state
+    (None stays None)."""
+    if J is None:
+        return None
+    P = spd_inverse(J)
+    return P[0, 0] + P[2, 2]
+
+
+def summary_items(cfg, records_bound, warmup: int):
+    """The bound's summary output (``pcrb_rmse``), when on."""
+    if cfg.bound != "on":
+        return {}
+    return {"pcrb_rmse": (Output("m", "the posterior Cramér–Rao bound's position RMSE after warm-up along the run: "
+                                      "the floor of any filter of every agent's measurements (Tichavský et al. 1998; "
+                                      "compare the mean of rmse² over runs)", False),
+                          lambda: jnp.sqrt(jnp.mean(records_bound()[warmup:])))}
+
+
+def series_items(cfg, records_bound):
+    """The bound's per-step series (``pcrb_error``), when on."""
+    if cfg.bound != "on":
+        return {}
+    return {"pcrb_error": (Output("m", "the posterior Cramér–Rao bound's position error (the square root of its "
+                                       "variance)", False), lambda: jnp.sqrt(records_bound()))}
