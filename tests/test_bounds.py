@@ -144,6 +144,11 @@ def test_in_sun2011_the_centralised_filter_is_not_below_its_floor():
     floor = float(np.mean(cif["pcrb_rmse"] ** 2))
     assert m.high >= floor, (m, floor)
     assert np.all(np.isfinite(cif["pcrb_rmse"])) and np.all(cif["pcrb_rmse"] > 0)
+    # each UAV's own measurements: the local EKF is not below the local floor, which is above the team's
+    local = df[df["filter"] == "local"]
+    m = mean_ci((local["rmse"] ** 2).to_numpy())
+    assert m.high >= float(np.mean(local["pcrb_local_rmse"] ** 2)), m
+    assert np.all(cif["pcrb_local_rmse"].to_numpy() >= cif["pcrb_rmse"].to_numpy())
 
 
 def test_in_sun2011_the_floor_falls_with_a_longer_sensing_range():

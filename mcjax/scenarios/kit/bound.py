@@ -6,6 +6,8 @@ conditioned on the run's trajectory (and, in closed loop, on the agents' paths; 
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 
@@ -19,10 +21,22 @@ SETTING = Setting("off", "the posterior Cramér–Rao bound along the run (Ticha
                   "off is the program without it", choices=("off", "on"))
 
 
+class Bound(NamedTuple):
+    """The bound of the ``team`` (every agent's measurements: the floor of every filter, centralised
+    ones included) and each agent's ``local`` one (its own measurements: the floor of a local filter),
+    as information matrices (4, 4) and (n, 4, 4), or as their position variances () and (n,)."""
+
+    team: jax.Array
+    local: jax.Array
+
+
 def initial(cfg, P0):
     """The bound's information before step 0: the filters' prior ``P0`` read as the initial state's
-    distribution (None when ``cfg.bound`` is off)."""
-    return spd_inverse(P0) if cfg.bound == "on" else None
+    distribution, for the team and each agent (None when ``cfg.bound`` is off)."""
+    if cfg.bound != "on":
+        return None
+    J0 = spd_inverse(P0)
+    return Bound(J0, jnp.broadcast_to(J0, (cfg.n_agents,) + J0.shape))
 
 
 def update(J, F, Q, h, target, sensors, z, R_inv):
@@ -33,18 +47,19 @@ def update(J, F, Q, h, target, sensors, z, R_inv):
     if J is None:
         return None
     taken = jnp.all(jnp.isfinite(z), axis=-1)
-    info = jax.vmap(lambda sensor, Ri, ok: measurement_information(lambda x: h(x, sensor), target, Ri, ok))
-    return pcrb_step(J, F, Q, jnp.sum(info(sensors, jnp.broadcast_to(R_inv, z.shape[:1] + R_inv.shape[-2:]), taken),
-                                      axis=0))
+    info = jax.vmap(lambda sensor, Ri, ok: measurement_information(lambda x: h(x, sensor), target, Ri, ok))(
+        sensors, jnp.broadcast_to(R_inv, z.shape[:1] + R_inv.shape[-2:]), taken)   # (n, 4, 4)
+    return Bound(pcrb_step(J.team, F, Q, jnp.sum(info, axis=0)),
+                 jax.vmap(pcrb_step, in_axes=(0, None, None, 0))(J.local, F, Q, info))
 
 
 def position_variance(J):
-    """The bound's position variance ``P_xx + P_yy`` of ``P = J⁻¹`` for a ``[x, ẋ, y, ẏ]`` state
+    """The bounds' position variances ``P_xx + P_yy`` of ``P = J⁻¹`` for a ``[x, ẋ, y, ẏ]`` state
     (None stays None)."""
     if J is None:
         return None
-    P = spd_inverse(J)
-    return P[0, 0] + P[2, 2]
+    team, local = spd_inverse(J.team), spd_inverse(J.local)
+    return Bound(team[0, 0] + team[2, 2], local[:, 0, 0] + local[:, 2, 2])
 
 
 def summary_items(cfg, records_bound, warmup: int):
@@ -54,7 +69,10 @@ def summary_items(cfg, records_bound, warmup: int):
     return {"pcrb_rmse": (Output("m", "the posterior Cramér–Rao bound's position RMSE after warm-up along the run: "
                                       "the floor of any filter of every agent's measurements (Tichavský et al. 1998; "
                                       "compare the mean of rmse² over runs)", False),
-                          lambda: jnp.sqrt(jnp.mean(records_bound()[warmup:])))}
+                          lambda: jnp.sqrt(jnp.mean(records_bound().team[warmup:]))),
+            "pcrb_local_rmse": (Output("m", "the same bound of each agent's own measurements (the floor of a local "
+                                            "filter), over the agents and the steps after warm-up", False),
+                                lambda: jnp.sqrt(jnp.mean(records_bound().local[warmup:])))}
 
 
 def series_items(cfg, records_bound):
@@ -62,4 +80,6 @@ def series_items(cfg, records_bound):
     if cfg.bound != "on":
         return {}
     return {"pcrb_error": (Output("m", "the posterior Cramér–Rao bound's position error (the square root of its "
-                                       "variance)", False), lambda: jnp.sqrt(records_bound()))}
+                                       "variance)", False), lambda: jnp.sqrt(records_bound().team)),
+            "pcrb_local_error": (Output("m", "the local bound's position error, mean variance over the agents", False),
+                                 lambda: jnp.sqrt(jnp.mean(records_bound().local, axis=-1)))}

@@ -33,7 +33,7 @@ class State(NamedTuple):
     plan_cost: jax.Array       # exact eq. 16 cost of the plan in force
     faults: faults.State | None  # lost links and agents (mcjax.scenarios.faults; None: off)
     mailbox: faults.Mailbox | None  # the kcf's consensus messages in flight (None: message_delay = 0)
-    bound: jax.Array | None = None  # (4, 4) the PCRB's Fisher information of the target (None: bound = "off")
+    bound: pcrb.Bound | None = None  # the PCRB's information of the target, team and per agent (None: off)
 
 
 class Record(NamedTuple):
@@ -49,7 +49,7 @@ class Record(NamedTuple):
     adjacency: jax.Array       # (n, n) comm graph
     plan_cost: jax.Array       # () exact eq. 16 cost of the plan in force (0 in open loop)
     faults: faults.Record | None  # the step's faults (None: off)
-    bound: jax.Array | None = None  # () the PCRB's position variance, m² (None: bound = "off")
+    bound: pcrb.Bound | None = None  # the PCRB's position variances, team () and per agent (n,), m² (None: off)
 
 
 

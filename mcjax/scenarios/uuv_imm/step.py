@@ -27,7 +27,7 @@ class State(NamedTuple):
     mode: jax.Array     # () int, the target's current mode (0 = CV, 1 = CT)
     filters: tuple      # one IMMState per filter, node axis first: μ (n, M), x (n, M, 4), P (n, M, 4, 4)
     faults: faults.State | None  # lost links and UUVs (None: faults off)
-    bound: jax.Array | None = None  # (4, 4) the PCRB's Fisher information of the target (None: bound = "off")
+    bound: pcrb.Bound | None = None  # the PCRB's information of the target, team and per agent (None: off)
 
 
 class Record(NamedTuple):
@@ -41,7 +41,7 @@ class Record(NamedTuple):
     target: jax.Array   # (4,)
     measurements: jax.Array  # (n, 2) range–bearing, NaN where none
     faults: faults.Record | None  # the step's faults (None: off)
-    bound: jax.Array | None = None  # () the PCRB's position variance, m² (None: bound = "off")
+    bound: pcrb.Bound | None = None  # the PCRB's position variances, team () and per agent (n,), m² (None: off)
 
 
 
