@@ -254,7 +254,7 @@ def check(claims, seeds, out_dir, resume, force, strict, fmt, markdown, executor
 
         with open_executor(remote) as ex, bars:
             try:
-                result = runner.run_check(claims, out_dir=out_dir, seeds=seeds, resume=resume, force=force,
+                result = runner.run_check(checked, out_dir=out_dir, resume=resume, force=force,
                                           executor=ex, message=bars.echo, warn=lambda line: click.echo(line, err=True),
                                           progress=progress, should_stop=stop.is_set)
             except (OutputError, ClaimsError) as exc:

@@ -34,7 +34,6 @@ from mcjax.claims.folder import CHECK_FILE, TABLE_FILE, write_table
 from mcjax.study.execute import Executor
 from mcjax.study.runner import SweepProgress, run_sweep_folder
 from mcjax.study.store import IDENTITY_FILE, RESULTS_DIR, OutputError, hold_output, start_fresh, write_identity
-from mcjax.validation import read_toml
 
 
 
@@ -56,7 +55,7 @@ def default_out_dir(claims_file: str | Path) -> Path:
 
 
 def _identity(claims: ClaimsFile) -> dict:
-    return json.loads(json.dumps({"claims": read_toml(claims.path, "claims file"),
+    return json.loads(json.dumps({"claims": claims.source,
                                   "seeds": {k: s.seeds for k, s in claims.sweeps.items()}}, default=str))
 
 
@@ -65,20 +64,21 @@ def _keep(claims: ClaimsFile) -> list[Path]:
     return files
 
 
-def run_check(claims_file: str | Path, *, out_dir: str | Path | None = None, seeds: int | None = None,
+def run_check(claims_file: str | Path | ClaimsFile, *, out_dir: str | Path | None = None, seeds: int | None = None,
               resume: bool = False, force: bool = False, executor: Executor | None = None,
               message: Callable[[str], None] | None = None, warn: Callable[[str], None] | None = None,
               progress: Callable[[str, SweepProgress], None] | None = None,
               should_stop: Callable[[], bool] | None = None) -> CheckResult:
     """Check ``claims_file`` (module docstring): read and check it whole
-    (:func:`mcjax.claims.spec.load_claims`, ``seeds`` runs per point), make ``out_dir`` ready
+    (:func:`mcjax.claims.spec.load_claims`, ``seeds`` runs per point; or a :class:`ClaimsFile` already
+    read that way, ``seeds`` then ignored), make ``out_dir`` ready
     (default ``results/check_<name>``; a fresh check needs it empty or missing, ``force``
     replaces a previous check, ``resume`` needs the same claims file and seeds), run every sweep
     (``progress(sweep, SweepProgress)`` as ``mcjax sweep`` reports it), then judge every claim and
     write ``claims.parquet``."""
     say, stop = message or (lambda _: None), should_stop or (lambda: False)
-    claims = load_claims(claims_file, seeds=seeds)
-    out = Path(default_out_dir(claims_file) if out_dir is None else out_dir)
+    claims = claims_file if isinstance(claims_file, ClaimsFile) else load_claims(claims_file, seeds=seeds)
+    out = Path(default_out_dir(claims.path) if out_dir is None else out_dir)
     ident = {**_identity(claims), "claims_file": str(claims.path.resolve())}
     if resume and force:
         raise OutputError("--resume and --force exclude each other")

@@ -111,7 +111,8 @@ class Claim(NamedTuple):
 
 class ClaimsFile(NamedTuple):
     """A checked claims file: its ``path``, ``paper``, ``title``, the ``sweeps`` (name → Study,
-    with the spec file each came from in ``spec_files``, None when inline) and the ``claims``."""
+    with the spec file each came from in ``spec_files``, None when inline), the ``claims`` and the
+    file's tables as read (``source``: what ``--resume`` compares)."""
 
     path: Path
     paper: str
@@ -119,7 +120,7 @@ class ClaimsFile(NamedTuple):
     sweeps: dict
     spec_files: dict
     claims: tuple
-    seeds: int | None
+    source: dict
 
 
 def _err(where: str, text: str) -> ClaimsError:
@@ -411,4 +412,4 @@ def _load(path: Path, seeds: int | None) -> ClaimsFile:
                    + ("" if raw is None else f"; got {show(raw)}"))
     seen: set = set()
     claims = tuple(_claim(path, i, c, studies, seen) for i, c in enumerate(raw))
-    return ClaimsFile(path, paper, title, studies, files, claims, seeds)
+    return ClaimsFile(path, paper, title, studies, files, claims, data)
