@@ -6,6 +6,8 @@ textbook Hᵀ R⁻¹ H of the polar Jacobian; and an EKF on that sensor does no 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -131,7 +133,7 @@ def _sun_open_loop(seeds=40, **params):
 
     spec = build_spec({"base": "../configs/sun2011.toml", "params": params,
                        "config": {"bound": "on", "planner": "none", "n_steps": 60, "filters": ["cif", "local"]}},
-                      __import__("pathlib").Path(__file__).parent, seeds=seeds)
+                      Path(__file__).parent, seeds=seeds)
     return run_sweep(spec)
 
 
@@ -166,7 +168,7 @@ def test_in_ren2017_no_filter_is_below_the_floor_given_the_modes():
     from mcjax.study import build_spec, run_sweep
 
     spec = build_spec({"base": "../configs/ren2017.toml", "config": {"bound": "on", "filters": ["imm", "cv"]}},
-                      __import__("pathlib").Path(__file__).parent, seeds=20)
+                      Path(__file__).parent, seeds=20)
     df = run_sweep(spec)
     ratio = {}
     for f, g in df.groupby("filter"):
