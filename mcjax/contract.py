@@ -21,7 +21,9 @@ values as a spec (TOML) writes them — kinds are exact (:meth:`Param.problem` w
 units are :mod:`mcjax.units`' (:func:`~mcjax.units.display_unit`).
 Output roles (:data:`ROLES`) tell the layers above what a column means: ``"error"`` (exactly
 one: the metric the report leads with), ``"divergence"``, ``"nonfinite"`` and the graph
-statistics (optional; each role at most once). ``Scenario(...)`` checks the declarations of
+statistics, ``"nees"`` and ``"nis"`` (a filter's average NEES / NIS, with its χ² degrees of freedom
+in ``dof``) and ``"floor"`` (the error floor, the posterior Cramér–Rao bound's RMSE, in the error's
+unit) (optional; each role at most once). ``Scenario(...)`` checks the declarations of
 ``Config()`` when it is built (ValueError, one line).
 
 This module is a leaf: it imports only the leaves :mod:`mcjax.validation` and :mod:`mcjax.units`
@@ -43,7 +45,8 @@ from mcjax.units import display_unit
 from mcjax.validation import COUNT_CEILING, COUNT_CEILINGS, ceiling, setting_problem, show  # noqa: F401
 
 #: Roles an output may declare (see the module docstring).
-ROLES = ("error", "divergence", "nonfinite", "connectivity_mean", "connectivity_min", "disconnected_steps")
+ROLES = ("error", "divergence", "nonfinite", "connectivity_mean", "connectivity_min", "disconnected_steps",
+         "nees", "nis", "floor")
 
 
 class Output(NamedTuple):
@@ -53,6 +56,7 @@ class Output(NamedTuple):
     description: str          # one line
     per_filter: bool = True   # one value per filter (else one per run)
     role: str | None = None   # one of ROLES, or None
+    dof: int | None = None    # a NEES or NIS: the degrees of freedom of its χ² (the report's band)
 
     def as_json(self) -> dict:
         return self._asdict()
@@ -235,6 +239,9 @@ def check_outputs(declared, what: str, *, error_role: bool) -> None:
                 raise ValueError(f"{where}: {field} must be a {kind.__name__}; got {show(getattr(o, field))}")
         if o.role is not None and o.role not in ROLES:
             raise ValueError(f"{where} has the unknown role {show(o.role)}; allowed roles: {', '.join(ROLES)}, None")
+        if o.role in ("nees", "nis") and not (isinstance(o.dof, int) and o.dof >= 1):
+            raise ValueError(f"{where}: a {o.role} output needs dof, its χ² degrees of freedom (an integer >= 1); "
+                             f"got {show(o.dof)}")
         if o.role is not None and seen.setdefault(o.role, name) != name:
             raise ValueError(f"{where}: the role {o.role!r} is declared twice (also by {seen[o.role]!r})")
     if error_role and "error" not in seen:

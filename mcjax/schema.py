@@ -15,7 +15,7 @@ from mcjax.units import display_unit
 
 #: The roles a dataset may declare besides ``"error"``.
 OPTIONAL_ROLES = ("divergence", "nonfinite", "connectivity_mean", "connectivity_min",
-                   "disconnected_steps")
+                   "disconnected_steps", "nees", "nis", "floor")
 
 NO_OUTPUTS = ("the dataset's metadata declares no outputs (no 'outputs' entry): it was written "
               "by an older mcjax, before scenarios declared their outputs. Re-run the sweep with "
@@ -38,6 +38,9 @@ class Schema(NamedTuple):
     outputs: Mapping[str, Mapping[str, Any]]
     params: Mapping[str, Mapping[str, Any]]
     spec: Mapping[str, Any]          # the sweep spec (its grid and zip tables)
+    nees: str | None = None          # per-run average NEES per filter (dof in its declaration), if declared
+    nis: str | None = None           # per-run average NIS per filter, if declared
+    floor: str | None = None         # per-run error floor (the PCRB's RMSE, the error's unit), if declared
 
     @property
     def connectivity(self) -> tuple[str, ...]:

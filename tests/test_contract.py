@@ -76,7 +76,10 @@ def test_every_builtin_scenario_declares_every_field_and_output():
         outs = sc.outputs(cfg)
         assert [k for k, o in outs.items() if o.role == "error"] == ["rmse"]
         assert all(o.role is None or o.role in ("error", "divergence", "nonfinite", "connectivity_mean",
-                                                  "connectivity_min", "disconnected_steps") for o in outs.values())
+                                                  "connectivity_min", "disconnected_steps", "nees")
+                   for o in outs.values())
+        # a NEES / NIS declares the degrees of freedom of its chi-square (the report's band)
+        assert all(o.dof >= 1 for o in outs.values() if o.role in ("nees", "nis"))
         meta = sc.metadata(cfg)
         assert meta["filters"] == list(cfg.filters) and set(meta["params"]) == set(sc.params_table)
         # every filter kind the scenario offers has plain words (the report's glossary), no code in them

@@ -48,38 +48,49 @@ def update(J, F, Q, h, target, sensors, z, R_inv):
         return None
     taken = jnp.all(jnp.isfinite(z), axis=-1)
     info = jax.vmap(lambda sensor, Ri, ok: measurement_information(lambda x: h(x, sensor), target, Ri, ok))(
-        sensors, jnp.broadcast_to(R_inv, z.shape[:1] + R_inv.shape[-2:]), taken)   # (n, 4, 4)
+        sensors, jnp.broadcast_to(R_inv, z.shape[:1] + R_inv.shape[-2:]), taken)   # (n, d, d)
+    return update_with(J, F, Q, info)
+
+
+def update_with(J, F, Q, info):
+    """:func:`update` with each agent's measurement information ``info`` (n, d, d) given (0 for an
+    agent without a measurement): for a scenario whose measurement model is not one ``h`` with one
+    ``R`` (e.g. a mode-dependent one). None stays None (off)."""
+    if J is None:
+        return None
     return Bound(pcrb_step(J.team, F, Q, jnp.sum(info, axis=0)),
                  jax.vmap(pcrb_step, in_axes=(0, None, None, 0))(J.local, F, Q, info))
 
 
-def position_variance(J):
-    """The bounds' position variances ``P_xx + P_yy`` of ``P = J⁻¹`` for a ``[x, ẋ, y, ẏ]`` state
-    (None stays None)."""
+def position_variance(J, index=(0, 2)):
+    """The bounds' variances of the tracked quantity, ``Σ_i P_ii`` over ``index`` of ``P = J⁻¹`` (the
+    default: ``P_xx + P_yy`` of a ``[x, ẋ, y, ẏ]`` state; None stays None)."""
     if J is None:
         return None
     team, local = spd_inverse(J.team), spd_inverse(J.local)
-    return Bound(team[0, 0] + team[2, 2], local[:, 0, 0] + local[:, 2, 2])
+    i = jnp.asarray(index)
+    return Bound(jnp.sum(team[i, i]), jnp.sum(local[:, i, i], axis=-1))
 
 
-def summary_items(cfg, records_bound, warmup: int):
-    """The bound's summary output (``pcrb_rmse``), when on."""
+def summary_items(cfg, records_bound, warmup: int, unit: str = "m", what: str = "position"):
+    """The bound's summary outputs (``pcrb_rmse``, role ``"floor"``; ``pcrb_local_rmse``), when on:
+    the RMS of the ``what`` error (in ``unit``) the bound allows after warm-up."""
     if cfg.bound != "on":
         return {}
-    return {"pcrb_rmse": (Output("m", "the posterior Cramér–Rao bound's position RMSE after warm-up along the run: "
-                                      "the floor of any filter of every agent's measurements (Tichavský et al. 1998; "
-                                      "compare the mean of rmse² over runs)", False),
+    return {"pcrb_rmse": (Output(unit, f"the posterior Cramér–Rao bound's {what} RMSE after warm-up along the run: "
+                                       "the floor of any filter of every agent's measurements (Tichavský et al. 1998; "
+                                       "compare the mean of rmse² over runs)", False, "floor"),
                           lambda: jnp.sqrt(jnp.mean(records_bound().team[warmup:]))),
-            "pcrb_local_rmse": (Output("m", "the same bound of each agent's own measurements (the floor of a local "
-                                            "filter), over the agents and the steps after warm-up", False),
+            "pcrb_local_rmse": (Output(unit, "the same bound of each agent's own measurements (the floor of a local "
+                                             "filter), over the agents and the steps after warm-up", False),
                                 lambda: jnp.sqrt(jnp.mean(records_bound().local[warmup:])))}
 
 
-def series_items(cfg, records_bound):
-    """The bound's per-step series (``pcrb_error``), when on."""
+def series_items(cfg, records_bound, unit: str = "m", what: str = "position"):
+    """The bound's per-step series (``pcrb_error``, role ``"floor"``; ``pcrb_local_error``), when on."""
     if cfg.bound != "on":
         return {}
-    return {"pcrb_error": (Output("m", "the posterior Cramér–Rao bound's position error (the square root of its "
-                                       "variance)", False), lambda: jnp.sqrt(records_bound().team)),
-            "pcrb_local_error": (Output("m", "the local bound's position error, mean variance over the agents", False),
+    return {"pcrb_error": (Output(unit, f"the posterior Cramér–Rao bound's {what} error (the square root of its "
+                                        "variance)", False, "floor"), lambda: jnp.sqrt(records_bound().team)),
+            "pcrb_local_error": (Output(unit, "the local bound's error, mean variance over the agents", False),
                                  lambda: jnp.sqrt(jnp.mean(records_bound().local, axis=-1)))}

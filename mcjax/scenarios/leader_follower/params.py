@@ -11,6 +11,7 @@ from mcjax.filters.consensus import (CONTRIBUTION_KINDS, FILTER_KINDS, ICF_VARIA
                                      WEIGHT_KINDS, FilterOptions)
 from mcjax.scenarios import faults, kit
 from mcjax.scenarios.kit import bound as kit_bound
+from mcjax.scenarios.kit import consistency as kit_consistency
 from mcjax.scenarios.leader_follower.objectives import ROBUSTNESS_PATHS, ROBUSTNESS_PENALTIES
 from mcjax.scenarios.leader_follower.planner import planner_options
 
@@ -72,6 +73,7 @@ Config = config_type("Config", dict(
                              "softmin over a maximum spanning tree's links (a different surrogate, ours); auto = "
                              "all pairs up to 10 UAVs, the tree above", choices=ROBUSTNESS_PATHS),
     bound=kit_bound.SETTING,
+    consistency=kit_consistency.SETTING,
     **faults.SETTINGS,
     **faults.DELAY_SETTINGS,
 ), __name__, _check)

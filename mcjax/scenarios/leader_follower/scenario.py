@@ -24,6 +24,7 @@ from mcjax import metrics
 from mcjax.contract import FAST_COMPILE, Output, Scenario, declare
 from mcjax.scenarios import faults, kit
 from mcjax.scenarios.kit import bound as pcrb
+from mcjax.scenarios.kit import consistency
 from mcjax.scenarios.leader_follower.params import NAME, Config, Params, check_params
 from mcjax.scenarios.leader_follower.step import ROUGH, Record, Smoothing, init, step
 from mcjax.smoothing import Smooth
@@ -38,7 +39,7 @@ def summary(cfg, records: Record | None, params) -> dict:
         **kit.error_items(lambda: r.error, alive, cfg, "m"),
         leader_rmse=(Output("m", "the leader's (agent 0) position RMSE after warm-up"),
                      lambda: jnp.stack([metrics.rmse(r.error[:, f, :1], w) for f in range(F)])),
-        anees=(Output("", "mean full-state NEES over alive agents and steps after warm-up (4 dof)"),
+        anees=(consistency.anees_output(4),
                lambda: jnp.stack([metrics.mean_over(faults.masked(r.nees[:, f, :], alive()), w, alive())
                                    for f in range(F)])),
         **kit.graph_items(lambda: r.lambda2),
@@ -51,6 +52,7 @@ def summary(cfg, records: Record | None, params) -> dict:
                         lambda: jnp.mean(r.plan_cost)),
         **faults.summary_items(cfg, r and r.faults, switched_on),
         **pcrb.summary_items(cfg, lambda: r.bound, w),
+        **consistency.summary_items(cfg, lambda: r.nees, lambda: r.nis, alive, w, 4, 2, anees=False),
     )
 
 
@@ -70,6 +72,7 @@ def series(cfg, records: Record | None, params) -> dict:
                    lambda: r.plan_cost),
         **faults.series_items(cfg, r and r.faults, switched_on),
         **pcrb.series_items(cfg, lambda: r.bound),
+        **consistency.series_items(cfg, lambda: r.nees, lambda: r.nis, alive, 4, 2),
     )
 
 

@@ -17,6 +17,7 @@ from mcjax.models.platforms import UnicycleLimits, unicycle_step
 from mcjax.models.sensors import range_bearing
 from mcjax.scenarios import faults, kit
 from mcjax.scenarios.kit import bound as pcrb
+from mcjax.scenarios.kit import consistency
 from mcjax.scenarios.leader_follower.objectives import resolve_paths
 from mcjax.scenarios.leader_follower.params import filter_options
 from mcjax.scenarios.leader_follower.planner import plan_if_due
@@ -50,7 +51,7 @@ class Record(NamedTuple):
     plan_cost: jax.Array       # () exact eq. 16 cost of the plan in force (0 in open loop)
     faults: faults.Record | None  # the step's faults (None: off)
     bound: pcrb.Bound | None = None  # the PCRB's position variances, team () and per agent (n,), m² (None: off)
-
+    nis: jax.Array | None = None  # (F, n) each agent's NIS, NaN without a measurement (None: consistency off)
 
 
 def init(cfg, params, key) -> State:
@@ -98,6 +99,7 @@ class _Step(NamedTuple):
     faults: faults.Step | None
     filters: tuple
     bound: jax.Array | None
+    nis: jax.Array | None
 
 
 def _advance(cfg, params, state: State, key, smoothing):
@@ -142,6 +144,9 @@ def _advance(cfg, params, state: State, key, smoothing):
 
     F, Q = first_step_model(first, cv_matrices(dt, dtype)[0], cv_process_noise(dt, params.sigma_accel, dtype))
     angle_mask = jnp.array([False, True])
+    nis = None if cfg.consistency != "on" else jnp.stack([  # each agent's own measurement against its prediction
+        consistency.predicted_nis(per_agent(k, f, n), F, Q, range_bearing, sensors, z, R_inv, angle_mask)
+        for k, f in zip(cfg.filters, state.filters)])
     filters, mailbox = kit.filter_update(cfg.filters, filter_options(cfg), range_bearing, angle_mask, state.filters,
                                          meas, F, Q, jnp.asarray(params.kcf_epsilon, dtype), fault, state.mailbox)
 
@@ -157,7 +162,7 @@ def _advance(cfg, params, state: State, key, smoothing):
         plan = plan_if_due(cfg, params, state, uavs, filters, age, jax.random.fold_in(key, 0x9A11),
                            team, leader)
     return (State(state.t + 1, target, uavs, filters, *plan, fault_state, mailbox, bound),
-            _Step(target, sensors, z, adj, carried, fault, filters, bound))
+            _Step(target, sensors, z, adj, carried, fault, filters, bound, nis))
 
 
 def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> tuple[State, Record]:
@@ -198,6 +203,7 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
         plan_cost=new.plan_cost,
         faults=faults.record(s.comm_graph, s.carried, s.faults, kit.agents(params.alive, n, dtype) > 0.5),
         bound=pcrb.position_variance(s.bound),
+        nis=s.nis,
     )
     return new, rec
 

@@ -10,6 +10,7 @@ from mcjax.filters.consensus_imm import LIKELIHOODS
 from mcjax.filters.gaussian import Unscented
 from mcjax.scenarios import faults, kit
 from mcjax.scenarios.kit import bound as kit_bound
+from mcjax.scenarios.kit import consistency as kit_consistency
 
 NAME = "uuv_imm"
 
@@ -36,6 +37,7 @@ Config = config_type("Config", dict(
     ut_kappa=Setting(0.0, "unscented transform kappa (ours; > -4, the state has 4 components)", low=-4,
                      low_open=True),
     bound=kit_bound.SETTING,
+    consistency=kit_consistency.SETTING,
     **faults.SETTINGS,
 ), __name__, kit.check_common)
 

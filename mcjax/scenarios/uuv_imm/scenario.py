@@ -34,6 +34,7 @@ from mcjax import metrics
 from mcjax.contract import Output, Scenario, declare
 from mcjax.scenarios import faults, kit
 from mcjax.scenarios.kit import bound as pcrb
+from mcjax.scenarios.kit import consistency
 from mcjax.scenarios.uuv_imm.params import CT, NAME, Config, Params, check_params
 from mcjax.scenarios.uuv_imm.smoothing import Smoothing
 from mcjax.scenarios.uuv_imm.step import Record, init, step
@@ -86,7 +87,7 @@ def summary(cfg, records: Record | None, params) -> dict:
         error_cv=(Output("m", "mean position error over alive UUVs and steps after warm-up while the target is in "
                          "CV"), pick("error_cv")),
         error_ct=(Output("m", "the same while the target turns (CT); NaN if it never does"), pick("error_ct")),
-        anees=(Output("", "mean full-state NEES over alive UUVs and steps after warm-up (4 dof)"), pick("anees")),
+        anees=(consistency.anees_output(4, "combined full-state"), pick("anees")),
         **per_uuv,
         **kit.graph_items(lambda: r.lambda2),
         ct_steps=(Output("steps", "steps the target spent turning (CT)", False), lambda: jnp.sum(in_ct())),
@@ -98,6 +99,7 @@ def summary(cfg, records: Record | None, params) -> dict:
                          lambda: _masked_mean(faults.masked(r.mu_ct, alive()), (after() & in_ct())[:, None] * alive())),
         **faults.summary_items(cfg, r and r.faults, switched_on),
         **pcrb.summary_items(cfg, lambda: r.bound, cfg.warmup_steps),
+        **consistency.summary_items(cfg, lambda: r.nees, lambda: r.nis, alive, cfg.warmup_steps, 4, 2, anees=False),
     )
 
 
@@ -114,6 +116,7 @@ def series(cfg, records: Record | None, params) -> dict:
         lambda2=(Output("", "algebraic connectivity of the comm graph", False), lambda: r.lambda2),
         **faults.series_items(cfg, r and r.faults, switched_on),
         **pcrb.series_items(cfg, lambda: r.bound),
+        **consistency.series_items(cfg, lambda: r.nees, lambda: r.nis, alive, 4, 2),
     )
 
 

@@ -17,6 +17,7 @@ from mcjax.models.sensors import range_bearing
 from mcjax.numerics import matvec, spd_inverse
 from mcjax.scenarios import faults, kit
 from mcjax.scenarios.kit import bound as pcrb
+from mcjax.scenarios.kit import consistency
 from mcjax.scenarios.uuv_imm.params import CT, CV, FILTER_MODES, unscented
 from mcjax.scenarios.uuv_imm.smoothing import Smoothing, mode_hits
 
@@ -42,7 +43,7 @@ class Record(NamedTuple):
     measurements: jax.Array  # (n, 2) range–bearing, NaN where none
     faults: faults.Record | None  # the step's faults (None: off)
     bound: pcrb.Bound | None = None  # the PCRB's position variances, team () and per agent (n,), m² (None: off)
-
+    nis: jax.Array | None = None  # (F, n) NIS of the combined prediction, NaN without a measurement (None: off)
 
 
 def init(cfg, params, key) -> State:
@@ -118,13 +119,18 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
                         range_bearing, target, sensors, z, jnp.diag(1.0 / jnp.diag(R)))
     angle_mask = jnp.array([False, True])
 
-    new_filters, err, ne = [], [], []
+    new_filters, err, ne, nis = [], [], [], []
     mu_ct = jnp.full((n,), jnp.nan, dtype)
     for name, fstate in zip(cfg.filters, state.filters):
         modes = jnp.asarray(FILTER_MODES[name])
         m = len(FILTER_MODES[name])
         transition = params.imm_transition if m == 2 else jnp.ones((1, 1), dtype)
         transition = jnp.where(first, jnp.eye(m, dtype=dtype), transition)
+        if cfg.consistency == "on":  # each UUV's own measurement against its combined prediction
+            prior = consistency.imm_prediction(fstate, transition, F_model[modes], Q_model[modes])
+            eye, zero = jnp.eye(4, dtype=dtype), jnp.zeros((4, 4), dtype)
+            nis.append(consistency.predicted_nis(prior, eye, zero, range_bearing, sensors, z, jnp.diag(1.0 / jnp.diag(R)),
+                                                 angle_mask))
         fnew, (x, P) = consensus_imm_ukf_step(
             faults.shield(fault, fstate), transition, F_model[modes], Q_model[modes], z, sensors, range_bearing, R, adj,
             steps=cfg.consensus_steps, weights=cfg.consensus_weights, likelihood=cfg.likelihood,
@@ -150,6 +156,7 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
         measurements=z,
         faults=faults.record(comm_graph, adj, fault, alive),
         bound=pcrb.position_variance(bound),
+        nis=jnp.stack(nis) if nis else None,
     )
     return State(state.t + 1, target, mode, tuple(new_filters), fault_state, bound), rec
 
