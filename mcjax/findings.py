@@ -27,7 +27,7 @@ from typing import Any, Mapping, NamedTuple, Sequence
 import numpy as np
 import pandas as pd
 
-from mcjax import tables
+from mcjax import quality, tables
 from mcjax.statistics import CONFIDENCE, mean_ci, wilson_interval
 
 __all__ = ["PCT", "Finding", "findings", "percent", "quote"]
@@ -40,7 +40,8 @@ class Finding(NamedTuple):
     claims -- ``(lower, higher, where)``: filter ``lower``'s statistic is below filter
     ``higher``'s at the axis value ``where``, their intervals apart -- and its kind:
     ``"lowest"`` (the mean error's order), ``"trend"``, ``"divergence"`` (orders of the
-    divergence rate) or ``"graph"``."""
+    divergence rate), ``"graph"``, ``"consistency"`` or ``"floor"`` (per design point,
+    :mod:`mcjax.quality`)."""
 
     axis: str
     text: str
@@ -293,6 +294,7 @@ def findings(df: pd.DataFrame, metadata: Mapping[str, Any] | tables.Schema,
     unit = tables.unit(sch.error, sch)
     out: list[Finding] = []
     plot_axes = [a for a in axes if data[a].nunique(dropna=False) > 1]
+    out_quality = _quality(data, sch, plot_axes, filters)
     if not plot_axes:
         data = data.assign(_point="this point")
         s = tables.summarize(data, sch, ["_point"])
@@ -309,7 +311,7 @@ def findings(df: pd.DataFrame, metadata: Mapping[str, Any] | tables.Schema,
                 text = (f"No run of any filter diverged (0 of {int(s['n'].min())} or more runs per filter; the "
                         f"rate's {PCT} interval ends at {100 * hi:.1f} %).")
             out.append(Finding("", text, kind="divergence"))
-        return out
+        return out + out_quality
     for a in plot_axes:
         shown, factor = tables.display(a, sch)
         ax = _Axis(a, _sorted_values(data[a]), shown, factor)
@@ -323,7 +325,18 @@ def findings(df: pd.DataFrame, metadata: Mapping[str, Any] | tables.Schema,
             f = make()
             if f is not None:
                 out.append(f._replace(text=f.text[:-1] + f" (runs pooled over {_listing(others)}).") if others else f)
-    return out
+    return out + out_quality
+
+
+def _quality(data: pd.DataFrame, sch: tables.Schema, axes: Sequence[str], filters: list) -> list[Finding]:
+    """The consistency and error-floor sentences, one per design point (:mod:`mcjax.quality`)."""
+    shown = {a: _Axis(a, [], *tables.display(a, sch)) for a in axes}
+
+    def text(a, v):
+        return shown[a].text(v)
+
+    return ([Finding("", t, kind="consistency") for t in quality.consistency_sentences(data, sch, axes, filters, text)]
+            + [Finding("", t, kind="floor") for t in quality.floor_sentences(data, sch, axes, filters, text)])
 
 
 # ------------------------------------------------------------------------------ glossary

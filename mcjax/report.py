@@ -213,7 +213,10 @@ def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
     from mcjax.plots import write_plots  # matplotlib only when plotting
 
     note = incomplete and incomplete.split(";")[0].replace("incomplete", "INCOMPLETE", 1)
-    written, skipped = write_plots(df, metadata, out, note=note)
+    series = None
+    if results.existing_parts(out, "timeseries"):  # the per-step figures (the floor, NEES against its band)
+        series = (results.read_table(out, "timeseries"), results.read_metadata(out, "timeseries"))
+    written, skipped = write_plots(df, metadata, out, note=note, timeseries=series)
     files = base_params_from_files(out, metadata)
     page = write_page(out, df, {**metadata, "base_params_file": files} if files else metadata, written, skipped,
                       warning=incomplete)

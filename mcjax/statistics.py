@@ -11,6 +11,8 @@ binomial proportion with its Wilson score interval.
   independent runs of a ``dof``-dimensional error of a consistent filter, ``N·ε̄`` is χ² with
   ``N·dof`` degrees of freedom, so ``ε̄`` lies in ``[χ²_{N·dof}(α/2), χ²_{N·dof}(1 − α/2)] / N``
   (Bar-Shalom, Li & Kirubarajan 2001, §5.4.2); :func:`consistency` says where an average lies.
+* :func:`floor_multiple` -- a filter's RMS error as a multiple of an error floor's,
+  ``√(mean e² / mean b²)`` over paired runs, with a delta-method interval.
 
 Both return :class:`typing.NamedTuple` records, which compare equal to plain tuples.
 Pure functions of numbers; no pandas, no JAX.
@@ -25,7 +27,7 @@ import numpy as np
 from scipy import stats
 
 __all__ = ["CONFIDENCE", "MeanCI", "Interval", "t_critical", "mean_ci", "wilson_interval", "chi2_band",
-           "consistency", "CONSISTENCY"]
+           "consistency", "CONSISTENCY", "floor_multiple"]
 
 #: What :func:`consistency` says of an average NEES or NIS against its band.
 CONSISTENCY = ("consistent", "over-confident", "under-confident")
@@ -125,6 +127,32 @@ def consistency(average: float, band: Interval) -> str:
     if not math.isfinite(average):
         raise ValueError(f"consistency needs a finite average; got {average!r}")
     return "over-confident" if average > band.high else "under-confident" if average < band.low else "consistent"
+
+
+def floor_multiple(errors, floors, confidence: float = CONFIDENCE) -> MeanCI:
+    """How many times a floor a filter's RMS error is, over paired runs: ``√(mean e² / mean b²)``
+    of each run's RMS error ``e`` and its floor ``b`` (e.g. the posterior Cramér–Rao bound's RMSE
+    along the same run; runs where either is not finite are left out). The interval is that of
+    the ratio of means ``r = ē²/b̄²`` by the delta method — ``var r ≈ (var e² − 2r cov(e², b²) +
+    r² var b²) / (n · (b̄²)²)``, Student-t with n − 1 dof — taken to the square root (a monotone
+    map). NaN interval for fewer than two runs."""
+    confidence = _check_confidence(confidence)
+    e = np.asarray(errors, float) ** 2
+    b = np.asarray(floors, float) ** 2
+    if e.shape != b.shape:
+        raise ValueError(f"floor_multiple needs paired runs; got {e.shape} errors and {b.shape} floors")
+    ok = np.isfinite(e) & np.isfinite(b)
+    e, b = e[ok], b[ok]
+    n = e.size
+    if n == 0 or not np.mean(b) > 0:
+        return MeanCI(math.nan, math.nan, math.nan)
+    r = float(np.mean(e) / np.mean(b))
+    if n < 2:
+        return MeanCI(math.sqrt(r), math.nan, math.nan)
+    cov = np.cov(e, b, ddof=1)
+    var = (cov[0, 0] - 2 * r * cov[0, 1] + r * r * cov[1, 1]) / (n * np.mean(b) ** 2)
+    half = t_critical(n - 1, confidence) * math.sqrt(max(float(var), 0.0))
+    return MeanCI(math.sqrt(r), math.sqrt(max(r - half, 0.0)), math.sqrt(r + half))
 
 
 def paired_by_seed(runs, columns: list[str], initial: int, tuned: int, filters) -> list[dict]:

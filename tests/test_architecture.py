@@ -125,7 +125,7 @@ LAYERS = [
     {"planning"},
     {"scenarios"},
     {"engine", "statistics", "verdicts"},
-    {"study", "tables", "schema", "plots", "listing"},
+    {"study", "tables", "schema", "quality", "plots", "listing"},
     {"tune", "claims"},
     {"report", "html_report", "findings", "glossary", "tune_report"},
     {"cli", "cli_executor", "clidoc", "__main__", "progress"},

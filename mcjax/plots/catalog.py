@@ -24,6 +24,7 @@ from mcjax.plots.common import (DPI, MAX_PANELS, PALETTE, PCT, SAME_RTOL, Plot, 
 from mcjax.plots.heatmaps import heatmap_figure
 from mcjax.plots.lines import connectivity_figure, line_figure
 from mcjax.plots.sensitivity import sensitivity_columns, sensitivity_figure
+from mcjax.plots.steps import step_plots
 from mcjax.tables import Schema, axis_label, display, label, summarize, unit
 
 __all__ = ["plots", "figures", "write_plots", "make_plots"]
@@ -290,15 +291,18 @@ def figures(df: pd.DataFrame, metadata: Mapping[str, Any] | Schema,
 
 def write_plots(df: pd.DataFrame, metadata: Mapping[str, Any] | Schema, out_dir: str | os.PathLike,
                 axes: str | Sequence[str] | None = None,
-                note: str | None = None) -> tuple[list[PlotFile], list[Skipped]]:
+                note: str | None = None, timeseries: tuple[pd.DataFrame, Mapping[str, Any]] | None = None
+                ) -> tuple[list[PlotFile], list[Skipped]]:
     """Write the :func:`plots` of a runs table as PNG files (at :data:`~mcjax.plots.common.DPI`,
     twice the layout's resolution) to ``out_dir/report/`` (created if missing): the written files with their captions, in the order made, and
     the plots skipped. ``note`` (e.g. that the dataset is incomplete) is printed in red
-    along the bottom of every figure."""
+    along the bottom of every figure. ``timeseries`` (the timeseries table and its metadata)
+    adds the per-step figures of :func:`mcjax.plots.steps.step_plots`."""
     report_dir = Path(out_dir) / "report"
     written: list[PlotFile] = []
     skipped: list[Skipped] = []
-    for item in plots(df, metadata, axes):
+    steps = step_plots(*timeseries, df, metadata) if timeseries is not None else ()
+    for item in itertools.chain(plots(df, metadata, axes), steps):
         if isinstance(item, Skipped):
             skipped.append(item)
             continue

@@ -95,7 +95,8 @@ def error_series_items(errors, alive, unit: str = "m", what: str = "position err
     """The per-step series of :func:`mcjax.metrics.error_series` (``errors`` (T, F, n) and the
     ``alive`` weights (n,) or (T, n) given by functions of no arguments), each declared next to its value."""
     series = cache(lambda: _error_series(errors(), alive()))
-    return declare(error_mean=(Output(unit, f"mean {what} over alive agents"), lambda: series()["error_mean"]),
+    return declare(error_mean=(Output(unit, f"mean {what} over alive agents", True, "error"),
+                               lambda: series()["error_mean"]),
                    error_max=(Output(unit, f"largest {what} of any alive agent"), lambda: series()["error_max"]))
 
 
