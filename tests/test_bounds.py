@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mcjax.filters.bounds import measurement_information, pcrb
+from mcjax.filters.bounds import measurement_information, pcrb, pcrb_covariance_step, pcrb_step
 from mcjax.statistics import mean_ci
 from mcjax.models.motion import cv_matrices, cv_process_noise
 from mcjax.models.sensors import range_bearing
@@ -50,6 +50,27 @@ def test_linear_gaussian_bound_is_the_kalman_covariance(sensors):
     bound = np.asarray(pcrb(jnp.asarray(np.linalg.inv(P0)), jnp.asarray(F), jnp.asarray(Q), jnp.asarray(Jz)))
     kf = _kalman_covariances(P0, F, Q, H, R, STEPS)
     np.testing.assert_allclose(bound, kf, rtol=1e-9, atol=1e-12 * np.abs(kf).max())
+
+
+def test_the_covariance_form_is_the_inverse_and_allows_a_known_initial_state():
+    """pcrb_covariance_step is the inverse of pcrb_step where J is invertible; from C0 = 0 (the state
+    known) it is the Kalman filter's covariance started from P0 = 0 (numpy, Joseph form)."""
+    F, Q = _cv()
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(4, 4))
+    J = A @ A.T + np.eye(4)
+    H1 = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
+    Jz = H1.T @ np.diag([0.25, 1 / 9]) @ H1
+    info = np.asarray(pcrb_step(jnp.asarray(J), jnp.asarray(F), jnp.asarray(Q), jnp.asarray(Jz)))
+    cov = np.asarray(pcrb_covariance_step(jnp.asarray(np.linalg.inv(J)), jnp.asarray(F), jnp.asarray(Q),
+                                          jnp.asarray(Jz)))
+    np.testing.assert_allclose(cov, np.linalg.inv(info), rtol=1e-9)
+    C, out = jnp.zeros((4, 4)), []
+    for _ in range(STEPS):
+        C = pcrb_covariance_step(C, jnp.asarray(F), jnp.asarray(Q), jnp.asarray(Jz))
+        out.append(np.asarray(C))
+    kf = _kalman_covariances(np.zeros((4, 4)), F, Q, H1, np.diag([4.0, 9.0]), STEPS)
+    np.testing.assert_allclose(np.stack(out), kf, rtol=1e-9, atol=1e-12 * np.abs(kf).max())
 
 
 def test_the_bound_falls_when_information_is_added():

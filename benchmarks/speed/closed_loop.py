@@ -21,7 +21,7 @@ one process. Six measurements, a subcommand each:
 * ``faults`` — the fault model's cost: ``off`` (no fault draws in the program), ``on, rates 0``, ``on,
   faults drawn`` (link loss 0.2 in bursts of 5, agent loss 0.002 per UAV and step, sensor dropout
   0.05): each run once, then timed ``--repeats`` times in turn, the best of each and its ratio to off.
-* ``bound`` — the cost of the posterior Cramér–Rao bound (``bound = "on"``), the same way.
+* ``bound`` — the cost of the Cramér–Rao bound (``bound = "on"``), then with NEES and NIS (``consistency``).
 * ``profile`` — where the time goes: the runs in one call on one device (compiled by ``jax.jit``
   without the scenario's compiler options), called once, then once more under ``jax.profiler`` with
   XLA's per-kernel trace events on (sets ``XLA_FLAGS``). Prints the kernels' total time, the
@@ -77,7 +77,7 @@ VARIANTS = {  # measurement: (name, Scenario changes, Config changes) per varian
                 ("older emitters, float32 planner", {}, dict(plan_dtype="float32"))),
     "dispatch": (("as shipped", {}, {}),),
     "faults": (("off", {}, {}), ("on, rates 0", {}, dict(faults="on")), ("on, faults drawn", {}, dict(faults="on"))),
-    "bound": (("off", {}, {}), ("bound on", {}, dict(bound="on"))),
+    "bound": (("off", {}, {}), ("bound", {}, dict(bound="on")), ("both", {}, dict(bound="on", consistency="on"))),
     "profile": (("as shipped", {}, {}),),
 }
 

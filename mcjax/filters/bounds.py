@@ -7,7 +7,13 @@ recursion. For linear Gaussian dynamics ``x_{k+1} = F x_k + w_k``, ``w_k ~ N(0, 
     J_{k+1} = (Q + F J_k⁻¹ Fᵀ)⁻¹ + J_z,k+1 ,        J_z = E[ Hᵀ R⁻¹ H ]
 
 (:func:`pcrb_step`), which needs no inverse of Q, so a singular Q (a white-acceleration model
-driven per axis by one noise) is allowed. ``J_z`` is the information of the measurements taken at
+driven per axis by one noise) is allowed. The same recursion on the bound's covariance ``C = J⁻¹``,
+
+    C⁻ = F C Fᵀ + Q ,        C' = (I + C⁻ J_z)⁻¹ C⁻
+
+(:func:`pcrb_covariance_step`; the two are equal by the matrix inversion lemma wherever J is
+invertible), also allows a singular ``C`` — a state known exactly, e.g. an initial state the
+filters are given (``C₀ = 0``), or one with no information yet along some direction. ``J_z`` is the information of the measurements taken at
 k + 1: for an additive Gaussian measurement ``z = h(x) + v``, ``v ~ N(0, R)``, it is the expectation
 of ``Hᵀ R⁻¹ H`` with H the Jacobian of h at the true state (:func:`measurement_information`); the
 information of several independent measurements adds (:func:`pcrb_step` takes their sum).
@@ -36,6 +42,16 @@ def pcrb_step(J, F, Q, J_meas):
     measurements taken at the next step (0 when none)."""
     prior = Q + F @ spd_inverse(J) @ F.T
     return spd_inverse(prior) + J_meas
+
+
+def pcrb_covariance_step(C, F, Q, J_meas):
+    """:func:`pcrb_step` on the bound's covariance ``C = J⁻¹`` (module docstring):
+    ``C' = (I + C⁻ J_meas)⁻¹ C⁻`` with ``C⁻ = F C Fᵀ + Q``; ``C`` may be singular (0: the state
+    known exactly). Batched over leading axes of ``C`` and ``J_meas``."""
+    prior = F @ C @ F.T + Q
+    eye = jnp.eye(C.shape[-1], dtype=C.dtype)
+    post = jnp.linalg.solve(eye + prior @ J_meas, prior)
+    return 0.5 * (post + jnp.swapaxes(post, -1, -2))
 
 
 def measurement_information(h, x, R_inverse, taken=True):

@@ -2,7 +2,9 @@
 Tichavský, Muravchik & Nehorai 1998): what a scenario with ``bound = "on"`` carries in its state and
 records. The information of every measurement taken is added at the true target, so the bound is
 conditioned on the run's trajectory (and, in closed loop, on the agents' paths; Zuo, Niu & Varshney
-2011)."""
+2011). It is carried as a covariance (:func:`mcjax.filters.bounds.pcrb_covariance_step`), so it may
+start from a state the filters are given exactly (``initial`` with a zero covariance): a filter that
+starts at the true state has no initial error, and a bound that assumed one would not be its floor."""
 
 from __future__ import annotations
 
@@ -12,8 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from mcjax.contract import Output, Setting
-from mcjax.filters.bounds import measurement_information, pcrb_step
-from mcjax.numerics import spd_inverse
+from mcjax.filters.bounds import measurement_information, pcrb_covariance_step
 
 #: The Config switch (off: the program without the bound, bit for bit).
 SETTING = Setting("off", "the posterior Cramér–Rao bound along the run (Tichavský et al. 1998): on adds "
@@ -24,50 +25,50 @@ SETTING = Setting("off", "the posterior Cramér–Rao bound along the run (Ticha
 class Bound(NamedTuple):
     """The bound of the ``team`` (every agent's measurements: the floor of every filter, centralised
     ones included) and each agent's ``local`` one (its own measurements: the floor of a local filter),
-    as information matrices (4, 4) and (n, 4, 4), or as their position variances () and (n,)."""
+    as covariances (d, d) and (n, d, d), or as their position variances () and (n,)."""
 
     team: jax.Array
     local: jax.Array
 
 
-def initial(cfg, P0):
-    """The bound's information before step 0: the filters' prior ``P0`` read as the initial state's
-    distribution, for the team and each agent (None when ``cfg.bound`` is off)."""
+def initial(cfg, C0):
+    """The bound before step 0: ``C0`` the covariance of the initial state given what the filters
+    start from — zeros when they start at the true state, their prior ``P0`` when their prior is the
+    initial state's distribution — for the team and each agent (None when ``cfg.bound`` is off)."""
     if cfg.bound != "on":
         return None
-    J0 = spd_inverse(P0)
-    return Bound(J0, jnp.broadcast_to(J0, (cfg.n_agents,) + J0.shape))
+    return Bound(C0, jnp.broadcast_to(C0, (cfg.n_agents,) + C0.shape))
 
 
-def update(J, F, Q, h, target, sensors, z, R_inv):
-    """The information after this step (eq. 21 for the truth's dynamics ``F``, ``Q``; at the first
+def update(C, F, Q, h, target, sensors, z, R_inv):
+    """The bound after this step (eq. 21 for the truth's dynamics ``F``, ``Q``; at the first
     measurement time the caller passes ``(I, 0)``, no prediction): ``h(x, sensor)`` the measurement
     function, ``Hᵀ R⁻¹ H`` at the true ``target`` added for every agent whose measurement ``z`` (n, m)
     was taken (finite: in range, the agent alive, no dropout). None stays None (off)."""
-    if J is None:
+    if C is None:
         return None
     taken = jnp.all(jnp.isfinite(z), axis=-1)
     info = jax.vmap(lambda sensor, Ri, ok: measurement_information(lambda x: h(x, sensor), target, Ri, ok))(
         sensors, jnp.broadcast_to(R_inv, z.shape[:1] + R_inv.shape[-2:]), taken)   # (n, d, d)
-    return update_with(J, F, Q, info)
+    return update_with(C, F, Q, info)
 
 
-def update_with(J, F, Q, info):
+def update_with(C, F, Q, info):
     """:func:`update` with each agent's measurement information ``info`` (n, d, d) given (0 for an
     agent without a measurement): for a scenario whose measurement model is not one ``h`` with one
     ``R`` (e.g. a mode-dependent one). None stays None (off)."""
-    if J is None:
+    if C is None:
         return None
-    return Bound(pcrb_step(J.team, F, Q, jnp.sum(info, axis=0)),
-                 jax.vmap(pcrb_step, in_axes=(0, None, None, 0))(J.local, F, Q, info))
+    return Bound(pcrb_covariance_step(C.team, F, Q, jnp.sum(info, axis=0)),
+                 jax.vmap(pcrb_covariance_step, in_axes=(0, None, None, 0))(C.local, F, Q, info))
 
 
-def position_variance(J, index=(0, 2)):
-    """The bounds' variances of the tracked quantity, ``Σ_i P_ii`` over ``index`` of ``P = J⁻¹`` (the
-    default: ``P_xx + P_yy`` of a ``[x, ẋ, y, ẏ]`` state; None stays None)."""
-    if J is None:
+def position_variance(C, index=(0, 2)):
+    """The bounds' variances of the tracked quantity, ``Σ_i C_ii`` over ``index`` of the covariance
+    ``C`` (the default: ``C_xx + C_yy`` of a ``[x, ẋ, y, ẏ]`` state; None stays None)."""
+    if C is None:
         return None
-    team, local = spd_inverse(J.team), spd_inverse(J.local)
+    team, local = C.team, C.local
     i = jnp.asarray(index)
     return Bound(jnp.sum(team[i, i]), jnp.sum(local[:, i, i], axis=-1))
 

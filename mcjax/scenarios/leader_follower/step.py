@@ -34,7 +34,7 @@ class State(NamedTuple):
     plan_cost: jax.Array       # exact eq. 16 cost of the plan in force
     faults: faults.State | None  # lost links and agents (mcjax.scenarios.faults; None: off)
     mailbox: faults.Mailbox | None  # the kcf's consensus messages in flight (None: message_delay = 0)
-    bound: pcrb.Bound | None = None  # the PCRB's information of the target, team and per agent (None: off)
+    bound: pcrb.Bound | None = None  # the PCRB's covariance of the target, team and per agent (None: off)
 
 
 class Record(NamedTuple):
@@ -70,7 +70,7 @@ def init(cfg, params, key) -> State:
     plan, cost = kit.per_run(params.dt, jnp.zeros((cfg.max_horizon, n), dtype), jnp.zeros((), dtype))
     return State(jnp.asarray(0, jnp.int32), x0, uavs, init_states(cfg.filters, x0, P0, n),
                  plan, plan, jnp.asarray(0, jnp.int32), cost, faults.init(cfg, key, params),
-                 kit.kcf_mailbox(cfg, params, x0), pcrb.initial(cfg, P0))
+                 kit.kcf_mailbox(cfg, params, x0), pcrb.initial(cfg, jnp.zeros_like(P0)))  # the filters start at the true state
 
 
 class Smoothing(NamedTuple):

@@ -28,7 +28,7 @@ class State(NamedTuple):
     mode: jax.Array     # () int, the target's current mode (0 = CV, 1 = CT)
     filters: tuple      # one IMMState per filter, node axis first: μ (n, M), x (n, M, 4), P (n, M, 4, 4)
     faults: faults.State | None  # lost links and UUVs (None: faults off)
-    bound: pcrb.Bound | None = None  # the PCRB's information of the target, team and per agent (None: off)
+    bound: pcrb.Bound | None = None  # the PCRB's covariance of the target, team and per agent (None: off)
 
 
 class Record(NamedTuple):
@@ -61,7 +61,7 @@ def init(cfg, params, key) -> State:
         states.append(IMMState(jnp.broadcast_to(mu, (n, m)), jnp.broadcast_to(x0, (n, m, 4)),
                                jnp.broadcast_to(P0, (n, m, 4, 4))))
     return State(jnp.asarray(0, jnp.int32), x0, kit.per_run(params.dt, jnp.asarray(CV, jnp.int32)), tuple(states),
-                 faults.init(cfg, key, params), pcrb.initial(cfg, P0))
+                 faults.init(cfg, key, params), pcrb.initial(cfg, jnp.zeros_like(P0)))  # the filters start at the true state
 
 
 def _true_mode(cfg, params, state: State, key):
