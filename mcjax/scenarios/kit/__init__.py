@@ -15,6 +15,8 @@
   weights (:func:`training_errors`, :func:`training_weights`);
 * :mod:`~mcjax.scenarios.kit.bound` — the posterior Cramér–Rao bound carried step by step with
   ``bound = "on"`` (its Config setting, update, outputs);
+* :mod:`~mcjax.scenarios.kit.consistency` — NEES and NIS outputs with ``consistency = "on"`` (its
+  Config setting, each agent's NIS against its prediction, averages, outputs);
 * :func:`aliases` — a scenario module's usual names for its record's functions.
 """
 
