@@ -24,6 +24,13 @@ ROLE_WORDS = {
     "connectivity_min": "the same λ2 at the run's worst step: 0 means the graph was disconnected at least once",
     "disconnected_steps": "how many of the run's steps the comm graph was in pieces (λ2 = 0): agents in "
                           "different pieces cannot share estimates",
+    "nees": "the normalised estimation error squared: the squared error weighed by the filter's own covariance. "
+            "A filter honest about its error averages the state's dimension; above the {pct} band of that many "
+            "runs it is over-confident (its errors are larger than it claims), below it under-confident",
+    "nis": "the normalised innovation squared: each agent's measurement surprise weighed by the spread the filter "
+           "predicted for it; the same rule as the NEES, with the measurement's dimension",
+    "floor": "the error floor: the posterior Cramér–Rao bound, the smallest RMS error any filter of the same "
+             "measurements can have (averaged over the runs); each filter's error is given as a multiple of it",
 }
 
 
@@ -53,7 +60,8 @@ def glossary(metadata: Mapping[str, Any], axes: Sequence[str] = (), *, tuned: bo
                     "every run (one row per run and filter)" + (f"; the scenario's own words: {sch.title}"
                                                                 if sch.title else "")))
     config = metadata.get("config") if isinstance(metadata.get("config"), Mapping) else {}
-    for role in ("error", "divergence", "nonfinite", "connectivity_mean", "connectivity_min", "disconnected_steps"):
+    for role in ("error", "divergence", "nonfinite", "connectivity_mean", "connectivity_min", "disconnected_steps",
+                 "nees", "nis", "floor"):
         name = getattr(sch, role)
         if not name:
             continue
