@@ -10,6 +10,8 @@ import numpy as np
 from mcjax.contract import Param, Setting, config_type, params_type
 from mcjax.filters.consensus import KCF_GAINS
 from mcjax.scenarios import faults, kit
+from mcjax.scenarios.kit import bound as kit_bound
+from mcjax.scenarios.kit import consistency as kit_consistency
 
 NAME = "flocking"
 FILTER_KINDS = ("kcf", "local")
@@ -49,6 +51,8 @@ Config = config_type("Config", dict(
     start_layout=Setting("uniform", "initial positions: uniform = U[0, box]^2 (paper); lattice = a square lattice "
                          "of lattice_spacing jittered by lattice_jitter (ours: a valid start for any n_agents)",
                          choices=START_LAYOUTS),
+    bound=kit_bound.SETTING,
+    consistency=kit_consistency.SETTING,
     **faults.SETTINGS,
     **faults.DELAY_SETTINGS,
 ), __name__, _check)

@@ -50,6 +50,17 @@ eq. 15, the speed mismatch and the smallest distance. Its links' removal is not 
 nodes' sensors. With ``Config.message_delay = k > 0`` the KCF's consensus messages arrive k
 steps late (:func:`mcjax.filters.consensus.kcf_step`: the disagreement of k steps ago; the
 neighbours' old measurement information is not fused); the control, sensed, is not delayed.
+
+The bound (``Config.bound = "on"``, ours; :mod:`.step`). The target's path is deterministic, so
+no Bayesian floor above zero exists for it (an estimator that knows the path has zero error).
+``pcrb_rmse`` is the floor for a target that moves as the filters' own model says (CV with
+their ``sigma_accel``, prior ``diag(p0_diag)``) and is seen by the type-I measurements actually
+taken: for this linear-Gaussian model, exactly the centralised Kalman filter's covariance.
+``pcrb_local_rmse`` is each type-I node's own (the floor of its ``local`` filter), averaged over
+the alive type-I nodes at each step and then over the steps. On the sine path, smoother than the
+model, a filter's error may fall below it: it is the model's floor, not a floor of the sine
+path. Consistency (``Config.consistency = "on"``, ours): ``anees`` (4 dof) and ``anis`` (2 dof)
+over the type-I nodes, and their per-step series.
 """
 
 from __future__ import annotations
@@ -61,6 +72,8 @@ import jax.numpy as jnp
 from mcjax import metrics
 from mcjax.contract import FAST_COMPILE, Output, Scenario, declare
 from mcjax.scenarios import faults, kit
+from mcjax.scenarios.kit import bound as pcrb
+from mcjax.scenarios.kit import consistency
 from mcjax.scenarios.flocking.params import NAME, Config, Params, check_params
 from mcjax.scenarios.flocking.smoothing import ROUGH, Smoothing
 from mcjax.scenarios.flocking.step import Record, init, sensing_mask, step  # sensing_mask: read here by benchmarks
@@ -71,6 +84,19 @@ def training_weights(cfg, params):
     """Each node's weight (N,) in the training loss: 1 for the type-I nodes (those that sense
     and whose errors the ``rmse`` output averages), 0 for the others."""
     return sensing_mask(cfg, params, jnp.dtype(cfg.dtype))
+
+
+def _type_one_bound(r, alive):
+    """The bound's records with each step's local variances averaged over the alive type-I nodes
+    (``alive`` (N,) or (T, N): the type-I weights; type-II nodes measure nothing, and their own
+    bound, the model's prior propagated, is no floor of any filter of theirs): local (T, 1), so
+    that the kit's outputs (:mod:`mcjax.scenarios.kit.bound`, a mean over its last axis) average
+    the type-I nodes only. The summary's mean over the steps then weights each step alike (with
+    every type-I node alive throughout, the mean over nodes and steps)."""
+    local = r.bound.local
+    w = jnp.broadcast_to(alive, local.shape).astype(local.dtype)
+    mean = jnp.sum(w * local, axis=-1, keepdims=True) / jnp.maximum(jnp.sum(w, axis=-1, keepdims=True), 1.0)
+    return pcrb.Bound(r.bound.team, jnp.where(jnp.sum(w, axis=-1, keepdims=True) > 0, mean, jnp.nan))
 
 
 def summary(cfg, records: Record | None, params) -> dict:
@@ -111,6 +137,8 @@ def summary(cfg, records: Record | None, params) -> dict:
         start_failed=(Output("", "no valid initial draw within start_attempts", False), lambda: r.start_failed[0]),
         start_attempts_used=(Output("", "initial draws until a valid one", False), lambda: r.attempts[0]),
         **faults.summary_items(cfg, r and r.faults, lambda: jnp.ones(cfg.n_agents, dtype())),
+        **pcrb.summary_items(cfg, cache(lambda: _type_one_bound(r, alive())), cfg.warmup_steps),
+        **consistency.summary_items(cfg, lambda: r.nees, lambda: r.nis, alive, cfg.warmup_steps, 4, 2, anees=True),
     )
 
 
@@ -125,6 +153,8 @@ def series(cfg, records: Record | None, params) -> dict:
         min_distance=(Output("m", "smallest distance between two nodes", False), lambda: r.min_distance),
         edges=(Output("", "links", False), lambda: r.edges),
         **faults.series_items(cfg, r and r.faults, lambda: jnp.ones(cfg.n_agents, r.error.dtype)),
+        **pcrb.series_items(cfg, cache(lambda: _type_one_bound(r, alive()))),
+        **consistency.series_items(cfg, lambda: r.nees, lambda: r.nis, alive, 4, 2),
     )
 
 

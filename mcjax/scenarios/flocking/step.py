@@ -1,5 +1,25 @@
 """Lou, Cui & Li 2013's flock (:mod:`.scenario`): its per-run state and per-step record, the
-initial draw and the sampling step."""
+initial draw and the sampling step.
+
+The bound (``Config.bound = "on"``; :mod:`mcjax.scenarios.kit.bound`, Tichavský, Muravchik &
+Nehorai 1998). The target's path is deterministic (:func:`target_state`: y = sin x, or a line), so
+no Bayesian floor above zero exists for it: an estimator that knows the path has zero error.
+The bound computed is the floor for a target that moves as the filters' own model says — CV
+driven by white acceleration of std ``sigma_accel`` (the filters' F and Q, no prediction at
+step 0), prior ``diag(p0_diag)`` — seen by the type-I nodes' position measurements actually
+taken (R = ``sigma_meas``² I; none from type-II, dropped-out or lost nodes). For this
+linear-Gaussian model the recursion is exactly the covariance of the centralised Kalman filter
+of those measurements (team) and of each node's own Kalman filter (local). It is the model's
+floor, not a floor of the sine path: the path is smoother than the model's random
+accelerations, so a filter's error on it may fall below the bound. Only type-I nodes measure,
+so the local bound is averaged over them (:mod:`.scenario`).
+
+Consistency (``Config.consistency = "on"``; :mod:`mcjax.scenarios.kit.consistency`): each
+filter's and node's NEES of its 4-D ``[x, ẋ, y, ẏ]`` estimate against the true target and the
+NIS of each type-I node's own position measurement against its own prediction (its state
+before this step's update through the filters' F, Q), 4 and 2 dof; the outputs average the
+type-I nodes only. On the sine path the filters' model is not the truth's, so χ² holds only as
+far as the CV model covers the path."""
 
 from __future__ import annotations
 
@@ -15,6 +35,8 @@ from mcjax.models.motion import cv_matrices, cv_process_noise
 from mcjax.models.sensors import position
 from mcjax.numerics import spd_inverse, symmetrize
 from mcjax.scenarios import faults, kit
+from mcjax.scenarios.kit import bound as pcrb
+from mcjax.scenarios.kit import consistency
 from mcjax.scenarios.flocking import dynamics as fl
 from mcjax.scenarios.flocking.params import lattice_sites
 from mcjax.scenarios.flocking.smoothing import Smoothing, soft_hysteresis, soft_link_changes
@@ -29,6 +51,7 @@ class State(NamedTuple):
     attempts: jax.Array
     faults: faults.State | None  # lost links and nodes (mcjax.scenarios.faults; None: off)
     mailbox: faults.Mailbox | None  # the KCF's consensus messages in flight (None: message_delay = 0)
+    bound: pcrb.Bound | None = None  # the PCRB's information of the model's target, team and per node (None: off)
 
 
 class Record(NamedTuple):
@@ -47,6 +70,9 @@ class Record(NamedTuple):
     start_failed: jax.Array      # () no valid initial draw (the same at every step)
     attempts: jax.Array          # () initial draws used (the same at every step)
     faults: faults.Record | None  # the step's faults (None: off)
+    bound: pcrb.Bound | None = None  # the PCRB's position variances, team () and per node (N,), m² (None: off)
+    nees: jax.Array | None = None  # (F, N) NEES of each node's 4-D estimate (None: consistency off)
+    nis: jax.Array | None = None   # (F, N) NIS of each node's own measurement, NaN without one (None: off)
 
 
 def target_state(cfg, params, t):
@@ -95,7 +121,7 @@ def init(cfg, params, key) -> State:
     g = Gaussian(x0, P0, symmetrize(spd_inverse(P0)))
     filters = tuple(jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), g) for _ in cfg.filters)
     return State(jnp.asarray(0, jnp.int32), flock, adj[pick], filters, ~found, pick + 1,
-                 faults.init(cfg, key, p), kit.kcf_mailbox(cfg, p, x0))
+                 faults.init(cfg, key, p), kit.kcf_mailbox(cfg, p, x0), pcrb.initial(cfg, P0))
 
 
 def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> tuple[State, Record]:
@@ -137,9 +163,14 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
     F, _ = cv_matrices(p.dt, dtype)
     F, Q = first_step_model(state.t == 0, F, cv_process_noise(p.dt, p.sigma_accel, dtype))
     opts = FilterOptions(kcf_gain=cfg.kcf_gain)
-    filters, mailbox = kit.filter_update(cfg.filters, opts, position, jnp.array([False, False]), state.filters, meas,
+    no_angle = jnp.array([False, False])
+    nis = None if cfg.consistency != "on" else jnp.stack([  # each node's own measurement against its prediction
+        consistency.predicted_nis(f, F, Q, position, state.flock.q, z, R_inv, no_angle) for f in state.filters])
+    filters, mailbox = kit.filter_update(cfg.filters, opts, position, no_angle, state.filters, meas,
                                          F, Q, p.kcf_epsilon, fault, state.mailbox)
     errors = jnp.stack([metrics.position_error(f.x, target) * h for f in filters])
+    # the bound (bound = "on"; module docstring): the filters' own CV model, the type-I measurements taken
+    bound = pcrb.update(state.bound, F, Q, position, target, state.flock.q, z, R_inv)
 
     # 2. fly: type-I nodes steer to their KCF estimate (the first filter's without a KCF) or the
     #    truth, CV-extrapolated within the step
@@ -192,5 +223,9 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
         speed_mismatch=mismatch, substeps=n_sub, capped=capped, target=target,
         start_failed=state.start_failed,
         attempts=state.attempts,
-        faults=record)
-    return State(state.t + 1, flock, adj, filters, state.start_failed, state.attempts, fault_state, mailbox), rec
+        faults=record,
+        bound=pcrb.position_variance(bound),
+        nees=None if cfg.consistency != "on" else jnp.stack([metrics.nees(f.x, f.Y, target) for f in filters]),
+        nis=nis)
+    return (State(state.t + 1, flock, adj, filters, state.start_failed, state.attempts, fault_state, mailbox, bound),
+            rec)

@@ -8,6 +8,8 @@ import numpy as np
 from mcjax.contract import Param, Setting, config_type, params_type
 from mcjax.filters.consensus import WEIGHT_KINDS
 from mcjax.scenarios import faults, kit
+from mcjax.scenarios.kit import bound as kit_bound
+from mcjax.scenarios.kit import consistency as kit_consistency
 
 NAME = "wind_formation"
 FILTER_KINDS = ("kcf", "local", "cif")
@@ -27,6 +29,10 @@ def _check(cfg) -> None:
     if cfg.report_agent > cfg.n_agents:
         raise ValueError(f"report_agent must be an integer in [1, n_agents = {cfg.n_agents}]; "
                          f"got {cfg.report_agent}")
+    if cfg.bound == "on" and cfg.wind_noise != "gaussian":   # no Fisher information (module .step, "The bound")
+        raise ValueError(f"bound must be 'off' when wind_noise = 'uniform' (a uniform noise has no Fisher "
+                         f"information: no Cramér–Rao bound); bound = 'on' needs wind_noise = 'gaussian'; "
+                         f"got bound = {cfg.bound!r}, wind_noise = {cfg.wind_noise!r}")
 
 
 Config = config_type("Config", dict(
@@ -42,6 +48,8 @@ Config = config_type("Config", dict(
                          low=1, integer=True),
     root_grid=Setting(128, "grid cells that bracket eq. 13's roots before bisection (ours)", low=2,
                       integer=True),
+    bound=kit_bound.SETTING,
+    consistency=kit_consistency.SETTING,
     **faults.SETTINGS,
 ), __name__, _check)
 

@@ -50,6 +50,17 @@ the formation's centre; re-assigning slots would need a rule the paper does not 
 taken (none from a dropped-out or lost sensor) and see no link loss. The report agent's
 per-axis wind errors stay its own after a loss (its held estimate); its measurement errors run
 over the steps it had a measurement.
+
+The bound (``Config.bound = "on"``, ours; :mod:`.step`): the posterior Cramér–Rao bound of the
+wind's error, ``pcrb_rmse`` (every UAV's measurements: the floor of any filter, the ``cif``
+included) and ``pcrb_local_rmse`` (each UAV's own: the floor of its ``local`` filter), in m/s.
+The truth is a constant wind (F = I, Q = 0), the prior the filters' (``sigma_wind_prior``² I),
+and each measurement taken adds I/``noise_scale``²: J_k = J_0 + (measurements so far)·I/σ². It
+needs ``wind_noise = "gaussian"`` (a uniform noise has no Fisher information: the density's
+support moves with the wind, and the mid-range beats any 1/N-type bound), and the Config check
+refuses ``bound = "on"`` with ``"uniform"``. Consistency (``Config.consistency = "on"``, ours):
+``anees`` and ``anis`` (2 dof) and their per-step series; under a uniform noise they are still
+computed but only approximately χ².
 """
 
 from __future__ import annotations
@@ -62,6 +73,8 @@ import numpy as np
 from mcjax import metrics
 from mcjax.contract import FAST_COMPILE, Output, Scenario, declare
 from mcjax.scenarios import faults, kit
+from mcjax.scenarios.kit import bound as pcrb
+from mcjax.scenarios.kit import consistency
 from mcjax.scenarios.wind_formation.params import NAME, Config, Params, check_params
 from mcjax.scenarios.wind_formation.smoothing import ROUGH, Smoothing, training_errors, training_weights
 from mcjax.scenarios.wind_formation.step import Record, init, pairs, reference_distances, step
@@ -163,6 +176,8 @@ def summary(cfg, records: Record | None, params) -> dict:
         max_air_step=(Output("m", "longest air step of any UAV (eq. 15: at most step_length)", False),
                       lambda: metrics.nan_max(r.air_max)),
         **faults.summary_items(cfg, r and r.faults, switched_on),
+        **pcrb.summary_items(cfg, lambda: r.bound, cfg.warmup_steps, "m/s", "wind"),
+        **consistency.summary_items(cfg, lambda: r.nees, lambda: r.nis, alive, cfg.warmup_steps, 2, 2, anees=True),
     )
 
 
@@ -180,6 +195,8 @@ def series(cfg, records: Record | None, params) -> dict:
         path_error=(Output("m", "|Y - psi(X)| of the centroid", False), lambda: r.path_error),
         lambda2=(Output("", "algebraic connectivity of the comm graph", False), lambda: r.lambda2),
         **faults.series_items(cfg, r and r.faults, switched_on),
+        **pcrb.series_items(cfg, lambda: r.bound, "m/s", "wind"),
+        **consistency.series_items(cfg, lambda: r.nees, lambda: r.nis, alive, 2, 2),
     )
     for k, (i, j) in enumerate(pairs(cfg.n_agents)):
         items[f"distance_{i + 1}_{j + 1}"] = (Output("m", f"distance between UAV{i + 1} and UAV{j + 1}", False),

@@ -1,6 +1,28 @@
 """Chen & Lu 2013's wind and formation scenario, one step: the UAVs measure the wind, the filters
 update over the links that carried a message, the centre's path correction (eqs. 13–16), the flight
-through the wind; the state, the record and what both the step and the outputs use."""
+through the wind; the state, the record and what both the step and the outputs use.
+
+The bound (``Config.bound = "on"``; :mod:`mcjax.scenarios.kit.bound`, Tichavský, Muravchik &
+Nehorai 1998). The tracked quantity is the wind, and the truth is a constant wind: its dynamics
+are ``F = I``, ``Q = 0`` (the recursion's ``(Q + F J⁻¹ Fᵀ)⁻¹`` form allows a zero Q; the filters'
+random walk, ``sigma_wind_process``, is their model, not the truth's). ``J0`` is the inverse of
+the filters' prior covariance, ``sigma_wind_prior² I``: the filters' prior read as the wind's
+distribution. Each step adds ``I / σ²`` (σ = ``noise_scale``) per UAV whose measurement was taken
+(alive, no dropout), so ``J_k = J0 + (measurements taken up to step k) · I / σ²``: the team bound
+(every UAV's measurements, the floor of any filter, ``cif`` included) and each UAV's own one (the
+floor of its ``local`` filter). The bound's variance is the trace of ``J⁻¹`` over the wind's two
+components, in (m/s)², the square of the recorded error ``|ŵ − w|``. The bound needs
+``wind_noise = "gaussian"``: a uniform noise has no Fisher information (its density's support
+moves with the wind, so the Cramér–Rao regularity conditions fail, and an estimator such as the
+mid-range beats any 1/N-type bound); the Config check refuses ``bound = "on"`` with it.
+
+Consistency (``Config.consistency = "on"``; :mod:`mcjax.scenarios.kit.consistency`): each filter's
+and UAV's NEES of its 2-D wind estimate against the true wind, and the NIS of each UAV's own
+measurement against its own prediction (the filter's state before this step's update, predicted
+by the filters' random walk; the ``cif``'s one state repeated for every UAV). Both are χ² with 2
+degrees of freedom for a consistent filter under Gaussian noise; with ``wind_noise = "uniform"``
+they are still defined (the filters take the noise's variance ``noise_scale²/3`` as R) but only
+approximately χ²."""
 
 from __future__ import annotations
 
@@ -11,11 +33,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcjax import graph
+from mcjax import graph, metrics
 from mcjax.filters.consensus import FilterOptions, Measurements, cif_step, filter_step, per_agent
 from mcjax.filters.gaussian import Gaussian, first_step_model
 from mcjax.numerics import spd_inverse, symmetrize
 from mcjax.scenarios import faults, kit
+from mcjax.scenarios.kit import bound as pcrb
+from mcjax.scenarios.kit import consistency
 from mcjax.scenarios.wind_formation import guidance
 from mcjax.scenarios.wind_formation.params import CAP_TOL
 from mcjax.scenarios.wind_formation.smoothing import Smoothing, smooth_cap, smooth_next_centre, soft_capped
@@ -27,6 +51,7 @@ class State(NamedTuple):
     filters: tuple          # one Gaussian per filter (cif: single, else a UAV axis first)
     centre: Gaussian        # the centre Kalman filter's wind estimate
     faults: faults.State | None  # lost links and UAVs (mcjax.scenarios.faults; None: off)
+    bound: pcrb.Bound | None = None  # the PCRB's information of the wind, team and per UAV (None: off)
 
 
 class Record(NamedTuple):
@@ -41,6 +66,9 @@ class Record(NamedTuple):
     lambda2: jax.Array       # () algebraic connectivity of the links that carried a message
     positions: jax.Array     # (n, 2) after the step
     faults: faults.Record | None  # the step's faults (None: off)
+    bound: pcrb.Bound | None = None  # the PCRB's wind variances, team () and per UAV (n,), (m/s)² (None: off)
+    nees: jax.Array | None = None  # (F, n) NEES of each wind estimate (None: consistency off)
+    nis: jax.Array | None = None   # (F, n) NIS of each UAV's own measurement, NaN without one (None: off)
 
 
 def pairs(n: int) -> list[tuple[int, int]]:
@@ -76,7 +104,7 @@ def init(cfg, params, key) -> State:
     g = Gaussian(kit.per_run(p.dt, jnp.zeros(2, dtype)), P0, symmetrize(spd_inverse(P0)))  # per-run: kit.per_run
     per_agent = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), g)
     filters = tuple(g if k == "cif" else per_agent for k in cfg.filters)
-    return State(jnp.asarray(0, jnp.int32), p.start, filters, g, faults.init(cfg, key, p))
+    return State(jnp.asarray(0, jnp.int32), p.start, filters, g, faults.init(cfg, key, p), pcrb.initial(cfg, P0))
 
 
 def _identity(x, sensor):
@@ -133,12 +161,19 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
     meas = Measurements(z, state.positions, carried, R_inv)
     F, Q = first_step_model(state.t == 0, jnp.eye(2, dtype=dtype), jnp.eye(2, dtype=dtype) * p.sigma_wind_process ** 2)
     no_angle = jnp.array([False, False])
+    nis = None if cfg.consistency != "on" else jnp.stack([  # each UAV's own measurement against its prediction
+        consistency.predicted_nis(per_agent(k, f, n), F, Q, _identity, state.positions, z, R_inv, no_angle)
+        for k, f in zip(cfg.filters, state.filters)])
     opts = FilterOptions(weights=cfg.weights, kcf_gain="prior_consensus")
     filters = filter_step(cfg.filters, opts, _identity, no_angle, kit.shield_filters(fault, cfg.filters, state.filters),
                           meas, F, Q, None, formation_term(cfg, p, state.positions, offsets))
     filters = kit.hold_filters(fault, cfg.filters, filters, state.filters)
     centre = cif_step(_identity, no_angle, state.centre, meas, F, Q)
-    estimates = [per_agent(k, f, n).x for k, f in zip(cfg.filters, filters)]
+    post = [per_agent(k, f, n) for k, f in zip(cfg.filters, filters)]
+    estimates = [g.x for g in post]
+    # the bound (bound = "on"; module docstring): a constant wind, F = I, Q = 0, I/σ² per measurement taken
+    eye = jnp.eye(2, dtype=dtype)
+    bound = pcrb.update(state.bound, eye, jnp.zeros_like(eye), _identity, w, state.positions, z, R_inv)
 
     # 3.–4. path correction and flight
     psi = guidance.sine_path(p.path_amplitude, p.path_scale)
@@ -180,6 +215,9 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
         air_max=jnp.max(jnp.linalg.norm(air, axis=-1)),
         lambda2=graph.algebraic_connectivity(carried),
         positions=positions,
-        faults=faults.record(adj, carried, fault, switched_on))
-    return State(state.t + 1, positions, filters, centre, fault_state), rec
+        faults=faults.record(adj, carried, fault, switched_on),
+        bound=pcrb.position_variance(bound, (0, 1)),
+        nees=None if cfg.consistency != "on" else jnp.stack([metrics.nees(g.x, g.Y, w) for g in post]),
+        nis=nis)
+    return State(state.t + 1, positions, filters, centre, fault_state, bound), rec
 
