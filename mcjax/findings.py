@@ -47,6 +47,7 @@ class Finding(NamedTuple):
     text: str
     orders: tuple[tuple[str, str, Any], ...] = ()
     kind: str = "lowest"
+    panel: tuple[tuple[str, Any], ...] = ()   # the other swept axes' values the sentence is about
 
 
 def percent(rate: float, low: float, high: float) -> str:
@@ -138,7 +139,7 @@ def _lowest_error(s: pd.DataFrame, ax: _Axis, sch: tables.Schema, filters: list,
     parts = []
     for w in dict.fromkeys(x for x in winners.values() if x is not None):
         where = [v for v, x in winners.items() if x == w]
-        at = where[-1]
+        at = max(where, key=lambda v: _gap(s, ax, v, w, e))  # where its lead is largest
         r = s[(s[ax.name].map(lambda x, at=at: x == at)) & (s["filter"] == w)].iloc[0]
         if at in chains and len(chains[at]) > 2:
             rows = s[s[ax.name].map(lambda x, at=at: x == at)].set_index("filter")
@@ -162,6 +163,15 @@ def _lowest_error(s: pd.DataFrame, ax: _Axis, sch: tables.Schema, filters: list,
                          f"lowest ({said})")
         text = f"{pooled}Lowest mean {e}: " + "; ".join(parts)
     return Finding(ax.name, text + ".", tuple(orders))
+
+
+def _gap(s: pd.DataFrame, ax: _Axis, v: Any, winner: str, e: str) -> float:
+    """How many times the winner's mean error the next lowest's is, at axis value ``v``."""
+    rows = s[s[ax.name].map(lambda x: x == v)].set_index("filter")[f"{e}_mean"].astype(float)
+    best, rest = rows.get(winner), rows.drop(index=winner)
+    if rest.empty or not best or not math.isfinite(best):
+        return 0.0
+    return float(rest.min() / best) if best > 0 else math.inf
 
 
 def _trend(s: pd.DataFrame, ax: _Axis, sch: tables.Schema, filters: list, unit: str, pooled: str) -> Finding | None:
@@ -217,6 +227,8 @@ def _divergence(s: pd.DataFrame, ax: _Axis, sch: tables.Schema, filters: list, p
                                 f"{int(n.min())} or more per point and filter; the rate's {PCT} interval ends at "
                                 f"{100 * hi:.1f} % or below).", kind="divergence")
     worst = max(seen, key=lambda v: float(s[s[ax.name].map(lambda x: x == v)]["div_rate"].max()))
+    spread = {v: float(np.ptp(s[s[ax.name].map(lambda x, v=v: x == v)]["div_rate"].to_numpy(float))) for v in seen}
+    apart = max(seen, key=spread.get)  # where the filters' rates differ most
     text = f"{pooled}Runs diverge at {ax.name} = {ax.texts(seen)}"
     if none:
         hi = max(wilson_interval(0, int(n.get(v))).high for v in none)
@@ -232,6 +244,9 @@ def _divergence(s: pd.DataFrame, ax: _Axis, sch: tables.Schema, filters: list, p
             text += f"; at {ax.text(worst)} {_rates_at(s, ax, worst, filters)}"
     else:
         text += f" (every value); at {ax.text(worst)} {_rates_at(s, ax, worst, filters)}"
+        edge = None
+    if apart not in (edge, worst) and spread[apart] > 0:
+        text += f"; the filters differ most at {ax.text(apart)}: {_rates_at(s, ax, apart, filters)}"
     orders = []
     rows = s[s[ax.name].map(lambda x: x == worst)].sort_values("div_rate")
     if len(rows) > 1:
@@ -285,8 +300,10 @@ def findings(df: pd.DataFrame, metadata: Mapping[str, Any] | tables.Schema,
     value, which filter has the lowest mean error where, how each filter's error changes from
     the axis' first to its last value, where runs diverge and where the comm graph
     disconnects (each when the dataset declares it). With several axes, the sentences about
-    one axis pool the runs over the others and say so. A single point gets the sentence about
-    the filters' order only."""
+    one axis are made per panel — each combination of the other axes' values, named at the
+    sentence's start and in :attr:`Finding.panel` — never over runs pooled across design points.
+    A single point gets the sentence about the filters' order only. The consistency and
+    error-floor sentences (:mod:`mcjax.quality`) are per design point."""
     sch = tables.schema(metadata, df.columns)
     axes = tables.resolve_axes(sch, df.columns, axes)
     data = tables.prepare(df, axes)
@@ -316,16 +333,31 @@ def findings(df: pd.DataFrame, metadata: Mapping[str, Any] | tables.Schema,
         shown, factor = tables.display(a, sch)
         ax = _Axis(a, _sorted_values(data[a]), shown, factor)
         others = [o for o in plot_axes if o != a]
-        pooled = ""  # said at the end of each sentence instead
-        s = tables.summarize(data, sch, [a])
-        for make in (lambda: _lowest_error(s, ax, sch, filters, unit, pooled),
-                     lambda: _trend(s, ax, sch, filters, unit, pooled),
-                     lambda: _divergence(s, ax, sch, filters, pooled),
-                     lambda: _graph(data, ax, sch, pooled)):
-            f = make()
-            if f is not None:
-                out.append(f._replace(text=f.text[:-1] + f" (runs pooled over {_listing(others)}).") if others else f)
+        for panel, rows in _panels(data, others):
+            where = ", ".join(f"{o} = {_Axis(o, [], *tables.display(o, sch)).text(v)}" for o, v in panel)
+            prefix = f"With {where}: " if where else ""
+            s = tables.summarize(rows, sch, [a])
+            for make in (lambda: _lowest_error(s, ax, sch, filters, unit, prefix),
+                         lambda: _trend(s, ax, sch, filters, unit, prefix),
+                         lambda: _divergence(s, ax, sch, filters, prefix),
+                         lambda: _graph(rows, ax, sch, prefix)):
+                f = make()
+                if f is not None:
+                    out.append(f._replace(panel=panel))
     return out + out_quality
+
+
+def _panels(data: pd.DataFrame, others: Sequence[str]) -> list[tuple[tuple, pd.DataFrame]]:
+    """The panels of the other swept axes: ``(((axis, value), ...), rows)`` per combination of their
+    values (one panel of every row without other axes). Sentences are made per panel: runs at
+    different design points are never pooled into one interval."""
+    if not others:
+        return [((), data)]
+    out = []
+    for key, rows in data.groupby(list(others), sort=True, dropna=False):
+        key = key if isinstance(key, tuple) else (key,)
+        out.append((tuple(zip(others, key)), rows))
+    return out
 
 
 def _quality(data: pd.DataFrame, sch: tables.Schema, axes: Sequence[str], filters: list) -> list[Finding]:
