@@ -127,7 +127,7 @@ LAYERS = [
     {"engine", "statistics", "verdicts"},
     {"study", "tables", "schema", "quality", "plots", "listing"},
     {"tune", "claims"},
-    {"report", "html_report", "findings", "glossary", "tune_report"},
+    {"report", "html_report", "findings", "glossary", "tune_report", "notebook"},
     {"cli", "cli_executor", "clidoc", "__main__", "progress"},
 ]
 

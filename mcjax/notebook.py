@@ -1,0 +1,124 @@
+"""mcjax from Python (a notebook, a script): a sweep or one config point in one call, the rows
+with their summary and metadata back, nothing written unless asked::
+
+    import mcjax.notebook as mc
+
+    res = mc.sweep("sweeps/comm_radius.toml", seeds=50, set={"params.sigma_range": 20.0})
+    res.rows          # one row per run and filter: the same rows `mcjax sweep` writes
+    res.summary       # per point and filter: means with their 95 % intervals, divergence rates
+    res.table()       # the summary table `mcjax sweep` prints
+    res.findings()    # "What this shows": sentences backed by their intervals
+    res.figures()     # the report's figures as matplotlib Figures (a cell shows each)
+
+    one = mc.run("configs/sun2011.toml", seeds=20)        # one point of a config, as `mcjax run`
+
+A spec may also be a dict (the TOML's tables; ``base`` relative to ``base_dir``). ``out="DIR"``
+writes the dataset as ``mcjax sweep --out DIR`` would (then ``mcjax report DIR`` works on it);
+``progress=True`` draws a bar (tqdm's notebook form in Jupyter, a text bar in a terminal).
+Errors are the pipeline's: :class:`mcjax.study.SpecError` names the key path and the allowed
+values.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import pandas as pd
+
+from mcjax import configure
+
+__all__ = ["SweepRows", "sweep", "run"]
+
+
+@dataclass(frozen=True)
+class SweepRows:
+    """A sweep's runs in memory: ``rows`` (one per run and filter, every output), ``metadata`` (the
+    declarations, spec and provenance a dataset carries), ``summary`` (per swept point and filter,
+    :func:`mcjax.tables.summarize`), ``axes`` (the swept parameters) and ``out_dir`` (where the
+    dataset was written, or None)."""
+
+    rows: pd.DataFrame
+    metadata: Mapping[str, Any]
+    summary: pd.DataFrame
+    axes: tuple[str, ...]
+    out_dir: Path | None = None
+
+    def table(self, fmt: str = "text") -> str:
+        """The summary table as ``mcjax sweep`` prints it (``fmt``: text, markdown or csv)."""
+        from mcjax.report import summary_text
+
+        return summary_text(self.rows, self.metadata, fmt)
+
+    def findings(self) -> list[str]:
+        """The sentences of the report's "What this shows" (:func:`mcjax.findings.findings`)."""
+        from mcjax.findings import findings
+
+        return [f.text for f in findings(self.rows, self.metadata)]
+
+    def figures(self) -> list:
+        """The report's figures of these rows: :class:`mcjax.plots.Plot` records (``name``,
+        ``figure`` — a matplotlib Figure a notebook cell displays —, ``caption``)."""
+        from mcjax.plots import Plot, plots
+
+        return [p for p in plots(self.rows, self.metadata) if isinstance(p, Plot)]
+
+
+def _bar(total: int, progress: bool):
+    if not progress:
+        return None
+    from tqdm.auto import tqdm  # the notebook widget in Jupyter, a text bar in a terminal
+
+    return tqdm(total=total, unit="run", desc="runs")
+
+
+def _execute(study, out: str | Path | None, force: bool, progress: bool, spec_file=None) -> SweepRows:
+    from mcjax import results, tables
+    from mcjax.study import part_metadata, run_sweep, run_sweep_folder
+
+    configure()
+    bar = _bar(study.n_runs, progress)
+    try:
+        if out is None:  # nothing written
+            rows = run_sweep(study, None, progress=None if bar is None else bar.update)
+            metadata = part_metadata(study, study.chunk_runs)
+        else:  # as `mcjax sweep --out`: the folder's lock, identity file and parts; the rows read back
+            run_sweep_folder(study, spec_file=spec_file, out_dir=out, force=force,
+                             progress=None if bar is None else (lambda p: bar.update(p.runs_done - bar.n)))
+            rows, metadata = results.read_table(out), results.read_metadata(out)
+    finally:
+        if bar is not None:
+            bar.close()
+    axes = tuple(tables.swept_axes(metadata, rows.columns))
+    return SweepRows(rows, metadata, tables.summarize(rows, metadata, list(axes)), axes,
+                     None if out is None else Path(out))
+
+
+def sweep(spec: str | Path | Mapping[str, Any], *, seeds: int | None = None, set: Mapping[str, Any] | None = None,
+          chunk_size: int | None = None, base_dir: str | Path = ".", out: str | Path | None = None,
+          force: bool = False, progress: bool = False) -> SweepRows:
+    """Run a sweep spec — a TOML file's path or its tables as a dict (``base`` relative to
+    ``base_dir``) — and return its :class:`SweepRows`. ``seeds``, ``chunk_size`` and ``set`` (key
+    path → value, as ``--set``) override the spec's. ``out``: also write the dataset there (an
+    empty or missing folder; ``force`` replaces a previous sweep), as ``mcjax sweep --out``.
+    The rows are the ones ``mcjax sweep`` writes for the same spec and overrides, bit for bit."""
+    from mcjax.study import build_spec, load_spec
+
+    if isinstance(spec, Mapping):
+        study = build_spec(dict(spec), Path(base_dir), seeds=seeds, chunk_size=chunk_size, overrides=dict(set or {}),
+                           out_dir=out)
+    else:
+        study = load_spec(spec, seeds=seeds, chunk_size=chunk_size, overrides=dict(set or {}), out_dir=out)
+    return _execute(study, out, force, progress, None if isinstance(spec, Mapping) else spec)
+
+
+def run(config: str | Path, *, seeds: int | None = None, set: Mapping[str, Any] | None = None,
+        progress: bool = False) -> SweepRows:
+    """Run one point of a config file (``configs/*.toml``) as ``mcjax run`` does — its ``seeds``
+    (the paper's run count) unless given, ``set`` overrides — and return its :class:`SweepRows`
+    (nothing written)."""
+    from mcjax.study import build_spec
+
+    study = build_spec({"base": str(Path(config).resolve())}, Path.cwd(), seeds=seeds, overrides=dict(set or {}))
+    return _execute(study, None, False, progress)

@@ -1,0 +1,86 @@
+"""mcjax from Python (mcjax.notebook): docs/library.md's "Sweeps from Python" runs as printed; the rows
+equal `mcjax sweep`'s dataset for the same spec and overrides, bit for bit, and the summary is the
+table the CLI prints; nothing is written unless asked; a bad spec raises the CLI's one line."""
+
+import contextlib
+import io
+import re
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+import mcjax.notebook as mc
+from mcjax import results
+from mcjax.cli import main
+from mcjax.study import SpecError
+
+ROOT = Path(__file__).resolve().parents[1]
+SPEC = {"base": str(ROOT / "configs" / "ren2017.toml"), "seeds": 6, "config": {"filters": ["cv"]},
+        "grid": {"comm_radius": [150.0, 450.0]}}
+SET = {"config.n_steps": 12}
+KEYS = ["point_id", "seed_index", "filter"]
+
+
+def _toml(spec: dict) -> str:
+    lines = [f'base = "{spec["base"]}"', f'seeds = {spec["seeds"]}', "[config]", 'filters = ["cv"]', "[grid]",
+             "comm_radius = [150.0, 450.0]"]
+    return "\n".join(lines) + "\n"
+
+
+def _sorted(df: pd.DataFrame) -> pd.DataFrame:
+    return df.sort_values(KEYS).reset_index(drop=True)[sorted(df.columns)]
+
+
+@pytest.fixture(scope="module")
+def both(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("notebook")
+    spec = tmp / "spec.toml"
+    spec.write_text(_toml(SPEC), encoding="utf-8")
+    printed = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp / "cli"), "--set", "config.n_steps=12"])
+    assert printed.exit_code == 0, printed.output
+    with contextlib.chdir(tmp):
+        api = mc.sweep(SPEC, set=SET)
+        written = sorted(p.name for p in tmp.iterdir())
+    return api, results.read_table(tmp / "cli"), printed.output, written, tmp
+
+
+def test_the_rows_are_the_clis_bit_for_bit_and_nothing_is_written(both):
+    api, cli, _, written, _ = both
+    pd.testing.assert_frame_equal(_sorted(api.rows), _sorted(cli), check_dtype=False, check_categorical=False,
+                                  check_exact=True)
+    assert written == ["cli", "spec.toml"]  # the API call wrote nothing
+    assert api.out_dir is None and api.axes == ("comm_radius",)
+
+
+def test_the_summary_is_the_table_the_cli_prints(both):
+    api, _, output, _, _ = both
+    body = api.table().split("\n", 1)[1]  # the legend's first line names the scenario the same way
+    assert body.strip() in output
+    assert list(api.summary["filter"]) == ["cv", "cv"] and (api.summary["n"] == 6).all()
+
+
+def test_out_writes_the_dataset_mcjax_report_reads(both):
+    api, _, _, _, tmp = both
+    again = mc.sweep(SPEC, set=SET, out=tmp / "api")
+    assert (tmp / "api" / "sweep.json").is_file()
+    pd.testing.assert_frame_equal(_sorted(again.rows), _sorted(api.rows), check_dtype=False, check_exact=True)
+    assert CliRunner().invoke(main, ["report", str(tmp / "api"), "--no-plots"]).exit_code == 0
+
+
+def test_a_bad_spec_raises_the_clis_line():
+    with pytest.raises(SpecError, match=r"params\.no_such_param"):
+        mc.sweep(SPEC, set={"params.no_such_param": 1.0})
+
+
+def test_library_md_sweeps_from_python_runs_as_printed():
+    text = (ROOT / "docs" / "library.md").read_text(encoding="utf-8")
+    section = text.split("## Sweeps from Python", 1)[1]
+    code = re.search(r"```python\n(.*?)```", section, flags=re.S).group(1)
+    out = io.StringIO()
+    with contextlib.chdir(ROOT), contextlib.redirect_stdout(out):
+        namespace = {}
+        exec(compile(code, "docs/library.md", "exec"), namespace)
+    assert "rmse" in out.getvalue() and out.getvalue().count("\n- ") >= 1
+    assert type(namespace["figure"]).__name__ == "Figure"
