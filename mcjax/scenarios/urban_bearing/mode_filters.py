@@ -1,15 +1,18 @@
 """The IMM-EKF of Chen & Hao 2022 (eqs. 2, 11–12) over the measurement modes LOS, NLOS+ and
-NLOS− (a single LOS EKF for ``Config.filters`` ``"ekf"``), and its gated form for the training
-surrogate."""
+NLOS− (a single LOS EKF for ``Config.filters`` ``"ekf"``), its gated form for the training
+surrogate, and each filter's NIS of the measurement against its own prediction (``consistency =
+"on"``, :func:`filter_nis`)."""
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
+from mcjax import metrics
 from mcjax.filters.gaussian import ekf_update
-from mcjax.filters.imm import imm_step
+from mcjax.filters.imm import imm_step, mix
 from mcjax.models.sensors import azimuth
-from mcjax.numerics import symmetrize
+from mcjax.numerics import symmetrize, wrap_angle
 
 
 def mode_models(params, name: str):
@@ -55,6 +58,49 @@ def gated_mode_filter(x, P, model, z, uav, q, gate):
     x, P, ll = ekf_update(x, P, z[None], h, (var / gate)[None, None], angle_mask=jnp.array([True]))
     two_pi_var = 2.0 * jnp.pi * var
     return x, P, ll + 0.5 * jnp.log(two_pi_var / gate) - 0.5 * gate * jnp.log(two_pi_var)
+
+
+def _transition(p, name, first, dtype):
+    """A filter's mode chain (the IMM's, or the EKF's single mode); the identity at the first step."""
+    m = mode_models(p, name)[0].shape[0]
+    transition = p.imm_transition if m == 3 else jnp.ones((1, 1), dtype)
+    return jnp.where(first, jnp.eye(m, dtype=dtype), transition)
+
+
+def mixture_nis(fstate, transition, model, z, uav, q, gate=1.0):
+    """The NIS of the azimuth ``z`` against a filter's own prediction of it (Bar-Shalom, Li &
+    Kirubarajan 2001, §5.4.2), NaN without a measurement. The IMM's modes differ in the
+    measurement (bias, σ), not in the motion, so its predicted measurement is a mixture: each mode
+    j, mixed (:func:`mcjax.filters.imm.mix`) and predicted as the filter does (``P + q² I``),
+    predicts ``ẑ_j = η(x̄_j) + b_j`` with ``S_j = H_j P̄_j H_jᵀ + σ_j²/gate`` and weight c̄_j. The
+    NIS is that of the mixture's first two moments: ``ν = Σ c̄_j ν_j`` (``ν_j = wrap(z − ẑ_j)``),
+    ``S = Σ c̄_j (S_j + (ν_j − ν)²)``, ``NIS = ν² / S`` — its mean is 1 when the filter is
+    consistent (its distribution is χ²(1) only for one mode: the EKF's NIS, or an IMM sure of its
+    mode). For the single-mode EKF it is :func:`mcjax.scenarios.kit.consistency.predicted_nis`
+    with ``F = I``, ``Q = q² I``. ``gate``: the smooth step's measurement weight (1: exact)."""
+    cbar, x0, P0 = mix(fstate, transition)
+    valid = jnp.isfinite(z)
+    zz = jnp.where(valid, z, 0.0)
+
+    def one(x, P, bias, sigma):
+        Pb = symmetrize(P + q**2 * jnp.eye(2, dtype=P.dtype))
+        H = jax.grad(lambda xy: azimuth(xy, uav))(x)
+        nu = wrap_angle(zz - azimuth(x, uav) - bias)
+        return nu, H @ Pb @ H + sigma**2 / gate
+
+    nu, S = jax.vmap(one)(x0, P0, *model)
+    nu_bar = cbar @ nu
+    S_bar = cbar @ (S + (nu - nu_bar) ** 2)
+    return jnp.where(valid, metrics.nis(nu_bar[None], (1.0 / S_bar)[None, None]), jnp.nan)
+
+
+def filter_nis(cfg, p, state, z, uav, gate=1.0):
+    """Every configured filter's :func:`mixture_nis` of this step's measurement ``z``, before its
+    update, as (F, 1) (one UAV)."""
+    dtype = jnp.dtype(cfg.dtype)
+    return jnp.stack([mixture_nis(fstate, _transition(p, name, state.t == 0, dtype), mode_models(p, name), z, uav,
+                                  p.process_noise, gate)
+                      for name, fstate in zip(cfg.filters, state.filters)])[:, None]
 
 
 def filter_bank(cfg, p, state, update, z, uav, *gate):

@@ -7,6 +7,8 @@ import numpy as np
 
 from mcjax.contract import Param, Setting, config_type, params_type
 from mcjax.scenarios import kit
+from mcjax.scenarios.kit import bound as kit_bound
+from mcjax.scenarios.kit import consistency as kit_consistency
 from mcjax.scenarios.urban_bearing import environment as env
 from mcjax.scenarios.urban_bearing import score as urban
 
@@ -53,6 +55,8 @@ Config = config_type("Config", dict(
     init=Setting("first_bearing", "the filters' start: first_bearing = on the bearing measured at uav0, at a range "
                  "drawn with std prior_sigma (ours: bearings-only practice); prior = a point drawn with std prior_sigma "
                  "per axis about the emitter", choices=INITS),
+    bound=kit_bound.SETTING,
+    consistency=kit_consistency.SETTING,
 ), __name__, _check)
 
 

@@ -1,5 +1,9 @@
 """Chen & Hao 2022's scenario (:mod:`.scenario`): what a run reports — its outputs (summary,
-series) and what the training loss of ``mcjax tune`` reads."""
+series) and what the training loss of ``mcjax tune`` reads. With ``bound = "on"`` the posterior
+Cramér–Rao bound of the emitter's horizontal position (pcrb_rmse, m; :mod:`.step` says what it is
+conditioned on), with ``consistency = "on"`` each filter's ANEES (2 dof: [x, y]) and ANIS (1 dof:
+the azimuth; the IMM's from its predicted measurement mixture's moments,
+:func:`.mode_filters.mixture_nis`) and their per-step series."""
 
 from __future__ import annotations
 
@@ -9,6 +13,8 @@ import jax.numpy as jnp
 
 from mcjax.contract import Output, declare
 from mcjax.scenarios import kit
+from mcjax.scenarios.kit import bound as pcrb
+from mcjax.scenarios.kit import consistency
 from mcjax.scenarios.urban_bearing.params import NLOS_MINUS, NLOS_PLUS
 from mcjax.scenarios.urban_bearing.step import Record
 
@@ -49,6 +55,9 @@ def summary(cfg, records: Record | None, params) -> dict:
         mu_nlos_when_nlos=(Output("", "the IMM's mean NLOS probability on steps with a reflected measurement "
                                   "(NaN if there were none)", False),
                            lambda: _nlos_mean(r.nlos, nlos_mu())),
+        **pcrb.summary_items(cfg, lambda: r.bound, cfg.warmup_steps, "m", "horizontal position"),
+        **consistency.summary_items(cfg, lambda: r.nees, lambda: r.nis, lambda: jnp.ones(1, r.error.dtype),
+                                    cfg.warmup_steps, 2, 1),
     )
 
 
@@ -63,4 +72,6 @@ def series(cfg, records: Record | None, params) -> dict:
         z=(Output("m", "UAV altitude", False), lambda: r.uav[:, 2]),
         shadow=(Output("", "1 = no line of sight (no measurement)", False), lambda: r.shadow.astype(r.error.dtype)),
         nlos=(Output("", "1 = the measurement carried a reflection", False), lambda: r.nlos.astype(r.error.dtype)),
+        **pcrb.series_items(cfg, lambda: r.bound, "m", "horizontal position"),
+        **consistency.series_items(cfg, lambda: r.nees, lambda: r.nis, lambda: jnp.ones(1, r.error.dtype), 2, 1),
     )

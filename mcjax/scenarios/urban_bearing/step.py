@@ -1,5 +1,33 @@
 """Chen & Hao 2022's scenario (:mod:`.scenario`): its State and Record, the measurement, the
-filters' start and the step of Alg. 1 (exact, or smooth for ``mcjax tune``)."""
+filters' start and the step of Alg. 1 (exact, or smooth for ``mcjax tune``), and, when switched on,
+the posterior Cramér–Rao bound of the emitter (``bound = "on"``) and the filters' NEES and NIS
+(``consistency = "on"``).
+
+The bound (Tichavský, Muravchik & Nehorai 1998; :mod:`mcjax.scenarios.kit.bound`) is that of the
+emitter's horizontal position [x, y], the state the filters estimate (its height is known). The
+emitter is static: F = I, Q = 0, so the recursion is ``J_{k+1} = J_k + J_z,k+1``. Its prior
+information is the inverse of the filters' prior covariance P0 (the filters' prior read as the
+initial state's distribution; with ``init = "first_bearing"`` that is the run's own P0). Each step
+adds, if the UAV measured (line of sight: the only gate the scenario has), the Fisher information
+``∇g ∇gᵀ / σ²`` of the measurement the simulation actually draws, at the TRUE emitter, in its TRUE
+mode: ``g`` the noise-free bearing of the summed field (:func:`.environment.measured_bearing`,
+eqs. 5–6) and σ = σ_NLOS when a reflection arrives, σ_LOS otherwise. The reflected measurement is
+the bearing of the field summed over the direct path and the emitter's mirror images in the
+reflecting walls, a deterministic function of the emitter's position given the set of arriving
+paths, so it does carry information: the Jacobian of that function (by ``jax.jacfwd`` with the set
+of paths held fixed; with no reflection it is the azimuth's Jacobian of eq. 15). It is not an
+outlier without relation to the emitter, so its information is not 0. (The filters model NLOS as a
+±20° bias instead; the bound uses the truth's model, not theirs.)
+
+What the bound is conditioned on, and so what it bounds: it is the bound GIVEN the true mode
+sequence (which steps are in the shadow, in line of sight, reflected), a valid but looser floor than
+one that averages over the modes; the information that the pattern of shadow and reflections itself
+carries about where the emitter is (it depends on the emitter's position) is not counted. In closed
+loop (the planner flies the UAV by its estimate) it is moreover conditioned on the path flown
+(Zuo, Niu & Varshney 2011). Compare it with the mean of the filters' squared error over runs.
+
+The smooth step (``mcjax tune``) carries the same bound with the smooth measurement: the Jacobian of
+the smooth bearing, weighted by the soft line of sight, σ blended as the smooth step blends it."""
 
 from __future__ import annotations
 
@@ -8,13 +36,18 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from mcjax import metrics
+from mcjax.filters.bounds import measurement_information
 from mcjax.filters.imm import IMMState, combine
 from mcjax.models.platforms import fixed_wing_step
-from mcjax.numerics import wrap_angle
+from mcjax.numerics import spd_inverse, wrap_angle
 from mcjax.scenarios import kit
+from mcjax.scenarios.kit import bound as pcrb
 from mcjax.scenarios.urban_bearing import environment as env
 from mcjax.scenarios.urban_bearing import score as urban
-from mcjax.scenarios.urban_bearing.mode_filters import GATE_FLOOR, filter_bank, gated_mode_filter, mode_filter, mode_models
+from mcjax.scenarios.urban_bearing.mode_filters import (
+    GATE_FLOOR, filter_bank, filter_nis, gated_mode_filter, mode_filter, mode_models,
+)
 from mcjax.scenarios.urban_bearing.params import buildings_of
 from mcjax.scenarios.urban_bearing.planner import limits_of, plan_command, smooth_plan_command
 from mcjax.scenarios.urban_bearing.smoothing import (
@@ -30,6 +63,7 @@ class State(NamedTuple):
     filters: tuple        # one IMMState per filter: μ (M,), x (M, 2), P (M, 2, 2)
     fim: jax.Array        # (3, 2, 2) the IMM modes' accumulated FIM (eq. 13)
     held_for: jax.Array   # () int32: steps in a row the command has been held (shadow)
+    bound: pcrb.Bound | None = None  # the PCRB's information of the emitter [x, y], (2, 2) and (1, 2, 2) (None: off)
 
 
 class Record(NamedTuple):
@@ -43,6 +77,9 @@ class Record(NamedTuple):
     violation: jax.Array  # () the applied command or the altitude broke a limit
     mu: jax.Array         # (3,) the IMM's mode probabilities
     score: jax.Array      # () exact score J of the applied command (NaN when held)
+    bound: pcrb.Bound | None = None  # the PCRB's position variances P_xx + P_yy, () and (1,), m² (None: off)
+    nees: jax.Array | None = None  # (F, 1) NEES of each filter's combined estimate of [x, y] (None: consistency off)
+    nis: jax.Array | None = None   # (F, 1) NIS of the measurement against each filter's prediction, NaN without one
 
 
 def init(cfg, params, key) -> State:
@@ -80,7 +117,8 @@ def init(cfg, params, key) -> State:
         filters.append(IMMState(mu, jnp.broadcast_to(x0, (m, 2)), jnp.broadcast_to(P0, (m, 2, 2))))
     command, measured = kit.per_run(p.prior_sigma, jnp.zeros(2, dtype), jnp.asarray(True))
     held_for = kit.per_run(p.prior_sigma, jnp.asarray(0, jnp.int32))
-    return State(jnp.asarray(0, jnp.int32), p.uav0, command, measured, tuple(filters), fim0, held_for)
+    return State(jnp.asarray(0, jnp.int32), p.uav0, command, measured, tuple(filters), fim0, held_for,
+                 pcrb.initial(cfg, P0))
 
 
 def first_bearing_prior(uav_xy, bearing, range_, sigma_range, sigma_bearing):
@@ -114,6 +152,33 @@ def measure(p, b, pos, key):
     sigma = jnp.where(reflected, p.sigma_nlos, p.sigma_los)
     z = jnp.where(los, wrap_angle(clean + sigma * jax.random.normal(key, (), clean.dtype)), jnp.nan)
     return z, los, reflected
+
+
+def bearing_information(bearing, p, sigma, weight):
+    """The Fisher information (1, 2, 2) one azimuth carries about the emitter's [x, y] (module
+    docstring): ``∇g ∇gᵀ / σ²`` at the true emitter, ``g(xy) = bearing(emitter at xy)`` the
+    noise-free measured bearing, times ``weight`` (the exact step: 1 if measured, else 0)."""
+    def g(xy):
+        return bearing(jnp.concatenate([xy, p.emitter[2:]]))[None]
+
+    info = measurement_information(g, p.emitter[:2], (1.0 / sigma**2)[None, None])
+    return jnp.where(weight > 0, weight * info, 0.0)[None]
+
+
+def update_bound(state: State, info):
+    """The bound after this step's information ``info`` (1, 2, 2): the static emitter, F = I, Q = 0."""
+    eye = jnp.eye(2, dtype=info.dtype)
+    return pcrb.update_with(state.bound, eye, jnp.zeros_like(eye), info)
+
+
+def filter_nees(filters, emitter_xy):
+    """(F, 1) NEES ``eᵀ P⁻¹ e`` of every filter's combined estimate (the IMM's moment-matched mean and
+    covariance, :func:`mcjax.filters.imm.combine`) of the emitter's [x, y] (2 dof)."""
+    def one(f):
+        x, P = combine(f)
+        return metrics.nees(x, spd_inverse(P), emitter_xy)
+
+    return jnp.stack([one(f) for f in filters])[:, None]
 
 
 def _violation(cfg, params, previous, command, uav):
@@ -194,9 +259,15 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
 
     # the measurement (eqs. 2, 5–6): no line of sight -> none; a reflection -> NLOS noise
     pos = uav[:3]
+    bound = None  # bound = "off"
     if smoothing is None:
         z, los, reflected = measure(p, b, pos, k_noise)
+        nis = filter_nis(cfg, p, state, z, uav) if cfg.consistency == "on" else None
         new_filters, errors = filter_bank(cfg, p, state, mode_filter, z, uav)
+        if cfg.bound == "on":  # the measurement's true model: the summed field's bearing, σ of its true mode
+            bound = update_bound(state, bearing_information(
+                lambda e: env.measured_bearing(b, e, pos, p.R2, p.power, p.directivity), p,
+                jnp.where(reflected, p.sigma_nlos, p.sigma_los), los.astype(dtype)))
     else:
         T = smoothing.geometry
         clean, los, reflected = soft_measured_bearing(b, p.emitter, pos, p.R2, p.power, p.directivity, T)
@@ -204,7 +275,12 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
         sigma = p.sigma_los + reflected * (p.sigma_nlos - p.sigma_los)
         z = wrap_angle(clean + sigma * jax.random.normal(k_noise, (), dtype))
         gate = GATE_FLOOR + (1.0 - GATE_FLOOR) * los
+        nis = filter_nis(cfg, p, state, z, uav, gate) if cfg.consistency == "on" else None
         new_filters, errors = filter_bank(cfg, p, state, gated_mode_filter, z, uav, gate)
+        if cfg.bound == "on":  # the smooth measurement: its bearing's Jacobian, weighted by the soft LOS
+            bound = update_bound(state, bearing_information(
+                lambda e: soft_measured_bearing(b, e, pos, p.R2, p.power, p.directivity, T)[0], p, sigma, los))
+    nees = filter_nees(new_filters, p.emitter[:2]) if cfg.consistency == "on" else None
     imm_new = new_filters[cfg.filters.index("imm")]
     gained = jax.vmap(lambda x, s: urban.bearing_information(x, uav, s))(imm_new.x, sig)
 
@@ -213,12 +289,14 @@ def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> 
         rec = Record(
             error=jnp.stack(errors), uav=uav, command=command, held=held, shadow=~los, nlos=los & reflected,
             in_building=env.inside(b, pos), violation=_violation(cfg, p, state.command, command, uav),
-            mu=imm_new.mu, score=jnp.where(held, jnp.nan, score))
+            mu=imm_new.mu, score=jnp.where(held, jnp.nan, score), bound=pcrb.position_variance(bound, (0, 1)),
+            nees=nees, nis=nis)
         held_for = jnp.where(held, state.held_for + 1, 0)
-        return State(state.t + 1, uav, command, los, tuple(new_filters), fim, held_for), rec
+        return State(state.t + 1, uav, command, los, tuple(new_filters), fim, held_for, bound), rec
     fim = state.fim + los * gained
     rec = Record(
         error=jnp.stack(errors), uav=uav, command=command, held=held, shadow=1.0 - los, nlos=los * reflected,
         in_building=soft_occupied(b, pos, T),
-        violation=_violation(cfg, p, state.command, command, uav).astype(dtype), mu=imm_new.mu, score=score)
-    return State(state.t + 1, uav, command, los > 0.5, tuple(new_filters), fim, state.held_for), rec
+        violation=_violation(cfg, p, state.command, command, uav).astype(dtype), mu=imm_new.mu, score=score,
+        bound=pcrb.position_variance(bound, (0, 1)), nees=nees, nis=nis)
+    return State(state.t + 1, uav, command, los > 0.5, tuple(new_filters), fim, state.held_for, bound), rec
