@@ -51,7 +51,7 @@ class State(NamedTuple):
     attempts: jax.Array
     faults: faults.State | None  # lost links and nodes (mcjax.scenarios.faults; None: off)
     mailbox: faults.Mailbox | None  # the KCF's consensus messages in flight (None: message_delay = 0)
-    bound: pcrb.Bound | None = None  # the PCRB's information of the model's target, team and per node (None: off)
+    bound: pcrb.Bound | None = None  # the PCRB's covariance of the model's target, team and per node (None: off)
 
 
 class Record(NamedTuple):
@@ -121,7 +121,8 @@ def init(cfg, params, key) -> State:
     g = Gaussian(x0, P0, symmetrize(spd_inverse(P0)))
     filters = tuple(jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), g) for _ in cfg.filters)
     return State(jnp.asarray(0, jnp.int32), flock, adj[pick], filters, ~found, pick + 1,
-                 faults.init(cfg, key, p), kit.kcf_mailbox(cfg, p, x0), pcrb.initial(cfg, P0))
+                 faults.init(cfg, key, p), kit.kcf_mailbox(cfg, p, x0),
+                 pcrb.initial(cfg, jnp.zeros_like(P0)))  # the filters start at the true target
 
 
 def step(cfg, params, state: State, key, smoothing: Smoothing | None = None) -> tuple[State, Record]:

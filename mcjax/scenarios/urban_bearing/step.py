@@ -63,7 +63,7 @@ class State(NamedTuple):
     filters: tuple        # one IMMState per filter: μ (M,), x (M, 2), P (M, 2, 2)
     fim: jax.Array        # (3, 2, 2) the IMM modes' accumulated FIM (eq. 13)
     held_for: jax.Array   # () int32: steps in a row the command has been held (shadow)
-    bound: pcrb.Bound | None = None  # the PCRB's information of the emitter [x, y], (2, 2) and (1, 2, 2) (None: off)
+    bound: pcrb.Bound | None = None  # the PCRB's covariance of the emitter [x, y], (2, 2) and (1, 2, 2) (None: off)
 
 
 class Record(NamedTuple):

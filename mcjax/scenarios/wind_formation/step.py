@@ -51,7 +51,7 @@ class State(NamedTuple):
     filters: tuple          # one Gaussian per filter (cif: single, else a UAV axis first)
     centre: Gaussian        # the centre Kalman filter's wind estimate
     faults: faults.State | None  # lost links and UAVs (mcjax.scenarios.faults; None: off)
-    bound: pcrb.Bound | None = None  # the PCRB's information of the wind, team and per UAV (None: off)
+    bound: pcrb.Bound | None = None  # the PCRB's covariance of the wind, team and per UAV (None: off)
 
 
 class Record(NamedTuple):
