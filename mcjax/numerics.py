@@ -23,6 +23,11 @@ UNROLL_MAX = 6
 _X64_WARNED = False
 
 
+def x64_enabled() -> bool:
+    """Whether JAX's 64-bit mode is on (float64 arrays stay float64)."""
+    return bool(jax.config.jax_enable_x64)
+
+
 def require_x64(what: str) -> None:
     """Warn once per process (a ``UserWarning``) that ``what`` computes in float32 when JAX's
     64-bit mode is off: mcjax does not switch it on at import; :func:`mcjax.configure` does

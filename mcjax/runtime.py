@@ -189,7 +189,7 @@ def trusted_read(path: Path) -> tuple[bytes | None, str]:
     try:
         folder = path.parent.stat()
         if folder.st_uid not in (os.getuid(), 0) or stat.S_IMODE(folder.st_mode) & 0o022:
-            return None, f"its folder {path.parent} may be written by another user"
+            return None, f"is in a folder {path.parent} that may be written by another user"
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
     except OSError as exc:
         return None, f"cannot be opened ({exc.strerror or exc})"
@@ -204,7 +204,7 @@ def trusted_read(path: Path) -> tuple[bytes | None, str]:
         data = fh.read()
     digest = path.name.rsplit(".", 1)[0].rpartition("-")[2]
     if len(digest) != 64 or hashlib.sha256(data).hexdigest() != digest:
-        return None, "its content does not match the hash recorded when it was written"
+        return None, "does not match the hash recorded when it was written"
     return data, ""
 
 

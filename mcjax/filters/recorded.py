@@ -19,7 +19,7 @@ from mcjax.filters.consensus import (
 from mcjax.filters import batched, native
 from mcjax.filters.gaussian import first_step_model
 from mcjax.models.sensors import range_bearing
-from mcjax.numerics import require_x64
+from mcjax.numerics import require_x64, x64_enabled
 
 _ANGLE_MASK_RB = (False, True)
 
@@ -197,6 +197,8 @@ def run_filter(
         raise ValueError(f"dtype must be 'float64' or 'float32'; got {dtype!r}")
     if dtype == "float64":
         require_x64("mcjax.filters.run_filter(dtype='float64')")
+        if not x64_enabled():  # computes in what JAX offers, as the one warning above said (no more from JAX)
+            dtype = "float32"
     if not isinstance(consensus_steps, (int, np.integer)) or isinstance(consensus_steps, bool) or consensus_steps < 0:
         raise ValueError(f"consensus_steps must be an integer >= 0; got {consensus_steps!r}")
     opts = FilterOptions(int(consensus_steps), weights, contribution, icf_variant, kcf_gain)

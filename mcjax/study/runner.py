@@ -105,7 +105,8 @@ def run_sweep_folder(study: Study, *, spec_file: str | Path | None = None, out_d
     summary's, :func:`summary_columns`) of every run back from the folder.
 
     ``message(line)``: the headline and, resuming, how many chunks were written before;
-    ``warn(line)``: each damaged or missing part a resume found; ``progress(SweepProgress)``:
+    ``warn(line)``: each damaged or missing part a resume found, and a folder reused because it
+    held only a sweep that wrote nothing; ``progress(SweepProgress)``:
     once when the folder is ready (what it held already) and after each chunk written (the
     runs add up to the study's ``n_runs``); ``should_stop()``: asked before the first chunk and
     after each, True stops the sweep there (``stopped`` in the result; the parts written are
@@ -118,7 +119,7 @@ def run_sweep_folder(study: Study, *, spec_file: str | Path | None = None, out_d
     keep = [] if spec_file is None else [Path(spec_file), (Path(spec_file).parent / study.source["base"]).resolve()]
     with contextlib.ExitStack() as held:  # the folder's lock
         todo = prepare_output(study, out_dir, resume=resume, force=force, keep=keep, spec_file=spec_file,
-                              note=lambda line: (warn or _ignore)(f"resume: {line}"), hold=held)
+                              note=warn or _ignore, hold=held)
         say(sweep_headline(study))
         chunks = len(study.plan)
         before = 0 if todo is None else chunks - len(todo)

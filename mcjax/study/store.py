@@ -114,14 +114,31 @@ def write_identity(out_dir: Path, identity_file: str, saved: dict) -> None:
     atomic_write(Path(out_dir) / identity_file, json.dumps(saved, indent=1))
 
 
+def _wrote_nothing(folder: Path, identity_file: str) -> bool:
+    """The folder holds a run's identity file and nothing written after it: no file but empty
+    folders (a sweep, check or tune that failed before its first part, e.g. a bug in a user's
+    scenario)."""
+    items = _contents(folder)
+    if not any(p.name == identity_file and p.is_file() for p in items):
+        return False
+    return all(p.name == identity_file or (p.is_dir() and not p.is_symlink() and not any(
+        q.is_file() or q.is_symlink() for q in p.rglob("*"))) for p in items)
+
+
 def start_fresh(out_dir: str | Path, *, force: bool, keep: list[Path] = (), identity_file: str = IDENTITY_FILE,
-                kind: str = "sweep") -> Path:
+                kind: str = "sweep", note: Callable[[str], None] | None = None) -> Path:
     """Make ``out_dir`` an empty folder for a new ``kind`` of run: a missing or empty folder,
+    one that holds only the identity file of a run that wrote nothing (reused; ``note`` is told),
     or — with ``force`` — one holding a previous run of that kind (:func:`check_replaceable`),
     which is deleted. :class:`OutputError` in one line otherwise."""
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise OutputError(f"output folder {out_dir} is a file; choose another --out")
+    if out_dir.exists() and _contents(out_dir) and not force and _wrote_nothing(out_dir, identity_file):
+        for item in _contents(out_dir):  # a run that failed before its first part: nothing to lose
+            shutil.rmtree(item) if item.is_dir() and not item.is_symlink() else item.unlink()
+        (note or (lambda _: None))(f"{out_dir} held only the identity file of a {kind} that wrote nothing; "
+                                   f"reusing it")
     if out_dir.exists() and _contents(out_dir):
         if not force:
             raise OutputError(f"output folder {out_dir} is not empty; pass --resume to finish it, --force to "
@@ -148,7 +165,7 @@ def prepare_output(study: Study, out_dir: str | Path, *, resume: bool = False, f
     writes the identity file (with ``spec_file`` and the ``--set`` values, for resuming).
     ``resume`` needs the same identity, removes half-written staging files and returns the
     chunks whose parts are missing or damaged (:func:`check_parts`; ``note`` is told about
-    each problem). With ``hold``, first takes the folder's lock (:func:`hold_output`) and
+    each problem, and about a folder reused because it held only a run that wrote nothing). With ``hold``, first takes the folder's lock (:func:`hold_output`) and
     keeps it until ``hold`` closes. Raises :class:`OutputError` otherwise."""
     out_dir = Path(out_dir)
     ident = identity(study)
@@ -167,9 +184,9 @@ def prepare_output(study: Study, out_dir: str | Path, *, resume: bool = False, f
             results.clean_staging(out_dir)
             todo, problems = check_parts(study, out_dir)
             for line in problems:
-                (note or (lambda _: None))(line)
+                (note or (lambda _: None))(f"resume: {line}")
             return todo
-        start_fresh(out_dir, force=force, keep=keep)
+        start_fresh(out_dir, force=force, keep=keep, note=note)
         write_identity(out_dir, IDENTITY_FILE, {**ident, "set": study.overrides, "spec_file": _spec_file(spec_file)})
     except OSError as exc:
         raise OutputError(f"output folder {out_dir}: {exc.strerror or exc}") from None
