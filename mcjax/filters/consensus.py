@@ -38,7 +38,7 @@ from mcjax.filters.gaussian import (
 )
 from mcjax.numerics import matvec, spd_inverse, symmetrize, weighted_agent_sum
 
-FILTER_KINDS = ("cif", "icf", "modified_icf", "kcf", "local")
+FILTER_KINDS = ("cif", "icf", "modified_icf", "kcf", "local", "ci", "hcmci")
 CONTRIBUTION_KINDS = ("component", "one")
 ICF_VARIANTS = ("contributions", "priors")
 KCF_GAINS = ("gamma_M", "mu_P", "prior_consensus")
@@ -305,6 +305,12 @@ def filter_step(kinds, opts: FilterOptions, h, angle_mask, states, meas: Measure
             out.append(prior_consensus_kcf_step(h, angle_mask, opts, post, meas, F, Q, formation))
         elif kind == "kcf":
             out.append(kcf_step(h, angle_mask, opts, kcf_epsilon, post, meas, F, Q))
+        elif kind == "ci":  # Battistelli & Chisci 2014 (imported here: robust_consensus imports this module)
+            from mcjax.filters.robust_consensus import ci_step
+            out.append(ci_step(h, angle_mask, opts, post, meas, F, Q))
+        elif kind == "hcmci":  # Battistelli et al. 2015
+            from mcjax.filters.robust_consensus import hcmci_step
+            out.append(hcmci_step(h, angle_mask, opts, post, meas, F, Q))
         else:
             _check_choice("kind", kind, FILTER_KINDS)
     return tuple(out)
