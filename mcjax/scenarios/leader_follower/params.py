@@ -18,6 +18,8 @@ from mcjax.scenarios.leader_follower.planner import planner_options
 NAME = "leader_follower"
 
 PLANNERS = ("none", "gradient", "random", "cem")
+#: The filters run by default: the paper's five (the robust ones, "ci" and "hcmci", are opt-in names).
+PAPER_FILTERS = ("cif", "icf", "modified_icf", "kcf", "local")
 
 
 def _check(cfg) -> None:
@@ -27,6 +29,10 @@ def _check(cfg) -> None:
             raise ValueError("filters must include 'modified_icf' when a planner is on: "
                              "the leader plans from its modified-ICF estimate (Sun et al. 2011, sec. 4)")
         planner_options(cfg)  # validates the planner budget
+    robust = [f for f in cfg.filters if f in ("ci", "hcmci")]
+    if robust and cfg.consensus_steps < 1:
+        raise ValueError(f"consensus_steps must be an integer >= 1 with the filters {', '.join(robust)} (they "
+                         f"fuse by consensus only); got {cfg.consensus_steps}")
     if cfg.message_delay > 0:
         other = [f for f in cfg.filters if f not in LATE_KINDS]
         if other:
@@ -40,8 +46,8 @@ def _check(cfg) -> None:
 
 #: Config: everything that fixes shapes or the compiled program (changing it recompiles).
 Config = config_type("Config", dict(
-    **kit.common_settings(filter_kinds=FILTER_KINDS, n_agents=5, n_steps=200, warmup_steps=10,
-                      divergence_threshold=1000.0),
+    **kit.common_settings(filter_kinds=FILTER_KINDS, filters=PAPER_FILTERS, n_agents=5, n_steps=200, warmup_steps=10,
+                          divergence_threshold=1000.0),
     consensus_steps=Setting(1, "consensus iterations L per step (paper: one message per comm interval)",
                             low=0, integer=True),
     consensus_weights=Setting("eq11", "consensus weights (eq11 = Sun et al. 2011 eq. 11)", choices=WEIGHT_KINDS),

@@ -91,5 +91,11 @@ SCENARIO = Scenario(
                         "measurement information, then averages the whole information pair with its neighbours",
         "kcf": "Kalman-consensus filter (Olfati-Saber 2009): a local update with the neighbours' measurements "
                "plus a step towards their estimates",
-        "local": "each UAV's own extended Kalman filter on its own measurements, nothing shared"})
+        "local": "each UAV's own extended Kalman filter on its own measurements, nothing shared",
+        "ci": "consensus on information (Battistelli & Chisci 2014): each UAV updates with its own measurement, "
+              "then averages its information matrix and vector with its neighbours' — covariance intersection, "
+              "so its covariance is never too small, at the price of diluting the new measurements",
+        "hcmci": "hybrid consensus on measurements and information (Battistelli et al. 2015): each UAV averages "
+                 "its neighbours' predictions and, separately, their new measurement information, then adds N "
+                 "times the averaged measurements — the centralised filter once the averages converge"})
 default_params, reduce, outputs, timeseries, timeseries_outputs = kit.aliases(SCENARIO)
