@@ -12,7 +12,9 @@ from mcjax.scenarios.kit import bound as kit_bound
 from mcjax.scenarios.kit import consistency as kit_consistency
 
 NAME = "wind_formation"
-FILTER_KINDS = ("kcf", "local", "cif")
+FILTER_KINDS = ("kcf", "local", "cif", "ci", "hcmci")
+#: The filters run by default: the paper's (the robust "ci" and "hcmci" are opt-in names).
+PAPER_FILTERS = ("kcf", "local", "cif")
 NOISES = ("uniform", "gaussian")
 FORMATION_SIGNS = ("corrective", "printed")
 #: Closing tolerance of the offsets (m): the last row must equal the sum of the chain.
@@ -36,8 +38,8 @@ def _check(cfg) -> None:
 
 
 Config = config_type("Config", dict(
-    **kit.common_settings(filter_kinds=FILTER_KINDS, n_agents=3, n_steps=100, min_steps=2, warmup_steps=0,
-                          divergence_threshold=20.0, error_unit="m/s"),
+    **kit.common_settings(filter_kinds=FILTER_KINDS, filters=PAPER_FILTERS, n_agents=3, n_steps=100, min_steps=2,
+                          warmup_steps=0, divergence_threshold=20.0, error_unit="m/s"),
     wind_noise=Setting("uniform", "wind measurement noise: uniform on [-noise_scale, noise_scale] or "
                        "gaussian with std noise_scale (ours)", choices=NOISES),
     weights=Setting("max_degree", "consensus weights of the kcf: max_degree = Chen & Lu 2013 eq. 7",

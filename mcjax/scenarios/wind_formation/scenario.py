@@ -9,7 +9,9 @@ sine path — Chen & Lu 2013.
    within ``comm_radius``): ``kcf`` — the consensus Kalman filter of eqs. 6–12 (consensus on
    the priors with the weights of eq. 7, then the update, plus the formation term of eq. 12,
    :func:`mcjax.filters.consensus.prior_consensus_kcf_step`); ``local`` — each UAV's own
-   Kalman filter; ``cif`` — one Kalman filter on all the measurements. The wind model of
+   Kalman filter; ``cif`` — one Kalman filter on all the measurements; opt-in, the robust
+   consensus filters ``ci`` and ``hcmci`` (:mod:`mcjax.filters.robust_consensus`, one consensus
+   step per step, Metropolis weights of the links that carried a message). The wind model of
    eq. 1 is a random walk, x⁺ = x + w_k with Q = ``sigma_wind_process``² I (the true wind is
    constant);
 3. the centre Kalman filter (the paper's "main" filter: one Kalman filter on the mean of the
@@ -216,5 +218,11 @@ SCENARIO = Scenario(
         "kcf": "Chen & Lu 2013's consensus Kalman filter: each UAV fuses its neighbours' wind measurements and "
                "moves towards their estimates",
         "local": "each UAV's own Kalman filter on its own wind measurements, nothing shared",
-        "cif": "one Kalman filter on every UAV's measurements (the centralised reference)"})
+        "cif": "one Kalman filter on every UAV's measurements (the centralised reference)",
+        "ci": "consensus on information (Battistelli & Chisci 2014): each UAV updates with its own measurement, "
+              "then averages its information with its neighbours' once per step — covariance intersection, "
+              "never over-confident, at the price of diluting the new measurements",
+        "hcmci": "hybrid consensus on measurements and information (Battistelli et al. 2015): each UAV averages "
+                 "its neighbours' predictions and, separately, their new measurements, then adds N times the "
+                 "averaged measurements — the centralised filter once the averages converge"})
 default_params, reduce, outputs, timeseries, timeseries_outputs = kit.aliases(SCENARIO)
