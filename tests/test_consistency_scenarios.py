@@ -17,6 +17,8 @@ from mcjax.scenarios import leader_follower as lf
 from mcjax.scenarios.kit import consistency
 from mcjax.statistics import chi2_band, floor_multiple
 
+pytestmark = pytest.mark.xdist_group("consistency_scenarios")  # one worker builds the module's fixtures once
+
 RUNS, STEPS = 120, 30
 
 

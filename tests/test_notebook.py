@@ -16,6 +16,8 @@ from mcjax import results
 from mcjax.cli import main
 from mcjax.study import SpecError
 
+pytestmark = pytest.mark.xdist_group("notebook")  # one worker builds the module's fixtures once
+
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = {"base": str(ROOT / "configs" / "ren2017.toml"), "seeds": 6, "config": {"filters": ["cv"]},
         "grid": {"comm_radius": [150.0, 450.0]}}

@@ -29,3 +29,14 @@ def test_bad_input_exits_2_with_one_line_naming_it(sets, words):
 def test_a_scenario_that_cannot_run_them_refuses_them():
     done = CliRunner().invoke(main, ["run", "configs/ren2017.toml", "--seeds", "1", "--set", "config.filters=[ci]"])
     assert done.exit_code == 2 and "filters" in done.output and "imm" in done.output, done.output
+
+
+def test_the_flock_offers_them_only_when_every_node_filters():
+    from mcjax.scenarios import flocking
+
+    assert flocking.Config().filters == ("kcf", "local")
+    with pytest.raises(ValueError, match="filter_nodes must be 'all' with the filters ci"):
+        flocking.Config(filters=("kcf", "ci"))
+    assert flocking.Config(filters=("kcf", "ci", "hcmci"), filter_nodes="all").filters[-1] == "hcmci"
+    with pytest.raises(ValueError, match="message_delay must be 0"):
+        flocking.Config(filters=("ci",), filter_nodes="all", message_delay=1)

@@ -25,6 +25,8 @@ from mcjax.scenarios.urban_bearing import environment as env
 from mcjax.scenarios.urban_bearing.mode_filters import mixture_nis
 from mcjax.scenarios.urban_bearing.step import filter_nees
 
+pytestmark = pytest.mark.xdist_group("urban_bound")  # one worker builds the module's fixtures once
+
 BLOCK = 96
 STRAIGHT = dict(theta_max=0.0, omega_max=0.0, uav0=np.array([4700.0, 4400.0, 200.0, 0.0]), prior_sigma=100.0)
 BLOCKS = {  # name: Params changed from the defaults (the keys: the same in every block)

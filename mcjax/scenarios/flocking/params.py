@@ -14,7 +14,9 @@ from mcjax.scenarios.kit import bound as kit_bound
 from mcjax.scenarios.kit import consistency as kit_consistency
 
 NAME = "flocking"
-FILTER_KINDS = ("kcf", "local")
+FILTER_KINDS = ("kcf", "local", "ci", "hcmci")
+#: The filters run by default: the paper's (the robust "ci" and "hcmci" are opt-in names).
+PAPER_FILTERS = ("kcf", "local")
 FILTER_NODES = ("sensing", "all")
 CONTROL_REFERENCES = ("estimate", "truth")
 TARGET_PATHS = ("sine", "line")
@@ -24,14 +26,22 @@ INTEGRATORS = ("dopri5", "rk4")
 
 def _check(cfg) -> None:
     kit.check_common(cfg)
+    robust = [f for f in cfg.filters if f in ("ci", "hcmci")]
+    if robust and cfg.filter_nodes != "all":
+        raise ValueError(f"filter_nodes must be 'all' with the filters {', '.join(robust)} (their consensus "
+                         f"averages over every node, and HCMCI's omega = N counts every node as a filter); got "
+                         f"filter_nodes = {cfg.filter_nodes!r}")
+    if robust and cfg.message_delay > 0:
+        raise ValueError(f"message_delay must be 0 with the filters {', '.join(robust)} (they average this "
+                         f"step's information, which a late message cannot join); got {cfg.message_delay}")
     if cfg.message_delay > 0 and cfg.kcf_gain == "prior_consensus":
         raise ValueError("kcf_gain must be mu_P or gamma_M when message_delay > 0 (prior_consensus averages "
                          "this step's priors); got 'prior_consensus'")
 
 
 Config = config_type("Config", dict(
-    **kit.common_settings(filter_kinds=FILTER_KINDS, n_agents=20, n_steps=300, min_steps=2, warmup_steps=20,
-                          divergence_threshold=5.0),
+    **kit.common_settings(filter_kinds=FILTER_KINDS, filters=PAPER_FILTERS, n_agents=20, n_steps=300, min_steps=2,
+                          warmup_steps=20, divergence_threshold=5.0),
     max_substeps=Setting(200, "most sub-steps per step (dopri5: attempts, rejected ones included; rk4: each "
                          "sized from the flock's stiffness and closing speeds) (ours)", low=1, integer=True),
     integrator=Setting("dopri5", "dopri5 = Dormand-Prince 5(4) pair with step-size control at tolerance; rk4 = "

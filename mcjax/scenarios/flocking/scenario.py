@@ -31,7 +31,9 @@ lattice of ``lattice_spacing`` jittered by U[−lattice_jitter, lattice_jitter]�
 draw could break the rule above, and the same test still flags any draw that does.
 
 Filters (``Config.filters``): ``kcf`` and ``local`` (each type-I node's standalone Kalman
-filter: the paper's Fig. 2–3 baseline). Errors are the position errors of the type-I
+filter: the paper's Fig. 2–3 baseline); opt-in, the robust consensus filters ``ci`` and
+``hcmci`` (:mod:`mcjax.filters.robust_consensus`), with ``filter_nodes = "all"`` only: HCMCI's
+ω = N counts every node as one that filters. Errors are the position errors of the type-I
 nodes' estimates. Units: the paper's (m, s). Our choices where it is silent are marked in
 ``configs/lou2013.toml``.
 
@@ -169,5 +171,11 @@ SCENARIO = Scenario(
     filter_words={
         "kcf": "Kalman-consensus filter of Lou, Cui & Li 2013 (Alg. 1): a local update with the neighbours' "
                "measurements plus a step towards their estimates",
-        "local": "each node's own Kalman filter on its own measurements, nothing shared"})
+        "local": "each node's own Kalman filter on its own measurements, nothing shared",
+        "ci": "consensus on information (Battistelli & Chisci 2014): each node updates with its own measurement, "
+              "then averages its information with its neighbours' once per step — covariance intersection, "
+              "never over-confident, at the price of diluting the new measurements",
+        "hcmci": "hybrid consensus on measurements and information (Battistelli et al. 2015): each node averages "
+                 "its neighbours' predictions and, separately, their new measurements, then adds N times the "
+                 "averaged measurements — the centralised filter once the averages converge"})
 default_params, reduce, outputs, timeseries, timeseries_outputs = kit.aliases(SCENARIO)
