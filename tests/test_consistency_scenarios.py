@@ -63,10 +63,13 @@ def test_predicted_nis_equals_numpy_from_the_equations():
         assert got[i] == pytest.approx(nu @ np.linalg.solve(S, nu), rel=1e-9)
 
 
+CFG = lf.Config(n_steps=STEPS, warmup_steps=5, planner="none", filters=("cif", "local"), bound="on",
+                consistency="on")
+
+
 @pytest.fixture(scope="module")
 def runs():
-    cfg = lf.Config(n_steps=STEPS, warmup_steps=5, planner="none", filters=("cif", "local"), bound="on",
-                    consistency="on")
+    cfg = CFG
     out = {}
     for name, sigma in (("matched", 5.0), ("paper", 50.0)):  # the truth's 5 m/s²; the paper's filters assume 50
         P, keys = _batch(cfg, RUNS, sigma_accel=sigma)
@@ -90,3 +93,14 @@ def test_the_centralised_filter_is_not_below_the_floor_and_a_local_one_not_below
         assert floor_multiple(case["rmse"][:, 0], case["pcrb_rmse"]).high >= 1.0
         assert floor_multiple(case["rmse"][:, 1], case["pcrb_local_rmse"]).high >= 1.0
         assert np.all(case["pcrb_local_rmse"] >= case["pcrb_rmse"])
+
+
+def test_the_floor_falls_with_a_longer_sensing_range():
+    """The same seeds (the same target and UAV paths in open loop): with a 60 km radar every step's bound is at
+    least the 150 km one's, and above it where the shorter radar misses the target (the same program as above)."""
+    series = {}
+    for radius in (60e3, 150e3):
+        P, keys = _batch(CFG, 8, sensing_radius=radius)
+        series[radius] = np.asarray(simulate(lf.SCENARIO, CFG, P, keys, timeseries=True)[1]["pcrb_error"])
+    assert np.all(series[60e3] >= series[150e3] * (1 - 1e-12))
+    assert np.any(series[60e3] > series[150e3] * 1.01)
