@@ -99,6 +99,7 @@ class Param(NamedTuple):
     shape: tuple | None = None
     choices: tuple | None = None  # allowed values, e.g. (0, 1) for an alive flag
     display: str | None = None    # the unit plots show it in (e.g. "km" for "m"; see mcjax.units.DISPLAY_UNITS)
+    label: str | None = None      # the words the report's sentences name it by (e.g. "comm radius"; None: its name)
 
     def allowed(self) -> str:
         return validation.param_allowed(self)
@@ -131,8 +132,9 @@ class Param(NamedTuple):
 
     def as_json(self) -> dict:
         shown, factor = self.display_unit()
-        return {"unit": self.unit, "description": self.description, "per_agent": self.per_agent,
-                "allowed": self.allowed(), "display_unit": shown, "display_factor": factor}
+        out = {"unit": self.unit, "description": self.description, "per_agent": self.per_agent,
+               "allowed": self.allowed(), "display_unit": shown, "display_factor": factor}
+        return out if self.label is None else {**out, "label": self.label}
 
 
 def config_type(name: str, settings: Mapping[str, Setting], module: str,
@@ -267,6 +269,7 @@ class Scenario:
     smooth: Any = None                   # its smoothing switch, a mcjax.smoothing.Smooth (optional)
     compiler_options: Mapping[str, Any] | None = None  # XLA options of its programs (optional)
     filter_words: Mapping[str, str] | None = None  # each filter kind in plain words (the report's glossary)
+    filter_names: Mapping[str, str] | None = None  # each filter kind's short name in sentences ("modified ICF")
     #: its programs run on one CPU device (True where two running at once deadlock in XLA's CPU runtime)
     one_device: bool = False
     # derived from summary / series (not given):
@@ -319,4 +322,7 @@ class Scenario:
             out["timeseries_outputs"] = {k: o.as_json() for k, o in self.timeseries_outputs(cfg).items()}
         words = self.filter_words or {}
         out["filter_descriptions"] = {f: words[f] for f in cfg.filters if f in words}
+        names = self.filter_names or {}
+        if names:
+            out["filter_names"] = {f: names[f] for f in cfg.filters if f in names}
         return out

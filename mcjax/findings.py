@@ -22,6 +22,7 @@ here names a scenario, a filter or a unit. This module imports neither JAX nor m
 from __future__ import annotations
 
 import math
+import re
 from typing import Any, Mapping, NamedTuple, Sequence
 
 import numpy as np
@@ -303,37 +304,54 @@ def findings(df: pd.DataFrame, metadata: Mapping[str, Any] | tables.Schema,
     one axis are made per panel — each combination of the other axes' values, named at the
     sentence's start and in :attr:`Finding.panel` — never over runs pooled across design points.
     A single point gets the sentence about the filters' order only. The consistency and
-    error-floor sentences (:mod:`mcjax.quality`) are per design point."""
+    error-floor sentences (:mod:`mcjax.quality`) are per design point. Filters and axes are named
+    by the words the dataset declares for them (``filter_names``, a Param's ``label``), else by
+    their code names."""
     sch = tables.schema(metadata, df.columns)
     axes = tables.resolve_axes(sch, df.columns, axes)
     data = tables.prepare(df, axes)
     filters = [str(f) for f in tables.ordered_filters(data["filter"], sch.filters)]
     unit = tables.unit(sch.error, sch)
-    out: list[Finding] = []
     plot_axes = [a for a in axes if data[a].nunique(dropna=False) > 1]
     out_quality = _quality(data, sch, plot_axes, filters)
+    words = _words(metadata, sch)
+    if words:  # the sentences name filters and axes by the glossary's words, not their code names
+        return [f._replace(text=_in_words(f.text, words)) for f in _findings(data, sch, plot_axes, filters, unit,
+                                                                             out_quality)]
+    return _findings(data, sch, plot_axes, filters, unit, out_quality)
+
+
+def _words(metadata, sch: tables.Schema) -> dict[str, str]:
+    """Code name -> words: each filter's declared short name (``filter_names``) and each Param's
+    ``label`` (an empty dict for a dataset that declares none)."""
+    names = metadata.get("filter_names") if isinstance(metadata, Mapping) else None
+    out = {str(k): str(v) for k, v in (names or {}).items() if v}
+    for name, decl in (sch.params or {}).items():
+        if isinstance(decl, Mapping) and decl.get("label"):
+            out[str(name)] = str(decl["label"])
+    return out
+
+
+def _in_words(text: str, words: Mapping[str, str]) -> str:
+    """``text`` with every code name of ``words`` standing alone (not inside another name) replaced."""
+    for code in sorted(words, key=len, reverse=True):
+        text = re.sub(rf"(?<![\w.]){re.escape(code)}(?!\w)", words[code], text)
+    return text[0].upper() + text[1:] if text else text
+
+
+def _findings(data: pd.DataFrame, sch: tables.Schema, plot_axes: list, filters: list, unit: str,
+              out_quality: list[Finding]) -> list[Finding]:
     if not plot_axes:
-        data = data.assign(_point="this point")
-        s = tables.summarize(data, sch, ["_point"])
-        single = _lowest_error(s, _Axis("_point", ["this point"], "", 1.0), sch, filters, unit, "")
-        if single is not None:
-            out.append(Finding("", single.text.replace("at _point = this point ", "").replace("at this point ", ""),
-                               tuple((a, b, None) for a, b, _ in single.orders)))
-        if sch.divergence:
-            ax = _Axis("_point", ["this point"], "", 1.0)
-            if int(s["diverged"].sum()):
-                text = f"Divergence rate: {_rates_at(s, ax, 'this point', filters)}."
-            else:
-                hi = wilson_interval(0, int(s["n"].min())).high
-                text = (f"No run of any filter diverged (0 of {int(s['n'].min())} or more runs per filter; the "
-                        f"rate's {PCT} interval ends at {100 * hi:.1f} %).")
-            out.append(Finding("", text, kind="divergence"))
-        return out + out_quality
+        return _point_sentences(data, sch, filters, unit, ()) + out_quality
+    out: list[Finding] = []
     for a in plot_axes:
         shown, factor = tables.display(a, sch)
-        ax = _Axis(a, _sorted_values(data[a]), shown, factor)
         others = [o for o in plot_axes if o != a]
         for panel, rows in _panels(data, others):
+            values = _sorted_values(rows[a])
+            if len(values) < 2:  # nothing varies along a in this panel (e.g. the axes of a zip)
+                continue
+            ax = _Axis(a, values, shown, factor)
             where = ", ".join(f"{o} = {_Axis(o, [], *tables.display(o, sch)).text(v)}" for o, v in panel)
             prefix = f"With {where}: " if where else ""
             s = tables.summarize(rows, sch, [a])
@@ -344,7 +362,35 @@ def findings(df: pd.DataFrame, metadata: Mapping[str, Any] | tables.Schema,
                 f = make()
                 if f is not None:
                     out.append(f._replace(panel=panel))
+    if not out:  # no axis varies alone (a zip): the sentences of each design point
+        for panel, rows in _panels(data, plot_axes):
+            out += _point_sentences(rows, sch, filters, unit, panel)
     return out + out_quality
+
+
+def _point_sentences(data: pd.DataFrame, sch: tables.Schema, filters: list, unit: str,
+                     panel: tuple) -> list[Finding]:
+    """The filters' order and their divergence rates at one design point (``panel``: its axes'
+    values, named first; () for a dataset of one point)."""
+    where = ", ".join(f"{o} = {_Axis(o, [], *tables.display(o, sch)).text(v)}" for o, v in panel)
+    prefix = f"At {where}: " if where else ""
+    data = data.assign(_point="this point")
+    s = tables.summarize(data, sch, ["_point"])
+    out = []
+    single = _lowest_error(s, _Axis("_point", ["this point"], "", 1.0), sch, filters, unit, "")
+    if single is not None:
+        text = single.text.replace("at _point = this point ", "").replace("at this point ", "")
+        out.append(Finding("", prefix + text, tuple((a, b, None) for a, b, _ in single.orders), panel=panel))
+    if sch.divergence:
+        ax = _Axis("_point", ["this point"], "", 1.0)
+        if int(s["diverged"].sum()):
+            text = f"Divergence rate: {_rates_at(s, ax, 'this point', filters)}."
+        else:
+            hi = wilson_interval(0, int(s["n"].min())).high
+            text = (f"No run of any filter diverged (0 of {int(s['n'].min())} or more runs per filter; the "
+                    f"rate's {PCT} interval ends at {100 * hi:.1f} %).")
+        out.append(Finding("", prefix + text, kind="divergence", panel=panel))
+    return out
 
 
 def _panels(data: pd.DataFrame, others: Sequence[str]) -> list[tuple[tuple, pd.DataFrame]]:

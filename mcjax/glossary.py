@@ -52,9 +52,11 @@ def glossary(metadata: Mapping[str, Any], axes: Sequence[str] = (), *, tuned: bo
     described = metadata.get("filter_descriptions") if isinstance(metadata, Mapping) else None
     described = described if isinstance(described, Mapping) else {}
     missing = [f for f in sch.filters if not described.get(f)]
+    named = metadata.get("filter_names") if isinstance(metadata, Mapping) else None
+    named = named if isinstance(named, Mapping) else {}
     for f in sch.filters:
-        if described.get(f):
-            out.append((f, str(described[f])))
+        if described.get(f):  # the sentences' name for it, and the code name the tables use
+            out.append((f"{named[f]} ({f})" if named.get(f) and named[f] != f else f, str(described[f])))
     if missing:
         out.append((", ".join(missing), "the estimators compared, run side by side on the same measurements in "
                     "every run (one row per run and filter)" + (f"; the scenario's own words: {sch.title}"
@@ -73,7 +75,9 @@ def glossary(metadata: Mapping[str, Any], axes: Sequence[str] = (), *, tuned: bo
         out.append((f"{name} [{u}]" if u else name, text))
     for a in axes:
         shown = tables.display(a, sch)[0]
-        out.append((f"{a} [{shown}]" if shown else a, (declared_words(a, sch) or "a Param")
+        label = (sch.params.get(a) or {}).get("label") if isinstance(sch.params.get(a), Mapping) else None
+        term = f"{label} ({a})" if label else a
+        out.append((f"{term} [{shown}]" if shown else term, (declared_words(a, sch) or "a Param")
                     + (" — tuned by gradient through the closed loop" if tuned else " — swept")))
     out.append(("Params", "the scenario's parameters a sweep may vary without recompiling (radii, noise levels, "
                           "weights)" + ("" if tuned else "; their values in this dataset are in the table "

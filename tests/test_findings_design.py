@@ -97,3 +97,13 @@ def test_the_divergence_sentence_names_where_the_filters_differ_most():
     meta = {**META, "spec": {"grid": {"comm_radius": [20e3, 60e3, 100e3]}}}
     (text,) = [f.text for f in findings.findings(pd.concat(rows), meta) if f.kind == "divergence"]
     assert "differ most at 60 km: imm 7.0 %" in text and "ct 70.0 %" in text, text
+
+
+def test_sentences_name_filters_and_axes_by_their_declared_words():
+    meta = {**META, "filter_names": {"imm": "IMM-UKF", "ct": "CT-only UKF"},
+            "params": {**META["params"], "comm_radius": {**META["params"]["comm_radius"], "label": "comm radius"}}}
+    found = [f for f in findings.findings(_runs(), meta) if f.kind not in ("consistency", "floor")]
+    texts = " ".join(f.text for f in found)
+    assert "IMM-UKF" in texts and "CT-only UKF" in texts and "comm radius = " in texts
+    assert not re.search(r"(?<![\w-])(imm|ct|comm_radius)(?![\w-])", texts), texts
+    assert all(order[0] in ("imm", "ct") for f in found for order in f.orders)  # the data keep the code names

@@ -303,7 +303,7 @@ def test_the_default_sweeps_page_leads_with_findings_and_fits_1280_px(default_pa
     assert findings_at < first_figure
     sentences = [" ".join(t.split()) for t in page.text.get("li", [])][:4]
     assert sentences[0].startswith("Lowest mean rmse:") and "km" in sentences[0], sentences
-    assert any(s.startswith("Runs diverge at comm_radius") and re.search(r"\d+\.\d % \[\d+\.\d, \d+\.\d\]", s)
+    assert any(s.startswith("Runs diverge at comm radius") and re.search(r"\d+\.\d % \[\d+\.\d, \d+\.\d\]", s)
                for s in sentences), sentences
     on_disk = {p.read_bytes() for p in default_page.parent.glob("*.png")}
     imgs = [a for tag, a in page.tags if tag == "img"]

@@ -71,18 +71,18 @@ DELAY_SETTINGS = {
 #: The Params of lost links.
 LINK_PARAMS = {
     "link_loss": Param(0.0, "", "probability that a link's message is lost in a step (the stationary rate with "
-                                "link_burst)", low=0.0, high=1.0),
+                                "link_burst)", low=0.0, high=1.0, label="link loss"),
     "link_burst": Param(0.0, "steps", "mean length of a burst of losses on a link (a Gilbert–Elliott channel); "
-                                      "0: losses independent per step", low=0.0),
+                                      "0: losses independent per step", low=0.0, label="mean burst"),
 }
 
 #: Every fault Param, as a scenario declares them (add to its ``params_type`` table).
 PARAMS = {
     **LINK_PARAMS,
     "agent_loss_rate": Param(0.0, "1/step", "hazard of losing an agent for good, per agent and step (it stops "
-                                            "sensing, sending and moving)", low=0.0, high=1.0),
+                                            "sensing, sending and moving)", low=0.0, high=1.0, label="agent loss rate"),
     "min_alive": Param(1, "", "losses stop when this many agents are left alive (<= n_agents)", low=0,
-                       integer=True),
+                       integer=True, label="agents kept"),
     "sensor_dropout": Param(0.0, "", "probability that an agent's sensor returns nothing in a step",
                             low=0.0, high=1.0),
 }

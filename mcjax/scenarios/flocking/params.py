@@ -75,10 +75,10 @@ def _default_m(cfg):
 _POS = dict(low=0.0, low_open=True)
 Params = params_type("Params", dict(
     dt=Param(0.1, "s", "sampling step of the filters and the controllers (ours)", **_POS),
-    R=Param(8.4, "m", "communication radius (paper)", **_POS),
+    R=Param(8.4, "m", "communication radius (paper)", **_POS, label="comm radius R"),
     epsilon=Param(0.4, "m", "hysteresis: a new link forms below R - epsilon (ours)", **_POS),
     n_sensing=Param(_default_m, "", "M, the number of type-I (sensing) nodes (paper: 10 of 20)", low=1.0,
-                    integer=True),
+                    integer=True, label="sensing nodes M"),
     c1=Param(1.0, "1/s^2", "position gain of eq. 10 (ours)", **_POS),
     c2=Param(2.0, "1/s", "velocity gain of eq. 10; also l of eqs. 15-16 (ours)", **_POS),
     k=Param(0.1, "", "adaptation rate k_ij of eq. 11 (ours, every pair; see configs/lou2013.toml)", **_POS),

@@ -107,8 +107,10 @@ _ANGLE = dict(low=-10.0, high=10.0)
 #: (sec. 5) where it gives one; the others are ours (configs/sun2011.toml says why).
 Params = params_type("Params", dict(
     dt=Param(1.0, "s", "radar sampling interval = comm interval (paper: 1 s)", **_POS),
-    comm_radius=Param(100e3, "m", "communication radius (paper: 100 km)", **_NONNEG, per_agent=True, display="km"),
-    sensing_radius=Param(120e3, "m", "radar range (paper: 120 km)", **_NONNEG, per_agent=True, display="km"),
+    comm_radius=Param(100e3, "m", "communication radius (paper: 100 km)", **_NONNEG, per_agent=True, display="km",
+                      label="comm radius"),
+    sensing_radius=Param(120e3, "m", "radar range (paper: 120 km)", **_NONNEG, per_agent=True, display="km",
+                         label="radar range"),
     sigma_range=Param(10.0, "m", "range noise std (paper: 10 m)", **_POS),
     sigma_bearing=Param(0.017, "rad", "bearing noise std (paper: 0.017 rad)", **_POS,
                         high=float(np.pi)),
@@ -128,7 +130,8 @@ Params = params_type("Params", dict(
     kcf_epsilon=Param(0.1, "", "KCF consensus gain epsilon (ours)", **_NONNEG),
     alive=Param(lambda cfg: np.ones(cfg.n_agents), "", "1 = alive, 0 = dropped out (masked, never removed)",
                 choices=(0, 1), per_agent=True),
-    alpha_I=Param(1000.0, "", "weight of the connectivity-robustness penalty (case 1 of Table 1: 0)", **_NONNEG),
+    alpha_I=Param(1000.0, "", "weight of the connectivity-robustness penalty (case 1 of Table 1: 0)", **_NONNEG,
+                  label="robustness weight α_I"),
     alpha_C=Param(1.0, "1/rad", "weight of the control effort, eq. 17", **_NONNEG),
     alpha_L=Param(1e-4, "1/m", "weight of the distance to the target", **_NONNEG),
     alpha_S=Param(1e4, "", "weight of the D_safe / D_LT penalties, eqs. 18-19", **_NONNEG),
@@ -136,7 +139,8 @@ Params = params_type("Params", dict(
     d_lt=Param(20e3, "m", "D_LT, eq. 19", **_POS, display="km"),
     robustness_scale=Param(5e3, "m", "s of the barrier softplus(-R_I/s)", **_POS, display="km"),
     plan_temperature=Param(1e3, "m", "temperature of the smooth cost (gradient planner)", **_POS),
-    horizon=Param(5, "steps", "t_r, the planning horizon (paper: 5; <= max_horizon)", low=1, integer=True),
+    horizon=Param(5, "steps", "t_r, the planning horizon (paper: 5; <= max_horizon)", low=1, integer=True,
+                  label="horizon t_r"),
     replan_every=Param(3, "steps", "tau_r, steps between re-plans (paper: 3; <= t_r)", low=1, integer=True),
     **faults.PARAMS,
 ), __name__)

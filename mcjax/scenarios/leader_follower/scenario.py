@@ -82,6 +82,8 @@ SCENARIO = Scenario(
     series=series, check_params=check_params,
     smooth=Smooth(Smoothing, kit.training_errors, kit.training_weights, ROUGH),
     compiler_options=FAST_COMPILE,
+    filter_names={"cif": "CIF", "icf": "ICF", "modified_icf": "modified ICF", "kcf": "KCF", "local": "local EKF",
+                  "ci": "CI", "hcmci": "HCMCI"},
     filter_words={
         "cif": "centralised information filter: one filter fuses every UAV's measurements (the bound the "
                "distributed filters aim at)",

@@ -98,9 +98,11 @@ Params = params_type("Params", dict(
     process_noise=Param(0.0, "m", "std of the filters' random walk per step (paper: none)", low=0.0),
     max_hold_steps=Param(0, "steps", "most steps in a row the shadow's hold may last, then the planner flies "
                          "(ours; 0 = no limit, the paper's rule)", low=0, integer=True),
-    c1=Param(0.2, "", "weight of J_FIM (paper: 0.2)"),
-    c2=Param(0.5, "", "weight of J_T, steps clear of buildings and shadow (paper: 0.5)"),
-    c3=Param(-0.3, "", "weight of J_NLOS, steps in the reflection region (paper: -0.3)"),
+    c1=Param(0.2, "", "weight of J_FIM (paper: 0.2)", label="weight c1 (FIM)"),
+    c2=Param(0.5, "", "weight of J_T, steps clear of buildings and shadow (paper: 0.5)",
+             label="weight c2 (clear steps)"),
+    c3=Param(-0.3, "", "weight of J_NLOS, steps in the reflection region (paper: -0.3)",
+             label="weight c3 (NLOS steps)"),
     plan_temperature=Param(20.0, "m", "temperature of the smooth indicators (gradient planner)", **_POS),
 ), __name__)
 

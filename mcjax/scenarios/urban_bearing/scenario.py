@@ -37,6 +37,7 @@ SCENARIO = Scenario(
     # gradient planner's smooth objective reads it; the smooth system's soft grid does not)
     smooth=Smooth(Smoothing, kit.training_errors, training_weights, ("max_hold_steps", "plan_temperature")),
     compiler_options=FAST_COMPILE,
+    filter_names={"imm": "IMM-EKF", "ekf": "EKF"},
     filter_words={
         "imm": "Chen & Hao 2022's IMM-EKF over three measurement modes (line of sight, and reflected paths "
                "biased either way); the planner steers by it",

@@ -129,6 +129,7 @@ SCENARIO = Scenario(
     name=NAME, title="Ren & Lv 2017: six UUVs track a manoeuvring target by consensus IMM-UKF",
     Config=Config, Params=Params, init=init, step=step, summary=summary, series=series,
     check_params=check_params, smooth=Smooth(Smoothing, kit.training_errors, kit.training_weights, ROUGH),
+    filter_names={"imm": "IMM-UKF", "cv": "CV-only UKF", "ct": "CT-only UKF"},
     filter_words={
         "imm": "Ren & Lv 2017's consensus IMM-UKF: two motion models (constant velocity, coordinated turn) "
                "mixed by their probabilities, fused across UUVs by consensus",

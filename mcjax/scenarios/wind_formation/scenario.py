@@ -214,6 +214,7 @@ SCENARIO = Scenario(
     "formation on a sine path", Config=Config, Params=Params, init=init, step=step, summary=summary,
     series=series, check_params=check_params, smooth=Smooth(Smoothing, training_errors, training_weights, ROUGH),
     compiler_options=FAST_COMPILE,
+    filter_names={"kcf": "consensus KF", "local": "local KF", "cif": "centralised KF", "ci": "CI", "hcmci": "HCMCI"},
     filter_words={
         "kcf": "Chen & Lu 2013's consensus Kalman filter: each UAV fuses its neighbours' wind measurements and "
                "moves towards their estimates",
