@@ -104,3 +104,15 @@ def test_the_stored_program_warning_reads_as_english(tmp_path, capsys):
     err = capsys.readouterr().err
     assert f"{path}: it does not match the hash recorded when it was written" in err
     assert "it its" not in err
+
+
+def test_library_md_states_run_filters_conventions():
+    """The state order, the bearing convention and why run_filter's icf_variant default differs from the
+    paper's config are in docs/library.md's prose (they were only in docstrings)."""
+    text = (ROOT / "docs" / "library.md").read_text(encoding="utf-8")
+    assert "`[x, ẋ, y, ẏ]`" in text and "atan2(y − s_y, x − s_x)" in text
+    default = re.search(r'icf_variant: str = "(\w+)"', (ROOT / "mcjax" / "filters" / "recorded.py").read_text())
+    paper = re.search(r'icf_variant = "(\w+)"', (ROOT / "configs" / "sun2011.toml").read_text())
+    assert default and paper and default.group(1) != paper.group(1)
+    assert f'`icf_variant =\n"{default.group(1)}"`' in text or f'`icf_variant = "{default.group(1)}"`' in text
+    assert f'`"{paper.group(1)}"`' in text
