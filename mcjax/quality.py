@@ -30,7 +30,7 @@ import pandas as pd
 from mcjax import tables
 from mcjax.statistics import chi2_band, consistency, floor_multiple
 
-__all__ = ["point_labels", "consistency_sentences", "floor_sentences"]
+__all__ = ["point_labels", "same_value", "consistency_sentences", "floor_sentences"]
 
 
 def _number(x: float) -> str:
@@ -51,12 +51,19 @@ def point_labels(data: pd.DataFrame, axes: Sequence[str], text: Callable[[str, A
     return [(k, "at " + ", ".join(f"{a} = {text(a, v)}" for a, v in zip(axes, k))) for k in keys]
 
 
+def same_value(column: pd.Series, v: Any) -> np.ndarray:
+    """Which cells of ``column`` hold ``v`` (a per-agent tuple compared whole; NaN matches NaN)."""
+    if isinstance(v, float) and math.isnan(v):
+        return column.isna().to_numpy()
+    return column.map(lambda x: x == v).to_numpy(dtype=bool)
+
+
 def _rows(data: pd.DataFrame, axes: Sequence[str], key: tuple) -> pd.DataFrame:
     if not axes:
         return data
     mask = np.ones(len(data), bool)
     for a, v in zip(axes, key):
-        mask &= (data[a] == v).to_numpy() if not isinstance(v, float) or not math.isnan(v) else data[a].isna().to_numpy()
+        mask &= same_value(data[a], v)
     return data[mask]
 
 

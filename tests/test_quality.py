@@ -129,3 +129,11 @@ def test_step_plots_draw_the_floor_and_the_bands_one_panel_per_point():
     assert np.allclose(lines["floor (PCRB)"].get_ydata(), 1.0)
     many = pd.concat([runs.assign(noise=runs["noise"] + k, point_id=runs["point_id"] + 10 * k) for k in range(12)])
     assert all(type(p).__name__ == "Skipped" for p in step_plots(ts, ts_meta, many, META))
+
+
+def test_a_per_agent_axis_gets_one_sentence_per_point():
+    """A per-agent parameter swept as lists (tuples once prepared) is compared whole, value by value."""
+    runs = _runs(100)
+    runs["noise"] = runs["noise"].map(lambda v: [v, 2 * v])
+    found = [f.text for f in findings.findings(runs, META) if f.kind == "floor"]
+    assert len(found) == 2 and "noise = (1, 2) m" in found[0] and "noise = (2, 4) m" in found[1], found

@@ -52,7 +52,7 @@ def _points(runs: pd.DataFrame, axes: Sequence[str], sch) -> list[tuple[list, st
     for key, where in quality.point_labels(data, axes, text):
         mask = np.ones(len(data), bool)
         for a, v in zip(axes, key):
-            mask &= (data[a] == v).to_numpy()
+            mask &= quality.same_value(data[a], v)
         out.append((sorted(set(data.loc[mask, "point_id"].tolist())), where.removeprefix("at ")))
     return out
 
