@@ -67,6 +67,26 @@ def _rows(data: pd.DataFrame, axes: Sequence[str], key: tuple) -> pd.DataFrame:
     return data[mask]
 
 
+#: Beyond this many design points the consistency of each filter is tallied over them in one sentence.
+MAX_POINTS = 12
+
+
+def _tally(data, axes, points, filters, col, dof, what) -> str:
+    """How many of the design points find each filter consistent, over- and under-confident."""
+    parts = []
+    for f in filters:
+        counts = dict.fromkeys(("consistent", "over-confident", "under-confident"), 0)
+        for key, _ in points:
+            rows = _rows(data, axes, key)
+            v = pd.to_numeric(rows.loc[rows["filter"] == f, col], errors="coerce").to_numpy(float)
+            v = v[np.isfinite(v)]
+            if v.size:
+                counts[consistency(float(v.mean()), chi2_band(dof, v.size))] += 1
+        parts.append(f"{f} " + ", ".join(f"{k} at {n}" for k, n in counts.items() if n))
+    return (f"Consistency over the {len(points)} design points (average {what}, {dof} dof, each point against the "
+            f"band of its number of runs): " + "; ".join(parts) + ".")
+
+
 def consistency_sentences(data: pd.DataFrame, sch: tables.Schema, axes: Sequence[str], filters: Sequence[str],
                           text: Callable[[str, Any], str]) -> list[str]:
     """One sentence per design point and declared statistic (NEES, NIS): each filter's average with
@@ -79,7 +99,11 @@ def consistency_sentences(data: pd.DataFrame, sch: tables.Schema, axes: Sequence
         dof = int(sch.outputs[col].get("dof") or 0)
         if dof < 1:
             continue
-        for key, where in point_labels(data, axes, text):
+        points = point_labels(data, axes, text)
+        if len(points) > MAX_POINTS:  # one sentence counting each filter's verdicts over the points
+            out.append(_tally(data, axes, points, filters, col, dof, what))
+            continue
+        for key, where in points:
             rows = _rows(data, axes, key)
             parts, sizes = [], set()
             for f in filters:

@@ -137,3 +137,11 @@ def test_a_per_agent_axis_gets_one_sentence_per_point():
     runs["noise"] = runs["noise"].map(lambda v: [v, 2 * v])
     found = [f.text for f in findings.findings(runs, META) if f.kind == "floor"]
     assert len(found) == 2 and "noise = (1, 2) m" in found[0] and "noise = (2, 4) m" in found[1], found
+
+
+def test_many_design_points_are_tallied_in_one_sentence():
+    runs = _runs(60)
+    runs = pd.concat([runs.assign(noise=runs["noise"] + 10 * k, point_id=runs["point_id"] + 10 * k) for k in range(7)])
+    found = [f.text for f in findings.findings(runs, META) if f.kind == "consistency"]
+    assert len(found) == 2 and found[0].startswith("Consistency over the 14 design points"), found
+    assert "good consistent at 14" in found[0] and "proud over-confident at 14" in found[0], found[0]
