@@ -32,7 +32,7 @@ from mcjax import configure
 __all__ = ["SweepRows", "sweep", "run"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # frames inside: compared by identity
 class SweepRows:
     """A sweep's runs in memory: ``rows`` (one per run and filter, every output), ``metadata`` (the
     declarations, spec and provenance a dataset carries), ``summary`` (per swept point and filter,
