@@ -1,24 +1,26 @@
 """numba peer of two mcjax filters: the local EKF and the modified ICF, batched over runs.
 
-Written from docs/equations.md §5.1–5.2 (the same equations as ``numpy_peer.py``, in the
-information form of Sun et al. 2011 eqs. 8–12), as a performance-minded researcher would:
-one ``@njit(parallel=True, cache=True)`` kernel with ``prange`` over the runs, scalar loops over the
-4×4 matrices, scratch arrays allocated once per run, results written straight into
-``(B, T, n, 4)`` / ``(B, T, n, 4, 4)`` arrays. It imports neither ``jax`` nor ``mcjax``.
+Written from docs/equations.md §5.1–5.2, as a performance-minded researcher would: one
+``@njit(parallel=True, cache=True)`` kernel per filter with ``prange`` over the runs, results
+written straight into ``(B, T, n, 4)`` / ``(B, T, n, 4, 4)`` arrays. It imports neither ``jax``
+nor ``mcjax``.
 
-Per agent-step (docs/filter_speed.md counts the flops):
-
-* predict ``x̄ = F x``, ``P̄ = F P Fᵀ + Q`` (upper triangle, then mirrored), ``Ȳ = P̄⁻¹``
-  by a Cholesky factor (``L⁻¹`` then ``L⁻ᵀ L⁻¹``), ``ȳ = Ȳ x̄`` (step 0: no prediction);
-* contribution linearised at ``x̄``: ``H`` analytic (range row ``[dx/r, 0, dy/r, 0]``,
-  bearing row ``[−dy/r², 0, dx/r², 0]``), ``ν = z − h(x̄)`` with the bearing wrapped into
-  (−π, π], ``i = Hᵀ R⁻¹ (ν + H x̄)``, ``I = Hᵀ R⁻¹ H``; ``(0, 0)`` when a component of z is
-  not finite;
-* local: ``Y = Ȳ + I``, ``y = ȳ + i``; modified ICF: ``Y_i = Ȳ_i + n_i I_i`` (``n_i`` the
-  size of agent i's connected component, or 1 with ``contribution="one"``), then L
-  iterations ``(y_i, Y_i) ← Σ_j W_ij (y_j, Y_j)`` with the eq. 11 / Metropolis / max-degree
-  weights;
-* recover ``P = Y⁻¹`` (Cholesky again), ``x = P y``.
+* local EKF (``local_kernel``): moment form, the equations of mcjax's own local filter
+  (``mcjax/filters/batched.py``, ``native_kernels.cc``), as straight-line scalar code on the
+  4 mean entries and the 10 distinct entries of the symmetric covariance (no arrays in the
+  loop): predict ``x̄ = F x``, ``P̄ = F P Fᵀ + Q`` (step 0: no prediction); ``H`` analytic at
+  ``x̄`` (range row ``[dx/r, 0, dy/r, 0]``, bearing row ``[−dy/r², 0, dx/r², 0]``, the guards of
+  ``sensors.range_bearing``), ``ν = z − h(x̄)`` with the bearing wrapped into (−π, π];
+  ``S = H P̄ Hᵀ + R`` (2×2, closed-form inverse), ``K = P̄ Hᵀ S⁻¹``, ``x = x̄ + K ν``,
+  ``P = P̄ − K (P̄ Hᵀ)ᵀ``; no update when a component of z is not finite.
+* modified ICF (``modified_icf_kernel``): information form of Sun et al. 2011 eqs. 8–12 (the
+  equations of ``numpy_peer.py``), scalar loops over 4×4 scratch arrays allocated once per run:
+  predict as above, ``Ȳ = P̄⁻¹`` by a Cholesky factor (``L⁻¹`` then ``L⁻ᵀ L⁻¹``), ``ȳ = Ȳ x̄``;
+  contribution linearised at ``x̄``: ``i = Hᵀ R⁻¹ (ν + H x̄)``, ``I = Hᵀ R⁻¹ H``, ``(0, 0)`` when
+  a component of z is not finite; ``Y_i = Ȳ_i + n_i I_i`` (``n_i`` the size of agent i's
+  connected component, or 1 with ``contribution="one"``), then L iterations
+  ``(y_i, Y_i) ← Σ_j W_ij (y_j, Y_j)`` with the eq. 11 / Metropolis / max-degree weights;
+  recover ``P = Y⁻¹`` (Cholesky again), ``x = P y``.
 
 numba is a benchmark-only dependency (``pip install -e .[bench]``).
 """
@@ -128,54 +130,162 @@ def _contribution(z0, z1, sx, sy, xb, Rinv, i_out, I_out):
     return True
 
 
+@njit(inline="always")
+def _wrap(a):
+    """An angle wrapped to (−π, π], as ``mcjax.numerics.wrap_angle`` (inside: unchanged)."""
+    if -math.pi < a <= math.pi:
+        return a
+    w = (a + math.pi) % (2.0 * math.pi) - math.pi
+    return math.pi if w == -math.pi else w
+
+
 @njit(parallel=True, cache=True)
 def local_kernel(z, s, x0, P0, F, Q, Rinv, xs, Ps):
-    """Local EKF in information form for every run ``b`` and agent; writes ``xs``, ``Ps``."""
+    """Local EKF in moment form for every run ``b`` and agent; writes ``xs``, ``Ps``.
+
+    Straight-line scalar code: the state is 4 scalars for the mean and the 10 distinct entries
+    ``p_ij`` (i ≤ j) of the symmetric covariance, so the inner loop allocates nothing. ``R`` is
+    ``Rinv⁻¹`` (2×2, closed form; ``run_filter_numba`` passes ``R⁻¹`` for both kernels)."""
     B, T, n = z.shape[0], z.shape[1], z.shape[2]
+    f00, f01, f02, f03 = F[0, 0], F[0, 1], F[0, 2], F[0, 3]
+    f10, f11, f12, f13 = F[1, 0], F[1, 1], F[1, 2], F[1, 3]
+    f20, f21, f22, f23 = F[2, 0], F[2, 1], F[2, 2], F[2, 3]
+    f30, f31, f32, f33 = F[3, 0], F[3, 1], F[3, 2], F[3, 3]
+    q00, q01, q02, q03 = Q[0, 0], Q[0, 1], Q[0, 2], Q[0, 3]
+    q11, q12, q13 = Q[1, 1], Q[1, 2], Q[1, 3]
+    q22, q23, q33 = Q[2, 2], Q[2, 3], Q[3, 3]
+    ri01 = 0.5 * (Rinv[0, 1] + Rinv[1, 0])
+    rdet = Rinv[0, 0] * Rinv[1, 1] - ri01 * ri01
+    r00, r01, r11 = Rinv[1, 1] / rdet, -ri01 / rdet, Rinv[0, 0] / rdet
     for b in prange(B):
-        x = np.empty(4)
-        P = np.empty((4, 4))
-        xb = np.empty(4)
-        Pb = np.empty((4, 4))
-        Yb = np.empty((4, 4))
-        FP = np.empty((4, 4))
-        L = np.zeros((4, 4))
-        M = np.zeros((4, 4))
-        ic = np.empty(4)
-        Ic = np.empty((4, 4))
-        y = np.empty(4)
-        Y = np.empty((4, 4))
         for a in range(n):
-            for k in range(4):
-                x[k] = x0[k]
-                for m in range(4):
-                    P[k, m] = P0[k, m]
+            m0, m1, m2, m3 = x0[0], x0[1], x0[2], x0[3]
+            p00, p01, p02, p03 = P0[0, 0], P0[0, 1], P0[0, 2], P0[0, 3]
+            p11, p12, p13 = P0[1, 1], P0[1, 2], P0[1, 3]
+            p22, p23, p33 = P0[2, 2], P0[2, 3], P0[3, 3]
             for t in range(T):
-                if t == 0:
-                    for k in range(4):
-                        xb[k] = x[k]
-                        for m in range(4):
-                            Pb[k, m] = P[k, m]
-                else:
-                    _predict(x, P, F, Q, xb, Pb, FP)
-                _spd_inverse(Pb, L, M, Yb)
-                _contribution(z[b, t, a, 0], z[b, t, a, 1], s[b, t, a, 0], s[b, t, a, 1], xb, Rinv, ic, Ic)
-                for k in range(4):
-                    acc = ic[k]
-                    for m in range(4):
-                        acc += Yb[k, m] * xb[m]
-                    y[k] = acc
-                    for m in range(4):
-                        Y[k, m] = Yb[k, m] + Ic[k, m]
-                _spd_inverse(Y, L, M, P)
-                for k in range(4):
-                    acc = 0.0
-                    for m in range(4):
-                        acc += P[k, m] * y[m]
-                    x[k] = acc
-                    xs[b, t, a, k] = acc
-                    for m in range(4):
-                        Ps[b, t, a, k, m] = P[k, m]
+                if t > 0:  # step 0 updates the prior without predicting
+                    # FP = F P
+                    fp00 = f00 * p00 + f01 * p01 + f02 * p02 + f03 * p03
+                    fp01 = f00 * p01 + f01 * p11 + f02 * p12 + f03 * p13
+                    fp02 = f00 * p02 + f01 * p12 + f02 * p22 + f03 * p23
+                    fp03 = f00 * p03 + f01 * p13 + f02 * p23 + f03 * p33
+                    fp10 = f10 * p00 + f11 * p01 + f12 * p02 + f13 * p03
+                    fp11 = f10 * p01 + f11 * p11 + f12 * p12 + f13 * p13
+                    fp12 = f10 * p02 + f11 * p12 + f12 * p22 + f13 * p23
+                    fp13 = f10 * p03 + f11 * p13 + f12 * p23 + f13 * p33
+                    fp20 = f20 * p00 + f21 * p01 + f22 * p02 + f23 * p03
+                    fp21 = f20 * p01 + f21 * p11 + f22 * p12 + f23 * p13
+                    fp22 = f20 * p02 + f21 * p12 + f22 * p22 + f23 * p23
+                    fp23 = f20 * p03 + f21 * p13 + f22 * p23 + f23 * p33
+                    fp30 = f30 * p00 + f31 * p01 + f32 * p02 + f33 * p03
+                    fp31 = f30 * p01 + f31 * p11 + f32 * p12 + f33 * p13
+                    fp32 = f30 * p02 + f31 * p12 + f32 * p22 + f33 * p23
+                    fp33 = f30 * p03 + f31 * p13 + f32 * p23 + f33 * p33
+                    # P̄ = FP Fᵀ + Q (upper triangle)
+                    p00 = fp00 * f00 + fp01 * f01 + fp02 * f02 + fp03 * f03 + q00
+                    p01 = fp00 * f10 + fp01 * f11 + fp02 * f12 + fp03 * f13 + q01
+                    p02 = fp00 * f20 + fp01 * f21 + fp02 * f22 + fp03 * f23 + q02
+                    p03 = fp00 * f30 + fp01 * f31 + fp02 * f32 + fp03 * f33 + q03
+                    p11 = fp10 * f10 + fp11 * f11 + fp12 * f12 + fp13 * f13 + q11
+                    p12 = fp10 * f20 + fp11 * f21 + fp12 * f22 + fp13 * f23 + q12
+                    p13 = fp10 * f30 + fp11 * f31 + fp12 * f32 + fp13 * f33 + q13
+                    p22 = fp20 * f20 + fp21 * f21 + fp22 * f22 + fp23 * f23 + q22
+                    p23 = fp20 * f30 + fp21 * f31 + fp22 * f32 + fp23 * f33 + q23
+                    p33 = fp30 * f30 + fp31 * f31 + fp32 * f32 + fp33 * f33 + q33
+                    # x̄ = F x
+                    m0, m1, m2, m3 = (
+                        f00 * m0 + f01 * m1 + f02 * m2 + f03 * m3,
+                        f10 * m0 + f11 * m1 + f12 * m2 + f13 * m3,
+                        f20 * m0 + f21 * m1 + f22 * m2 + f23 * m3,
+                        f30 * m0 + f31 * m1 + f32 * m2 + f33 * m3,
+                    )
+                z0 = z[b, t, a, 0]
+                z1 = z[b, t, a, 1]
+                if math.isfinite(z0) and math.isfinite(z1):  # else: keep the prediction
+                    # h(x̄) and H = ∂h/∂x (columns 0 and 2), the guards of sensors.range_bearing
+                    dx = m0 - s[b, t, a, 0]
+                    dy = m2 - s[b, t, a, 1]
+                    sq = dx * dx + dy * dy
+                    if sq <= 1e-30:
+                        r = 0.0
+                        h00 = 0.0
+                        h02 = 0.0
+                    else:
+                        r = math.sqrt(sq)
+                        h00 = dx / r
+                        h02 = dy / r
+                    if dx == 0.0 and dy == 0.0:
+                        bearing = 0.0
+                        h10 = 0.0
+                        h12 = 0.0
+                    else:
+                        bearing = math.atan2(dy, dx)
+                        h10 = -dy / sq
+                        h12 = dx / sq
+                    nu0 = z0 - r
+                    nu1 = _wrap(z1 - bearing)
+                    # P̄ Hᵀ: columns a (range) and c (bearing)
+                    a0 = p00 * h00 + p02 * h02
+                    a1 = p01 * h00 + p12 * h02
+                    a2 = p02 * h00 + p22 * h02
+                    a3 = p03 * h00 + p23 * h02
+                    c0 = p00 * h10 + p02 * h12
+                    c1 = p01 * h10 + p12 * h12
+                    c2 = p02 * h10 + p22 * h12
+                    c3 = p03 * h10 + p23 * h12
+                    # S = H P̄ Hᵀ + R, inverted in closed form
+                    s00 = h00 * a0 + h02 * a2 + r00
+                    s01 = h00 * c0 + h02 * c2 + r01
+                    s11 = h10 * c0 + h12 * c2 + r11
+                    det = s00 * s11 - s01 * s01
+                    i00 = s11 / det
+                    i01 = -s01 / det
+                    i11 = s00 / det
+                    # K = P̄ Hᵀ S⁻¹ (rows k0 … k3, columns range/bearing)
+                    k00 = a0 * i00 + c0 * i01
+                    k01 = a0 * i01 + c0 * i11
+                    k10 = a1 * i00 + c1 * i01
+                    k11 = a1 * i01 + c1 * i11
+                    k20 = a2 * i00 + c2 * i01
+                    k21 = a2 * i01 + c2 * i11
+                    k30 = a3 * i00 + c3 * i01
+                    k31 = a3 * i01 + c3 * i11
+                    # x = x̄ + K ν, P = P̄ − K (P̄ Hᵀ)ᵀ (upper triangle)
+                    m0 += k00 * nu0 + k01 * nu1
+                    m1 += k10 * nu0 + k11 * nu1
+                    m2 += k20 * nu0 + k21 * nu1
+                    m3 += k30 * nu0 + k31 * nu1
+                    p00 -= k00 * a0 + k01 * c0
+                    p01 -= k00 * a1 + k01 * c1
+                    p02 -= k00 * a2 + k01 * c2
+                    p03 -= k00 * a3 + k01 * c3
+                    p11 -= k10 * a1 + k11 * c1
+                    p12 -= k10 * a2 + k11 * c2
+                    p13 -= k10 * a3 + k11 * c3
+                    p22 -= k20 * a2 + k21 * c2
+                    p23 -= k20 * a3 + k21 * c3
+                    p33 -= k30 * a3 + k31 * c3
+                xs[b, t, a, 0] = m0
+                xs[b, t, a, 1] = m1
+                xs[b, t, a, 2] = m2
+                xs[b, t, a, 3] = m3
+                Ps[b, t, a, 0, 0] = p00
+                Ps[b, t, a, 0, 1] = p01
+                Ps[b, t, a, 0, 2] = p02
+                Ps[b, t, a, 0, 3] = p03
+                Ps[b, t, a, 1, 0] = p01
+                Ps[b, t, a, 1, 1] = p11
+                Ps[b, t, a, 1, 2] = p12
+                Ps[b, t, a, 1, 3] = p13
+                Ps[b, t, a, 2, 0] = p02
+                Ps[b, t, a, 2, 1] = p12
+                Ps[b, t, a, 2, 2] = p22
+                Ps[b, t, a, 2, 3] = p23
+                Ps[b, t, a, 3, 0] = p03
+                Ps[b, t, a, 3, 1] = p13
+                Ps[b, t, a, 3, 2] = p23
+                Ps[b, t, a, 3, 3] = p33
 
 
 @njit(inline="always")
