@@ -14,7 +14,8 @@ nor ``mcjax``.
   ``S = H P̄ Hᵀ + R`` (2×2, closed-form inverse), ``K = P̄ Hᵀ S⁻¹``, ``x = x̄ + K ν``,
   ``P = P̄ − K (P̄ Hᵀ)ᵀ``; no update when a component of z is not finite.
 * modified ICF (``modified_icf_kernel``): information form of Sun et al. 2011 eqs. 8–12 (the
-  equations of ``numpy_peer.py``), scalar loops over 4×4 scratch arrays allocated once per run:
+  equations of ``numpy_peer.py``), the same straight-line scalar code per agent, the agents'
+  states and information pairs (10 distinct entries each) in arrays allocated once per run:
   predict as above, ``Ȳ = P̄⁻¹`` by a Cholesky factor (``L⁻¹`` then ``L⁻ᵀ L⁻¹``), ``ȳ = Ȳ x̄``;
   contribution linearised at ``x̄``: ``i = Hᵀ R⁻¹ (ν + H x̄)``, ``I = Hᵀ R⁻¹ H``, ``(0, 0)`` when
   a component of z is not finite; ``Y_i = Ȳ_i + n_i I_i`` (``n_i`` the size of agent i's
@@ -33,101 +34,6 @@ import numpy as np
 from numba import njit, prange
 
 WEIGHT_CODES = {"eq11": 0, "metropolis": 1, "max_degree": 2}
-
-
-@njit(inline="always")
-def _spd_inverse(A, L, M, out):
-    """``out = A⁻¹`` for SPD 4×4 ``A``: ``A = L Lᵀ``, ``M = L⁻¹``, ``A⁻¹ = Mᵀ M`` (NaN if not PD)."""
-    for j in range(4):
-        s = A[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        d = math.sqrt(s) if s >= 0.0 else math.nan
-        L[j, j] = d
-        for i in range(j + 1, 4):
-            s = A[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            L[i, j] = s / d
-    for j in range(4):
-        M[j, j] = 1.0 / L[j, j]
-        for i in range(j + 1, 4):
-            s = L[i, j] * M[j, j]
-            for k in range(j + 1, i):
-                s += L[i, k] * M[k, j]
-            M[i, j] = -s / L[i, i]
-    for i in range(4):
-        for j in range(i, 4):
-            s = 0.0
-            for k in range(j, 4):
-                s += M[k, i] * M[k, j]
-            out[i, j] = s
-            out[j, i] = s
-
-
-@njit(inline="always")
-def _predict(x, P, F, Q, xb, Pb, FP):
-    """``x̄ = F x``, ``P̄ = F P Fᵀ + Q`` (upper triangle computed, lower mirrored)."""
-    for i in range(4):
-        s = 0.0
-        for k in range(4):
-            s += F[i, k] * x[k]
-        xb[i] = s
-    for i in range(4):
-        for j in range(4):
-            s = 0.0
-            for k in range(4):
-                s += F[i, k] * P[k, j]
-            FP[i, j] = s
-    for i in range(4):
-        for j in range(i, 4):
-            s = Q[i, j]
-            for k in range(4):
-                s += FP[i, k] * F[j, k]
-            Pb[i, j] = s
-            Pb[j, i] = s
-
-
-@njit(inline="always")
-def _contribution(z0, z1, sx, sy, xb, Rinv, i_out, I_out):
-    """Range–bearing information contribution at ``x̄``; returns False (and zeros) when invalid."""
-    if not (math.isfinite(z0) and math.isfinite(z1)):
-        for a in range(4):
-            i_out[a] = 0.0
-            for b in range(4):
-                I_out[a, b] = 0.0
-        return False
-    dx = xb[0] - sx
-    dy = xb[2] - sy
-    r2 = dx * dx + dy * dy
-    r = math.sqrt(r2)
-    nu0 = z0 - r
-    nu1 = z1 - math.atan2(dy, dx)
-    if not (-math.pi < nu1 <= math.pi):
-        nu1 = math.pi - ((math.pi - nu1) % (2.0 * math.pi))
-    # H has non-zero columns 0 and 2 only: H = [[h00, 0, h02, 0], [h10, 0, h12, 0]]
-    h00 = dx / r
-    h02 = dy / r
-    h10 = -dy / r2
-    h12 = dx / r2
-    p0 = nu0 + h00 * xb[0] + h02 * xb[2]  # ν + H x̄
-    p1 = nu1 + h10 * xb[0] + h12 * xb[2]
-    # G = Hᵀ R⁻¹: rows 0 and 2 non-zero
-    g00 = h00 * Rinv[0, 0] + h10 * Rinv[1, 0]
-    g01 = h00 * Rinv[0, 1] + h10 * Rinv[1, 1]
-    g20 = h02 * Rinv[0, 0] + h12 * Rinv[1, 0]
-    g21 = h02 * Rinv[0, 1] + h12 * Rinv[1, 1]
-    for a in range(4):
-        i_out[a] = 0.0
-        for b in range(4):
-            I_out[a, b] = 0.0
-    i_out[0] = g00 * p0 + g01 * p1
-    i_out[2] = g20 * p0 + g21 * p1
-    I_out[0, 0] = g00 * h00 + g01 * h10
-    I_out[0, 2] = g00 * h02 + g01 * h12
-    I_out[2, 0] = I_out[0, 2]
-    I_out[2, 2] = g20 * h02 + g21 * h12
-    return True
 
 
 @njit(inline="always")
@@ -344,84 +250,221 @@ def _weights(A, kind, W):
             W[i, i] = 1.0 - d_i / n
 
 
+@njit(inline="always")
+def _root(v):
+    return math.sqrt(v) if v >= 0.0 else math.nan
+
+
+@njit(inline="always")
+def _spd_inverse10(a00, a01, a02, a03, a11, a12, a13, a22, a23, a33):
+    """Inverse of the SPD 4×4 with upper triangle ``a_ij``, as its 10 upper entries (row-major):
+    ``A = L Lᵀ``, ``M = L⁻¹``, ``A⁻¹ = Mᵀ M`` (``mcjax.numerics.spd_inverse``; NaN if not PD)."""
+    l00 = _root(a00)
+    l10 = (a01) / l00
+    l20 = (a02) / l00
+    l30 = (a03) / l00
+    l11 = _root(a11 - l10 * l10)
+    l21 = (a12 - l20 * l10) / l11
+    l31 = (a13 - l30 * l10) / l11
+    l22 = _root(a22 - l20 * l20 - l21 * l21)
+    l32 = (a23 - l30 * l20 - l31 * l21) / l22
+    l33 = _root(a33 - l30 * l30 - l31 * l31 - l32 * l32)
+    m00 = 1.0 / l00
+    m11 = 1.0 / l11
+    m22 = 1.0 / l22
+    m33 = 1.0 / l33
+    m10 = -(l10 * m00) / l11
+    m20 = -(l20 * m00 + l21 * m10) / l22
+    m21 = -(l21 * m11) / l22
+    m30 = -(l30 * m00 + l31 * m10 + l32 * m20) / l33
+    m31 = -(l31 * m11 + l32 * m21) / l33
+    m32 = -(l32 * m22) / l33
+    return (
+        (m00 * m00 + m10 * m10 + m20 * m20 + m30 * m30),
+        (m10 * m11 + m20 * m21 + m30 * m31),
+        (m20 * m22 + m30 * m32),
+        (m30 * m33),
+        (m11 * m11 + m21 * m21 + m31 * m31),
+        (m21 * m22 + m31 * m32),
+        (m31 * m33),
+        (m22 * m22 + m32 * m32),
+        (m32 * m33),
+        (m33 * m33),
+    )
+
+
 @njit(parallel=True, cache=True)
 def modified_icf_kernel(z, s, adj, x0, P0, F, Q, Rinv, steps, weight_kind, component, xs, Ps):
-    """Modified ICF (Sun et al. 2011 eqs. 8–12) for every run ``b``; writes ``xs``, ``Ps``."""
+    """Modified ICF (Sun et al. 2011 eqs. 8–12) for every run ``b``; writes ``xs``, ``Ps``.
+
+    Straight-line scalar code per agent (4 mean entries, the 10 distinct entries of each
+    symmetric matrix); the agents' states and information pairs live in ``(n, 4)`` / ``(n, 10)``
+    arrays allocated once per run, which the consensus mixes."""
     B, T, n = z.shape[0], z.shape[1], z.shape[2]
+    f00, f01, f02, f03 = F[0, 0], F[0, 1], F[0, 2], F[0, 3]
+    f10, f11, f12, f13 = F[1, 0], F[1, 1], F[1, 2], F[1, 3]
+    f20, f21, f22, f23 = F[2, 0], F[2, 1], F[2, 2], F[2, 3]
+    f30, f31, f32, f33 = F[3, 0], F[3, 1], F[3, 2], F[3, 3]
+    q00, q01, q02, q03 = Q[0, 0], Q[0, 1], Q[0, 2], Q[0, 3]
+    q11, q12, q13 = Q[1, 1], Q[1, 2], Q[1, 3]
+    q22, q23, q33 = Q[2, 2], Q[2, 3], Q[3, 3]
+    ri00, ri01, ri10, ri11 = Rinv[0, 0], Rinv[0, 1], Rinv[1, 0], Rinv[1, 1]
     for b in prange(B):
-        x = np.empty((n, 4))
-        P = np.empty((n, 4, 4))
-        xb = np.empty(4)
-        Pb = np.empty((4, 4))
-        Yb = np.empty((4, 4))
-        FP = np.empty((4, 4))
-        L = np.zeros((4, 4))
-        M = np.zeros((4, 4))
-        ic = np.empty(4)
-        Ic = np.empty((4, 4))
-        y = np.empty((n, 4))
-        Y = np.empty((n, 4, 4))
+        X = np.empty((n, 4))  # the agents' estimates and covariances (upper triangles)
+        Pu = np.empty((n, 10))
+        y = np.empty((n, 4))  # information pairs, mixed by the consensus
+        Yu = np.empty((n, 10))
         y2 = np.empty((n, 4))
-        Y2 = np.empty((n, 4, 4))
+        Yu2 = np.empty((n, 10))
         W = np.empty((n, n))
         label = np.empty(n, np.int64)
         stack = np.empty(n, np.int64)
         sizes = np.ones(n, np.int64)
-        Pi = np.empty((4, 4))
         for a in range(n):
             for k in range(4):
-                x[a, k] = x0[k]
-                for m in range(4):
-                    P[a, k, m] = P0[k, m]
+                X[a, k] = x0[k]
+            e = 0
+            for k in range(4):
+                for m in range(k, 4):
+                    Pu[a, e] = P0[k, m]
+                    e += 1
         for t in range(T):
             A = adj[b, t]
             if component:
                 _component_sizes(A, label, stack, sizes)
             _weights(A, weight_kind, W)
             for a in range(n):
-                if t == 0:
-                    for k in range(4):
-                        xb[k] = x[a, k]
-                        for m in range(4):
-                            Pb[k, m] = P[a, k, m]
-                else:
-                    _predict(x[a], P[a], F, Q, xb, Pb, FP)
-                _spd_inverse(Pb, L, M, Yb)
-                _contribution(z[b, t, a, 0], z[b, t, a, 1], s[b, t, a, 0], s[b, t, a, 1], xb, Rinv, ic, Ic)
-                w = float(sizes[a])
-                for k in range(4):
-                    acc = 0.0
-                    for m in range(4):
-                        acc += Yb[k, m] * xb[m]
-                    y[a, k] = acc + w * ic[k]
-                    for m in range(4):
-                        Y[a, k, m] = Yb[k, m] + w * Ic[k, m]
-            for _ in range(steps):
+                m0, m1, m2, m3 = X[a, 0], X[a, 1], X[a, 2], X[a, 3]
+                p00, p01, p02, p03, p11 = Pu[a, 0], Pu[a, 1], Pu[a, 2], Pu[a, 3], Pu[a, 4]
+                p12, p13, p22, p23, p33 = Pu[a, 5], Pu[a, 6], Pu[a, 7], Pu[a, 8], Pu[a, 9]
+                if t > 0:  # step 0 updates the prior without predicting
+                    # FP = F P
+                    fp00 = f00 * p00 + f01 * p01 + f02 * p02 + f03 * p03
+                    fp01 = f00 * p01 + f01 * p11 + f02 * p12 + f03 * p13
+                    fp02 = f00 * p02 + f01 * p12 + f02 * p22 + f03 * p23
+                    fp03 = f00 * p03 + f01 * p13 + f02 * p23 + f03 * p33
+                    fp10 = f10 * p00 + f11 * p01 + f12 * p02 + f13 * p03
+                    fp11 = f10 * p01 + f11 * p11 + f12 * p12 + f13 * p13
+                    fp12 = f10 * p02 + f11 * p12 + f12 * p22 + f13 * p23
+                    fp13 = f10 * p03 + f11 * p13 + f12 * p23 + f13 * p33
+                    fp20 = f20 * p00 + f21 * p01 + f22 * p02 + f23 * p03
+                    fp21 = f20 * p01 + f21 * p11 + f22 * p12 + f23 * p13
+                    fp22 = f20 * p02 + f21 * p12 + f22 * p22 + f23 * p23
+                    fp23 = f20 * p03 + f21 * p13 + f22 * p23 + f23 * p33
+                    fp30 = f30 * p00 + f31 * p01 + f32 * p02 + f33 * p03
+                    fp31 = f30 * p01 + f31 * p11 + f32 * p12 + f33 * p13
+                    fp32 = f30 * p02 + f31 * p12 + f32 * p22 + f33 * p23
+                    fp33 = f30 * p03 + f31 * p13 + f32 * p23 + f33 * p33
+                    # P̄ = FP Fᵀ + Q (upper triangle)
+                    p00 = fp00 * f00 + fp01 * f01 + fp02 * f02 + fp03 * f03 + q00
+                    p01 = fp00 * f10 + fp01 * f11 + fp02 * f12 + fp03 * f13 + q01
+                    p02 = fp00 * f20 + fp01 * f21 + fp02 * f22 + fp03 * f23 + q02
+                    p03 = fp00 * f30 + fp01 * f31 + fp02 * f32 + fp03 * f33 + q03
+                    p11 = fp10 * f10 + fp11 * f11 + fp12 * f12 + fp13 * f13 + q11
+                    p12 = fp10 * f20 + fp11 * f21 + fp12 * f22 + fp13 * f23 + q12
+                    p13 = fp10 * f30 + fp11 * f31 + fp12 * f32 + fp13 * f33 + q13
+                    p22 = fp20 * f20 + fp21 * f21 + fp22 * f22 + fp23 * f23 + q22
+                    p23 = fp20 * f30 + fp21 * f31 + fp22 * f32 + fp23 * f33 + q23
+                    p33 = fp30 * f30 + fp31 * f31 + fp32 * f32 + fp33 * f33 + q33
+                    # x̄ = F x
+                    m0, m1, m2, m3 = (
+                        f00 * m0 + f01 * m1 + f02 * m2 + f03 * m3,
+                        f10 * m0 + f11 * m1 + f12 * m2 + f13 * m3,
+                        f20 * m0 + f21 * m1 + f22 * m2 + f23 * m3,
+                        f30 * m0 + f31 * m1 + f32 * m2 + f33 * m3,
+                    )
+                # Ȳ = P̄⁻¹, ȳ = Ȳ x̄
+                b00, b01, b02, b03, b11, b12, b13, b22, b23, b33 = _spd_inverse10(
+                    p00, p01, p02, p03, p11, p12, p13, p22, p23, p33)
+                v0 = b00 * m0 + b01 * m1 + b02 * m2 + b03 * m3
+                v1 = b01 * m0 + b11 * m1 + b12 * m2 + b13 * m3
+                v2 = b02 * m0 + b12 * m1 + b22 * m2 + b23 * m3
+                v3 = b03 * m0 + b13 * m1 + b23 * m2 + b33 * m3
+                z0 = z[b, t, a, 0]
+                z1 = z[b, t, a, 1]
+                if math.isfinite(z0) and math.isfinite(z1):  # else: no contribution
+                    # h(x̄) and H = ∂h/∂x (columns 0 and 2), the guards of sensors.range_bearing
+                    dx = m0 - s[b, t, a, 0]
+                    dy = m2 - s[b, t, a, 1]
+                    sq = dx * dx + dy * dy
+                    if sq <= 1e-30:
+                        r = 0.0
+                        h00 = 0.0
+                        h02 = 0.0
+                    else:
+                        r = math.sqrt(sq)
+                        h00 = dx / r
+                        h02 = dy / r
+                    if dx == 0.0 and dy == 0.0:
+                        bearing = 0.0
+                        h10 = 0.0
+                        h12 = 0.0
+                    else:
+                        bearing = math.atan2(dy, dx)
+                        h10 = -dy / sq
+                        h12 = dx / sq
+                    # i = Hᵀ R⁻¹ (ν + H x̄), I = Hᵀ R⁻¹ H (rows/columns 0 and 2 only), weighted
+                    w = float(sizes[a])
+                    e0 = z0 - r + h00 * m0 + h02 * m2
+                    e1 = _wrap(z1 - bearing) + h10 * m0 + h12 * m2
+                    g00 = h00 * ri00 + h10 * ri10
+                    g01 = h00 * ri01 + h10 * ri11
+                    g20 = h02 * ri00 + h12 * ri10
+                    g21 = h02 * ri01 + h12 * ri11
+                    v0 += w * (g00 * e0 + g01 * e1)
+                    v2 += w * (g20 * e0 + g21 * e1)
+                    b00 += w * (g00 * h00 + g01 * h10)
+                    b02 += w * (g00 * h02 + g01 * h12)
+                    b22 += w * (g20 * h02 + g21 * h12)
+                y[a, 0], y[a, 1], y[a, 2], y[a, 3] = v0, v1, v2, v3
+                Yu[a, 0], Yu[a, 1], Yu[a, 2], Yu[a, 3], Yu[a, 4] = b00, b01, b02, b03, b11
+                Yu[a, 5], Yu[a, 6], Yu[a, 7], Yu[a, 8], Yu[a, 9] = b12, b13, b22, b23, b33
+            for _ in range(steps):  # (y_i, Y_i) ← Σ_j W_ij (y_j, Y_j)
                 for a in range(n):
                     for k in range(4):
                         acc = 0.0
                         for j in range(n):
                             acc += W[a, j] * y[j, k]
                         y2[a, k] = acc
-                        for m in range(k, 4):
-                            acc = 0.0
-                            for j in range(n):
-                                acc += W[a, j] * Y[j, k, m]
-                            Y2[a, k, m] = acc
-                            Y2[a, m, k] = acc
+                    for e in range(10):
+                        acc = 0.0
+                        for j in range(n):
+                            acc += W[a, j] * Yu[j, e]
+                        Yu2[a, e] = acc
                 y, y2 = y2, y
-                Y, Y2 = Y2, Y
-            for a in range(n):
-                _spd_inverse(Y[a], L, M, Pi)
-                for k in range(4):
-                    acc = 0.0
-                    for m in range(4):
-                        acc += Pi[k, m] * y[a, m]
-                    x[a, k] = acc
-                    xs[b, t, a, k] = acc
-                    for m in range(4):
-                        P[a, k, m] = Pi[k, m]
-                        Ps[b, t, a, k, m] = Pi[k, m]
+                Yu, Yu2 = Yu2, Yu
+            for a in range(n):  # P = Y⁻¹, x = P y
+                p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = _spd_inverse10(
+                    Yu[a, 0], Yu[a, 1], Yu[a, 2], Yu[a, 3], Yu[a, 4],
+                    Yu[a, 5], Yu[a, 6], Yu[a, 7], Yu[a, 8], Yu[a, 9])
+                v0, v1, v2, v3 = y[a, 0], y[a, 1], y[a, 2], y[a, 3]
+                m0 = p00 * v0 + p01 * v1 + p02 * v2 + p03 * v3
+                m1 = p01 * v0 + p11 * v1 + p12 * v2 + p13 * v3
+                m2 = p02 * v0 + p12 * v1 + p22 * v2 + p23 * v3
+                m3 = p03 * v0 + p13 * v1 + p23 * v2 + p33 * v3
+                X[a, 0], X[a, 1], X[a, 2], X[a, 3] = m0, m1, m2, m3
+                Pu[a, 0], Pu[a, 1], Pu[a, 2], Pu[a, 3], Pu[a, 4] = p00, p01, p02, p03, p11
+                Pu[a, 5], Pu[a, 6], Pu[a, 7], Pu[a, 8], Pu[a, 9] = p12, p13, p22, p23, p33
+                xs[b, t, a, 0] = m0
+                xs[b, t, a, 1] = m1
+                xs[b, t, a, 2] = m2
+                xs[b, t, a, 3] = m3
+                Ps[b, t, a, 0, 0] = p00
+                Ps[b, t, a, 0, 1] = p01
+                Ps[b, t, a, 0, 2] = p02
+                Ps[b, t, a, 0, 3] = p03
+                Ps[b, t, a, 1, 0] = p01
+                Ps[b, t, a, 1, 1] = p11
+                Ps[b, t, a, 1, 2] = p12
+                Ps[b, t, a, 1, 3] = p13
+                Ps[b, t, a, 2, 0] = p02
+                Ps[b, t, a, 2, 1] = p12
+                Ps[b, t, a, 2, 2] = p22
+                Ps[b, t, a, 2, 3] = p23
+                Ps[b, t, a, 3, 0] = p03
+                Ps[b, t, a, 3, 1] = p13
+                Ps[b, t, a, 3, 2] = p23
+                Ps[b, t, a, 3, 3] = p33
 
 
 def run_filter_numba(kind, measurements, sensor_positions, adjacency, x0, P0, F, Q, R,
