@@ -88,19 +88,6 @@ def training_weights(cfg, params):
     return sensing_mask(cfg, params, jnp.dtype(cfg.dtype))
 
 
-def _type_one_bound(r, alive):
-    """The bound's records with each step's local variances averaged over the alive type-I nodes
-    (``alive`` (N,) or (T, N): the type-I weights; type-II nodes measure nothing, and their own
-    bound, the model's prior propagated, is no floor of any filter of theirs): local (T, 1), so
-    that the kit's outputs (:mod:`mcjax.scenarios.kit.bound`, a mean over its last axis) average
-    the type-I nodes only. The summary's mean over the steps then weights each step alike (with
-    every type-I node alive throughout, the mean over nodes and steps)."""
-    local = r.bound.local
-    w = jnp.broadcast_to(alive, local.shape).astype(local.dtype)
-    mean = jnp.sum(w * local, axis=-1, keepdims=True) / jnp.maximum(jnp.sum(w, axis=-1, keepdims=True), 1.0)
-    return pcrb.Bound(r.bound.team, jnp.where(jnp.sum(w, axis=-1, keepdims=True) > 0, mean, jnp.nan))
-
-
 def summary(cfg, records: Record | None, params) -> dict:
     """One run's records (stacked over time) reduced to its outputs, each declared next to its
     value (:func:`mcjax.contract.declare`; ``records`` None: the declarations alone)."""
@@ -139,7 +126,7 @@ def summary(cfg, records: Record | None, params) -> dict:
         start_failed=(Output("", "no valid initial draw within start_attempts", False), lambda: r.start_failed[0]),
         start_attempts_used=(Output("", "initial draws until a valid one", False), lambda: r.attempts[0]),
         **faults.summary_items(cfg, r and r.faults, lambda: jnp.ones(cfg.n_agents, dtype())),
-        **pcrb.summary_items(cfg, cache(lambda: _type_one_bound(r, alive())), cfg.warmup_steps),
+        **pcrb.summary_items(cfg, lambda: r.bound, cfg.warmup_steps, weights=alive),  # type-I nodes only
         **consistency.summary_items(cfg, lambda: r.nees, lambda: r.nis, alive, cfg.warmup_steps, 4, 2, anees=True),
     )
 
@@ -155,7 +142,7 @@ def series(cfg, records: Record | None, params) -> dict:
         min_distance=(Output("m", "smallest distance between two nodes", False), lambda: r.min_distance),
         edges=(Output("", "links", False), lambda: r.edges),
         **faults.series_items(cfg, r and r.faults, lambda: jnp.ones(cfg.n_agents, r.error.dtype)),
-        **pcrb.series_items(cfg, cache(lambda: _type_one_bound(r, alive()))),
+        **pcrb.series_items(cfg, lambda: r.bound, weights=alive),
         **consistency.series_items(cfg, lambda: r.nees, lambda: r.nis, alive, 4, 2),
     )
 

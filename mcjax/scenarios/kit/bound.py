@@ -15,6 +15,7 @@ import jax.numpy as jnp
 
 from mcjax.contract import Output, Setting
 from mcjax.filters.bounds import measurement_information, pcrb_covariance_step
+from mcjax.scenarios.kit.consistency import run_average, step_average
 
 #: The Config switch (off: the program without the bound, bit for bit).
 SETTING = Setting("off", "the posterior Cramér–Rao bound along the run (Tichavský et al. 1998): on adds "
@@ -73,9 +74,19 @@ def position_variance(C, index=(0, 2)):
     return Bound(jnp.sum(team[i, i]), jnp.sum(local[:, i, i], axis=-1))
 
 
-def summary_items(cfg, records_bound, warmup: int, unit: str = "m", what: str = "position"):
+def _local_mean(local, weights, warmup: int = 0):
+    """The local bounds' variances (T, n) averaged over the steps from ``warmup`` and the agents
+    with a non-zero weight (``weights`` (n,) or (T, n); None: every agent alike)."""
+    if weights is None:
+        return jnp.mean(local[warmup:])
+    return run_average(local[:, None, :], weights, warmup)[0]
+
+
+def summary_items(cfg, records_bound, warmup: int, unit: str = "m", what: str = "position", weights=None):
     """The bound's summary outputs (``pcrb_rmse``, role ``"floor"``; ``pcrb_local_rmse``), when on:
-    the RMS of the ``what`` error (in ``unit``) the bound allows after warm-up."""
+    the RMS of the ``what`` error (in ``unit``) the bound allows after warm-up. ``weights``: a
+    function of no arguments giving the agents the local floor is averaged over, (n,) or (T, n)
+    (e.g. only those that measure); None: every agent."""
     if cfg.bound != "on":
         return {}
     return {"pcrb_rmse": (Output(unit, f"the posterior Cramér–Rao bound's {what} RMSE after warm-up along the run: "
@@ -84,14 +95,16 @@ def summary_items(cfg, records_bound, warmup: int, unit: str = "m", what: str = 
                           lambda: jnp.sqrt(jnp.mean(records_bound().team[warmup:]))),
             "pcrb_local_rmse": (Output(unit, "the same bound of each agent's own measurements (the floor of a local "
                                              "filter), over the agents and the steps after warm-up", False),
-                                lambda: jnp.sqrt(jnp.mean(records_bound().local[warmup:])))}
+                                lambda: jnp.sqrt(_local_mean(records_bound().local, weights and weights(), warmup)))}
 
 
-def series_items(cfg, records_bound, unit: str = "m", what: str = "position"):
-    """The bound's per-step series (``pcrb_error``, role ``"floor"``; ``pcrb_local_error``), when on."""
+def series_items(cfg, records_bound, unit: str = "m", what: str = "position", weights=None):
+    """The bound's per-step series (``pcrb_error``, role ``"floor"``; ``pcrb_local_error``), when on;
+    ``weights`` as for :func:`summary_items`."""
     if cfg.bound != "on":
         return {}
     return {"pcrb_error": (Output(unit, f"the posterior Cramér–Rao bound's {what} error (the square root of its "
                                         "variance)", False, "floor"), lambda: jnp.sqrt(records_bound().team)),
             "pcrb_local_error": (Output(unit, "the local bound's error, mean variance over the agents", False),
-                                 lambda: jnp.sqrt(jnp.mean(records_bound().local, axis=-1)))}
+                                 lambda: jnp.sqrt(jnp.mean(records_bound().local, axis=-1) if weights is None else
+                                                  step_average(records_bound().local[:, None, :], weights())[:, 0]))}
