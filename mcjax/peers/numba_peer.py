@@ -45,6 +45,60 @@ def _wrap(a):
     return math.pi if w == -math.pi else w
 
 
+@njit
+def _model(F, Q):
+    """F's 16 entries row by row and Q's 10 upper entries, as tuples of scalars (:func:`_predict`)."""
+    return ((F[0, 0], F[0, 1], F[0, 2], F[0, 3], F[1, 0], F[1, 1], F[1, 2], F[1, 3],
+             F[2, 0], F[2, 1], F[2, 2], F[2, 3], F[3, 0], F[3, 1], F[3, 2], F[3, 3]),
+            (Q[0, 0], Q[0, 1], Q[0, 2], Q[0, 3], Q[1, 1], Q[1, 2], Q[1, 3], Q[2, 2], Q[2, 3], Q[3, 3]))
+
+
+@njit  # numba-level inlining trips its parfor analysis on the returned tuples; LLVM inlines it
+def _predict(m, p, Ft, Qt):
+    """Moment-form prediction ``x̄ = F x``, ``P̄ = F P Fᵀ + Q`` on scalars: ``m`` the 4 mean entries, ``p`` the
+    10 upper entries of P (row by row), ``Ft`` F's 16 entries row by row, ``Qt`` Q's 10 upper entries."""
+    m0, m1, m2, m3 = m
+    p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = p
+    f00, f01, f02, f03, f10, f11, f12, f13, f20, f21, f22, f23, f30, f31, f32, f33 = Ft
+    q00, q01, q02, q03, q11, q12, q13, q22, q23, q33 = Qt
+    # FP = F P
+    fp00 = f00 * p00 + f01 * p01 + f02 * p02 + f03 * p03
+    fp01 = f00 * p01 + f01 * p11 + f02 * p12 + f03 * p13
+    fp02 = f00 * p02 + f01 * p12 + f02 * p22 + f03 * p23
+    fp03 = f00 * p03 + f01 * p13 + f02 * p23 + f03 * p33
+    fp10 = f10 * p00 + f11 * p01 + f12 * p02 + f13 * p03
+    fp11 = f10 * p01 + f11 * p11 + f12 * p12 + f13 * p13
+    fp12 = f10 * p02 + f11 * p12 + f12 * p22 + f13 * p23
+    fp13 = f10 * p03 + f11 * p13 + f12 * p23 + f13 * p33
+    fp20 = f20 * p00 + f21 * p01 + f22 * p02 + f23 * p03
+    fp21 = f20 * p01 + f21 * p11 + f22 * p12 + f23 * p13
+    fp22 = f20 * p02 + f21 * p12 + f22 * p22 + f23 * p23
+    fp23 = f20 * p03 + f21 * p13 + f22 * p23 + f23 * p33
+    fp30 = f30 * p00 + f31 * p01 + f32 * p02 + f33 * p03
+    fp31 = f30 * p01 + f31 * p11 + f32 * p12 + f33 * p13
+    fp32 = f30 * p02 + f31 * p12 + f32 * p22 + f33 * p23
+    fp33 = f30 * p03 + f31 * p13 + f32 * p23 + f33 * p33
+    # P̄ = FP Fᵀ + Q (upper triangle)
+    p00 = fp00 * f00 + fp01 * f01 + fp02 * f02 + fp03 * f03 + q00
+    p01 = fp00 * f10 + fp01 * f11 + fp02 * f12 + fp03 * f13 + q01
+    p02 = fp00 * f20 + fp01 * f21 + fp02 * f22 + fp03 * f23 + q02
+    p03 = fp00 * f30 + fp01 * f31 + fp02 * f32 + fp03 * f33 + q03
+    p11 = fp10 * f10 + fp11 * f11 + fp12 * f12 + fp13 * f13 + q11
+    p12 = fp10 * f20 + fp11 * f21 + fp12 * f22 + fp13 * f23 + q12
+    p13 = fp10 * f30 + fp11 * f31 + fp12 * f32 + fp13 * f33 + q13
+    p22 = fp20 * f20 + fp21 * f21 + fp22 * f22 + fp23 * f23 + q22
+    p23 = fp20 * f30 + fp21 * f31 + fp22 * f32 + fp23 * f33 + q23
+    p33 = fp30 * f30 + fp31 * f31 + fp32 * f32 + fp33 * f33 + q33
+    # x̄ = F x
+    m0, m1, m2, m3 = (
+        f00 * m0 + f01 * m1 + f02 * m2 + f03 * m3,
+        f10 * m0 + f11 * m1 + f12 * m2 + f13 * m3,
+        f20 * m0 + f21 * m1 + f22 * m2 + f23 * m3,
+        f30 * m0 + f31 * m1 + f32 * m2 + f33 * m3,
+    )
+    return (m0, m1, m2, m3), (p00, p01, p02, p03, p11, p12, p13, p22, p23, p33)
+
+
 @njit(parallel=True, cache=True)
 def local_kernel(z, s, x0, P0, F, Q, Rinv, xs, Ps):
     """Local EKF in moment form for every run ``b`` and agent; writes ``xs``, ``Ps``.
@@ -53,13 +107,7 @@ def local_kernel(z, s, x0, P0, F, Q, Rinv, xs, Ps):
     ``p_ij`` (i ≤ j) of the symmetric covariance, so the inner loop allocates nothing. ``R`` is
     ``Rinv⁻¹`` (2×2, closed form; ``run_filter_numba`` passes ``R⁻¹`` for both kernels)."""
     B, T, n = z.shape[0], z.shape[1], z.shape[2]
-    f00, f01, f02, f03 = F[0, 0], F[0, 1], F[0, 2], F[0, 3]
-    f10, f11, f12, f13 = F[1, 0], F[1, 1], F[1, 2], F[1, 3]
-    f20, f21, f22, f23 = F[2, 0], F[2, 1], F[2, 2], F[2, 3]
-    f30, f31, f32, f33 = F[3, 0], F[3, 1], F[3, 2], F[3, 3]
-    q00, q01, q02, q03 = Q[0, 0], Q[0, 1], Q[0, 2], Q[0, 3]
-    q11, q12, q13 = Q[1, 1], Q[1, 2], Q[1, 3]
-    q22, q23, q33 = Q[2, 2], Q[2, 3], Q[3, 3]
+    Ft, Qt = _model(F, Q)  # hoisted out of the loops, as scalars
     ri01 = 0.5 * (Rinv[0, 1] + Rinv[1, 0])
     rdet = Rinv[0, 0] * Rinv[1, 1] - ri01 * ri01
     r00, r01, r11 = Rinv[1, 1] / rdet, -ri01 / rdet, Rinv[0, 0] / rdet
@@ -71,41 +119,8 @@ def local_kernel(z, s, x0, P0, F, Q, Rinv, xs, Ps):
             p22, p23, p33 = P0[2, 2], P0[2, 3], P0[3, 3]
             for t in range(T):
                 if t > 0:  # step 0 updates the prior without predicting
-                    # FP = F P
-                    fp00 = f00 * p00 + f01 * p01 + f02 * p02 + f03 * p03
-                    fp01 = f00 * p01 + f01 * p11 + f02 * p12 + f03 * p13
-                    fp02 = f00 * p02 + f01 * p12 + f02 * p22 + f03 * p23
-                    fp03 = f00 * p03 + f01 * p13 + f02 * p23 + f03 * p33
-                    fp10 = f10 * p00 + f11 * p01 + f12 * p02 + f13 * p03
-                    fp11 = f10 * p01 + f11 * p11 + f12 * p12 + f13 * p13
-                    fp12 = f10 * p02 + f11 * p12 + f12 * p22 + f13 * p23
-                    fp13 = f10 * p03 + f11 * p13 + f12 * p23 + f13 * p33
-                    fp20 = f20 * p00 + f21 * p01 + f22 * p02 + f23 * p03
-                    fp21 = f20 * p01 + f21 * p11 + f22 * p12 + f23 * p13
-                    fp22 = f20 * p02 + f21 * p12 + f22 * p22 + f23 * p23
-                    fp23 = f20 * p03 + f21 * p13 + f22 * p23 + f23 * p33
-                    fp30 = f30 * p00 + f31 * p01 + f32 * p02 + f33 * p03
-                    fp31 = f30 * p01 + f31 * p11 + f32 * p12 + f33 * p13
-                    fp32 = f30 * p02 + f31 * p12 + f32 * p22 + f33 * p23
-                    fp33 = f30 * p03 + f31 * p13 + f32 * p23 + f33 * p33
-                    # P̄ = FP Fᵀ + Q (upper triangle)
-                    p00 = fp00 * f00 + fp01 * f01 + fp02 * f02 + fp03 * f03 + q00
-                    p01 = fp00 * f10 + fp01 * f11 + fp02 * f12 + fp03 * f13 + q01
-                    p02 = fp00 * f20 + fp01 * f21 + fp02 * f22 + fp03 * f23 + q02
-                    p03 = fp00 * f30 + fp01 * f31 + fp02 * f32 + fp03 * f33 + q03
-                    p11 = fp10 * f10 + fp11 * f11 + fp12 * f12 + fp13 * f13 + q11
-                    p12 = fp10 * f20 + fp11 * f21 + fp12 * f22 + fp13 * f23 + q12
-                    p13 = fp10 * f30 + fp11 * f31 + fp12 * f32 + fp13 * f33 + q13
-                    p22 = fp20 * f20 + fp21 * f21 + fp22 * f22 + fp23 * f23 + q22
-                    p23 = fp20 * f30 + fp21 * f31 + fp22 * f32 + fp23 * f33 + q23
-                    p33 = fp30 * f30 + fp31 * f31 + fp32 * f32 + fp33 * f33 + q33
-                    # x̄ = F x
-                    m0, m1, m2, m3 = (
-                        f00 * m0 + f01 * m1 + f02 * m2 + f03 * m3,
-                        f10 * m0 + f11 * m1 + f12 * m2 + f13 * m3,
-                        f20 * m0 + f21 * m1 + f22 * m2 + f23 * m3,
-                        f30 * m0 + f31 * m1 + f32 * m2 + f33 * m3,
-                    )
+                    (m0, m1, m2, m3), (p00, p01, p02, p03, p11, p12, p13, p22, p23, p33) = _predict(
+                        (m0, m1, m2, m3), (p00, p01, p02, p03, p11, p12, p13, p22, p23, p33), Ft, Qt)
                 z0 = z[b, t, a, 0]
                 z1 = z[b, t, a, 1]
                 if math.isfinite(z0) and math.isfinite(z1):  # else: keep the prediction
@@ -301,13 +316,7 @@ def modified_icf_kernel(z, s, adj, x0, P0, F, Q, Rinv, steps, weight_kind, compo
     symmetric matrix); the agents' states and information pairs live in ``(n, 4)`` / ``(n, 10)``
     arrays allocated once per run, which the consensus mixes."""
     B, T, n = z.shape[0], z.shape[1], z.shape[2]
-    f00, f01, f02, f03 = F[0, 0], F[0, 1], F[0, 2], F[0, 3]
-    f10, f11, f12, f13 = F[1, 0], F[1, 1], F[1, 2], F[1, 3]
-    f20, f21, f22, f23 = F[2, 0], F[2, 1], F[2, 2], F[2, 3]
-    f30, f31, f32, f33 = F[3, 0], F[3, 1], F[3, 2], F[3, 3]
-    q00, q01, q02, q03 = Q[0, 0], Q[0, 1], Q[0, 2], Q[0, 3]
-    q11, q12, q13 = Q[1, 1], Q[1, 2], Q[1, 3]
-    q22, q23, q33 = Q[2, 2], Q[2, 3], Q[3, 3]
+    Ft, Qt = _model(F, Q)  # hoisted out of the loops, as scalars
     ri00, ri01, ri10, ri11 = Rinv[0, 0], Rinv[0, 1], Rinv[1, 0], Rinv[1, 1]
     for b in prange(B):
         X = np.empty((n, 4))  # the agents' estimates and covariances (upper triangles)
@@ -338,41 +347,8 @@ def modified_icf_kernel(z, s, adj, x0, P0, F, Q, Rinv, steps, weight_kind, compo
                 p00, p01, p02, p03, p11 = Pu[a, 0], Pu[a, 1], Pu[a, 2], Pu[a, 3], Pu[a, 4]
                 p12, p13, p22, p23, p33 = Pu[a, 5], Pu[a, 6], Pu[a, 7], Pu[a, 8], Pu[a, 9]
                 if t > 0:  # step 0 updates the prior without predicting
-                    # FP = F P
-                    fp00 = f00 * p00 + f01 * p01 + f02 * p02 + f03 * p03
-                    fp01 = f00 * p01 + f01 * p11 + f02 * p12 + f03 * p13
-                    fp02 = f00 * p02 + f01 * p12 + f02 * p22 + f03 * p23
-                    fp03 = f00 * p03 + f01 * p13 + f02 * p23 + f03 * p33
-                    fp10 = f10 * p00 + f11 * p01 + f12 * p02 + f13 * p03
-                    fp11 = f10 * p01 + f11 * p11 + f12 * p12 + f13 * p13
-                    fp12 = f10 * p02 + f11 * p12 + f12 * p22 + f13 * p23
-                    fp13 = f10 * p03 + f11 * p13 + f12 * p23 + f13 * p33
-                    fp20 = f20 * p00 + f21 * p01 + f22 * p02 + f23 * p03
-                    fp21 = f20 * p01 + f21 * p11 + f22 * p12 + f23 * p13
-                    fp22 = f20 * p02 + f21 * p12 + f22 * p22 + f23 * p23
-                    fp23 = f20 * p03 + f21 * p13 + f22 * p23 + f23 * p33
-                    fp30 = f30 * p00 + f31 * p01 + f32 * p02 + f33 * p03
-                    fp31 = f30 * p01 + f31 * p11 + f32 * p12 + f33 * p13
-                    fp32 = f30 * p02 + f31 * p12 + f32 * p22 + f33 * p23
-                    fp33 = f30 * p03 + f31 * p13 + f32 * p23 + f33 * p33
-                    # P̄ = FP Fᵀ + Q (upper triangle)
-                    p00 = fp00 * f00 + fp01 * f01 + fp02 * f02 + fp03 * f03 + q00
-                    p01 = fp00 * f10 + fp01 * f11 + fp02 * f12 + fp03 * f13 + q01
-                    p02 = fp00 * f20 + fp01 * f21 + fp02 * f22 + fp03 * f23 + q02
-                    p03 = fp00 * f30 + fp01 * f31 + fp02 * f32 + fp03 * f33 + q03
-                    p11 = fp10 * f10 + fp11 * f11 + fp12 * f12 + fp13 * f13 + q11
-                    p12 = fp10 * f20 + fp11 * f21 + fp12 * f22 + fp13 * f23 + q12
-                    p13 = fp10 * f30 + fp11 * f31 + fp12 * f32 + fp13 * f33 + q13
-                    p22 = fp20 * f20 + fp21 * f21 + fp22 * f22 + fp23 * f23 + q22
-                    p23 = fp20 * f30 + fp21 * f31 + fp22 * f32 + fp23 * f33 + q23
-                    p33 = fp30 * f30 + fp31 * f31 + fp32 * f32 + fp33 * f33 + q33
-                    # x̄ = F x
-                    m0, m1, m2, m3 = (
-                        f00 * m0 + f01 * m1 + f02 * m2 + f03 * m3,
-                        f10 * m0 + f11 * m1 + f12 * m2 + f13 * m3,
-                        f20 * m0 + f21 * m1 + f22 * m2 + f23 * m3,
-                        f30 * m0 + f31 * m1 + f32 * m2 + f33 * m3,
-                    )
+                    (m0, m1, m2, m3), (p00, p01, p02, p03, p11, p12, p13, p22, p23, p33) = _predict(
+                        (m0, m1, m2, m3), (p00, p01, p02, p03, p11, p12, p13, p22, p23, p33), Ft, Qt)
                 # Ȳ = P̄⁻¹, ȳ = Ȳ x̄
                 b00, b01, b02, b03, b11, b12, b13, b22, b23, b33 = _spd_inverse10(
                     p00, p01, p02, p03, p11, p12, p13, p22, p23, p33)
