@@ -34,7 +34,8 @@ from mcjax import configure
 configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 
 ROOT = Path(__file__).resolve().parents[2]
-BUDGETS = [("gradient", dict(iterations=k)) for k in (5, 10, 20, 40)] + \
+BUDGETS = [("gradient", dict(iterations=k, learning_rate=r)) for k, r in ((5, .3), (10, .3), (20, .3), (40, .3),
+                                                                         (3, 1.), (5, 1.))] + \
           [("random", dict(samples=s)) for s in (64, 256, 1024)] + \
           [("cem", dict(iterations=4, samples=s)) for s in (64, 256, 1024)]
 
@@ -79,7 +80,7 @@ def main(argv=None) -> None:
             probs, warm)
         results = []
         for kind, budget in BUDGETS:
-            opts = PlannerOptions(kind=kind, learning_rate=cfg.plan_learning_rate, **budget)
+            opts = PlannerOptions(kind=kind, **{"learning_rate": cfg.plan_learning_rate, **budget})
             fn = jax.jit(jax.vmap(lambda q, w, k: solve(
                 horizon_plan_cost(q, dyn, cost, penalty=cfg.robustness_penalty), w, k, opts)))
             t0 = time.perf_counter()
