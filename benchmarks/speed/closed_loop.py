@@ -8,9 +8,9 @@ one process. Six measurements, a subcommand each:
   ``max_horizon = 5``: as shipped), the same runs and seeds. Prints per variant the compile-and-first-
   chunk time, the runs' time (compiled), ms per run, the speed-up over the first variant and whether
   every output is bit-identical to its.
-* ``options`` — the two speed options: ``XLA default emitters`` (no ``compiler_options``), ``older
-  emitters`` (as shipped, ``mcjax.contract.FAST_COMPILE``), ``older emitters, float32 planner``
-  (``plan_dtype = "float32"``), one batch of all runs on one device. Each of ``--rounds`` rounds
+* ``options`` — ``older emitters`` (as shipped, ``mcjax.contract.FAST_COMPILE``), ``float32 planner``
+  (``plan_dtype = "float32"``), ``3 steps of 1.0, float32`` (also ``plan_iterations = 3``, ``plan_learning_rate
+  = 1.0``: ``sweeps/sun2011_planner_budget.toml``), one batch of all runs on one device. Each of ``--rounds`` rounds
   builds every variant afresh (trace, lower, compile; no program store) and times one call after a
   first, the variants in turn. Prints per round and variant the build's wall and CPU seconds and ms
   per run, then each run summary's largest difference from the shipped variant's (the float32
@@ -72,9 +72,8 @@ VARIANTS = {  # measurement: (name, Scenario changes, Config changes) per varian
     "due": (("every step", {}, dict(plan_period=0, max_horizon=8)),
             ("when due", {}, dict(plan_period=3, max_horizon=8)),
             ("when due, t_r rollout", {}, dict(plan_period=3, max_horizon=5))),
-    "options": (("XLA default emitters", dict(compiler_options=None), {}),
-                ("older emitters", {}, {}),
-                ("older emitters, float32 planner", {}, dict(plan_dtype="float32"))),
+    "options": (("older emitters", {}, {}), ("older emitters, float32 planner", {}, dict(plan_dtype="float32")),
+                ("3 steps of 1.0, float32", {}, dict(plan_dtype="float32", plan_iterations=3, plan_learning_rate=1.0))),
     "dispatch": (("as shipped", {}, {}),),
     "faults": (("off", {}, {}), ("on, rates 0", {}, dict(faults="on")), ("on, faults drawn", {}, dict(faults="on"))),
     "bound": (("off", {}, {}), ("bound", {}, dict(bound="on")), ("both", {}, dict(bound="on", consistency="on"))),

@@ -53,9 +53,9 @@ from mcjax.peers.filterpy_peer import filterpy_local, make_runs, max_relative_er
 FILTERS = ("cif", "icf", "modified_icf", "kcf", "local")
 NUMBA_FILTERS = ("local", "modified_icf")
 #: Floating-point operations per agent-step (t > 0, a valid measurement, n = 5, L = 1, dense F
-#: and Q), counted by hand in docs/filter_speed.md: (the peers' information-form equations, the
-#: equations mcjax computes); ``~`` marks an estimate. mcjax's local EKF is in moment form.
-FLOPS = {"local": (506, 357), "modified_icf": (656, 656), "cif": ("~150", "~150"),
+#: and Q), counted by hand in docs/filter_speed.md: (the numba peer's equations, the equations mcjax
+#: computes); ``~`` marks an estimate. Both local EKFs are in moment form (the numpy peer's: 506).
+FLOPS = {"local": (357, 357), "modified_icf": (656, 656), "cif": ("~150", "~150"),
          "icf": ("~650", "~650"), "kcf": ("~750", "~750")}
 
 
