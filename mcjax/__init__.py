@@ -18,8 +18,6 @@ def configure() -> None:
     * one CPU device per core, or ``$MCJAX_CPU_DEVICES`` (the engine spreads a sweep's batches
       over them). If JAX's backend already runs (something computed with JAX before), its
       devices are kept.
-    * one OpenBLAS thread (``OPENBLAS_NUM_THREADS=1`` unless set): the programs' LAPACK calls
-      run on the devices' own threads (:mod:`mcjax.runtime`).
 
     :func:`mcjax.runtime.settings` tells what applies."""
     from mcjax import runtime

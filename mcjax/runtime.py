@@ -16,13 +16,6 @@ once per process; the CLI and the engine's entry points call it.
   backend already runs when :func:`configure` is first called (a program that computed with
   JAX before), the count cannot change any more: mcjax then uses the devices JAX has, and
   says nothing. :func:`settings` tells what applies.
-* **One BLAS thread.** The compiled programs' LAPACK calls (``eigvalsh`` of the comm graph's
-  Laplacian for λ2) run in scipy's OpenBLAS, which by default starts a thread per core for
-  each call. With one CPU device per core already busy, those threads wait on each other: a
-  100×100 ``eigvalsh`` took 0.68 ms with one thread and 2–130 ms (median 120) with two, on the
-  2-core VM beside another job (docs/benchmarks.md, 2026-12-05). :func:`configure` sets
-  ``OPENBLAS_NUM_THREADS=1`` unless it is set (it acts only if scipy's linear algebra has not
-  been loaded yet; small matrices, e.g. 5 UAVs', never use a second thread, so no number changes).
 * **A program store.** The engine stores its compiled batch programs whole (:func:`load_executable`;
   one file, loaded on every device), keyed on mcjax's source code, the JAX version, the CPU,
   ``XLA_FLAGS``, the scenario (a user's file or plugin scenario: its source files' content),
@@ -121,7 +114,6 @@ def configure() -> None:
         except RuntimeError:
             pass  # the backend already runs: keep its devices
         jax.config.update("jax_enable_x64", True)
-        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before scipy's OpenBLAS loads (module docstring)
         _CONFIGURED = True
 
 
