@@ -92,8 +92,9 @@ def _rows(curve: str, args, sc, base, values) -> list[dict]:
             for loop, cfg in (("open", open_loop), ("closed", closed)):
                 if loop == "closed" and n > args.max_closed_agents:
                     continue
-                runs = args.closed_runs if loop == "closed" else args.runs
-                out.append((loop, n, dataclasses.replace(cfg, n_agents=n), values, runs))
+                runs = args.closed_runs if loop == "closed" else args.runs  # each exchange side by side
+                out += [(loop, n, dataclasses.replace(cfg, n_agents=n, consensus_exchange=e), values, runs)
+                        for e in args.exchange]
     elif curve == "horizon":
         for h in args.horizons:
             cfg = dataclasses.replace(closed, max_horizon=h, plan_period=min(3, h))
@@ -104,8 +105,8 @@ def _rows(curve: str, args, sc, base, values) -> list[dict]:
     rows = []
     for loop, x, cfg, vals, runs in out:
         r = {"curve": curve, "loop": loop, "x": x, "runs": runs, **_time(sc, cfg, vals, runs),
-             "load": os.getloadavg()[0]}
-        print(f"{curve:10s} {loop:6s} x={x:<7d} runs={runs:<7d} compile {r['compile_s']:6.1f} s  "
+             "load": os.getloadavg()[0], "exchange": cfg.consensus_exchange}
+        print(f"{curve:10s} {loop:6s} {r['exchange']:6s} x={x:<7d} runs={runs:<7d} compile {r['compile_s']:6.1f} s  "
               f"{r['ms_per_run']:9.3f} ms/run  {r['memory_per_run_kb']:9.1f} kB/run  load {r['load']:.1f}",
               flush=True)
         rows.append(r)
@@ -124,8 +125,8 @@ def _plot(df: pd.DataFrame, path: Path) -> None:
     curves = [c for c in CURVES if c in set(df.curve)]
     fig, axes = plt.subplots(1, len(curves), figsize=(4.2 * len(curves), 3.6), squeeze=False)
     for ax, curve in zip(axes[0], curves):
-        for loop, g in df[df.curve == curve].groupby("loop"):
-            ax.plot(g.x, g.ms_per_run, "o-", label=f"{loop} loop")
+        for (loop, ex), g in df[df.curve == curve].groupby(["loop", "exchange"]):
+            ax.plot(g.x, g.ms_per_run, "o-", label=f"{loop} loop" + (f", {ex}" if df.exchange.nunique() > 1 else ""))
         xs = sorted(set(df[df.curve == curve].x))
         if curve in ("runs", "agents"):  # log-log, ticks at the measured points
             ax.set_xscale("log")
@@ -158,6 +159,8 @@ def main(argv=None) -> int:
                     help="filters run (the planner needs modified_icf)")
     ap.add_argument("--robustness-paths", default="auto", choices=["auto", "all_pairs", "spanning_tree"],
                     help="Config.robustness_paths: how the planner computes R_I")
+    ap.add_argument("--exchange", nargs="+", default=["auto"], choices=["auto", "dense", "sparse"],
+                    help="Config.consensus_exchange of the agents curve (several: each point side by side)")
     ap.add_argument("--horizons", type=int, nargs="+", default=[1, 2, 5, 10, 20])
     ap.add_argument("--consensus", type=int, nargs="+", default=[1, 2, 5, 10])
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "scaling")
@@ -183,12 +186,13 @@ def main(argv=None) -> int:
 def _report(df: pd.DataFrame, out: Path) -> None:
     """Write ``scaling.csv`` and ``scaling.png`` into ``out`` and print the markdown table."""
     out.mkdir(parents=True, exist_ok=True)
+    df = df.assign(exchange=df.get("exchange", "auto"))  # a csv of before the option: auto
     df.to_csv(out / "scaling.csv", index=False)
     _plot(df, out / "scaling.png")
-    print("\n| curve | loop | x | runs | compile s | ms per run | kB per run | load |")
-    print("|---|---|---:|---:|---:|---:|---:|---:|")
+    print("\n| curve | loop | exchange | x | runs | compile s | ms per run | kB per run | load |")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|")
     for r in df.itertuples():
-        print(f"| {r.curve} | {r.loop} | {r.x} | {r.runs} | {r.compile_s:.1f} | {r.ms_per_run:.3f} | "
+        print(f"| {r.curve} | {r.loop} | {r.exchange} | {r.x} | {r.runs} | {r.compile_s:.1f} | {r.ms_per_run:.3f} | "
               f"{r.memory_per_run_kb:.1f} | {r.load:.1f} |")
     print(f"\nwrote {out / 'scaling.csv'} and {out / 'scaling.png'}")
 

@@ -29,6 +29,7 @@ import jax
 import jax.numpy as jnp
 
 from mcjax import graph
+from mcjax.filters import exchange
 from mcjax.filters.gaussian import (
     Gaussian,
     contributions,
@@ -52,6 +53,10 @@ class FilterOptions:
     ``consensus_steps`` is L, the consensus iterations per comm interval (Sun et al. 2011 uses
     one message per interval: L = 1). ``weights`` picks the consensus matrix: ``"eq11"``
     (Sun et al. 2011 eq. 11), ``"metropolis"`` or ``"max_degree"`` (Chen & Lu 2013 eq. 7).
+    ``exchange`` is how neighbours' messages are summed: ``"dense"``, over every agent with (n, n)
+    matrices; ``"sparse"``, over neighbour lists of ``max_neighbours`` slots
+    (:mod:`mcjax.filters.exchange`: cost with the links, the same numbers to round-off, NaN for
+    an agent with more links than slots).
     """
 
     consensus_steps: int = 1
@@ -59,12 +64,17 @@ class FilterOptions:
     contribution: str = "component"
     icf_variant: str = "contributions"
     kcf_gain: str = "gamma_M"
+    exchange: str = "dense"
+    max_neighbours: int = 16
 
     def __post_init__(self):
         _check_choice("weights", self.weights, WEIGHT_KINDS)
         _check_choice("contribution", self.contribution, CONTRIBUTION_KINDS)
         _check_choice("icf_variant", self.icf_variant, ICF_VARIANTS)
         _check_choice("kcf_gain", self.kcf_gain, KCF_GAINS)
+        _check_choice("exchange", self.exchange, exchange.EXCHANGES)
+        if not isinstance(self.max_neighbours, int) or self.max_neighbours < 1:
+            raise ValueError(f"max_neighbours must be an integer >= 1, got {self.max_neighbours!r}")
         if not isinstance(self.consensus_steps, int) or self.consensus_steps < 0:
             raise ValueError(f"consensus_steps must be an integer >= 0, got {self.consensus_steps!r}")
 
@@ -111,18 +121,29 @@ def consensus(W: jax.Array, values: jax.Array, steps: int) -> jax.Array:
     """``steps`` synchronous consensus iterations ``v_i ← Σ_j W_ij v_j``.
 
     With ``W`` from :func:`mcjax.graph.laplacian_step_weights` one iteration is Sun et al. 2011
-    eq. 11, ``v_i ← v_i − (1/(1+d_i)) Σ_j a_ij (v_i − v_j)``. ``values`` is (n, ...).
+    eq. 11, ``v_i ← v_i − (1/(1+d_i)) Σ_j a_ij (v_i − v_j)``. ``values`` is (n, ...). ``W`` is an
+    (n, n) matrix (the dense exchange) or :class:`mcjax.filters.exchange.SparseWeights`.
     """
+    mix = exchange.mix if isinstance(W, exchange.SparseWeights) else weighted_agent_sum
+
     def body(_, v):
-        return weighted_agent_sum(W, v)
+        return mix(W, v)
 
     if steps == 0:
         return values
     return jax.lax.fori_loop(0, steps, body, values)
 
 
-def _weights(opts: FilterOptions, adjacency):
-    return graph.consensus_weights(adjacency, opts.weights)
+def _lists(opts: FilterOptions, adjacency):
+    return exchange.neighbour_lists(adjacency, opts.max_neighbours)
+
+
+def consensus_matrix(opts: FilterOptions, adjacency, kind=None):
+    """The consensus matrix of ``kind`` (default ``opts.weights``), dense or sparse as ``opts.exchange``."""
+    kind = opts.weights if kind is None else kind
+    if opts.exchange == "sparse":
+        return exchange.sparse_weights(_lists(opts, adjacency), kind, adjacency.shape[0])
+    return graph.consensus_weights(adjacency, kind)
 
 
 def _scale(opts: FilterOptions, meas: Measurements):
@@ -131,7 +152,17 @@ def _scale(opts: FilterOptions, meas: Measurements):
         return jnp.ones(adjacency.shape[0], adjacency.dtype)
     if meas.component_sizes is not None:
         return meas.component_sizes
+    if opts.exchange == "sparse":
+        return exchange.component_sizes(_lists(opts, adjacency))
     return graph.component_sizes(adjacency)
+
+
+def _adjacent_sum(opts: FilterOptions, A, values):
+    """``Σ_{j ∈ N_i} a_ij v_j``, dense or sparse as ``opts.exchange``."""
+    if opts.exchange == "sparse":
+        lists = _lists(opts, A)
+        return exchange.neighbour_sum(lists, lists.weight, values)
+    return weighted_agent_sum(A, values)
 
 
 def cif_step(h, angle_mask, post: Gaussian, meas: Measurements, F, Q) -> Gaussian:
@@ -160,7 +191,7 @@ def modified_icf_step(h, angle_mask, opts, post: Gaussian, meas: Measurements, F
     xb, _, yb, Yb = predict_information(post.x, post.P, F, Q)
     i, I, _ = contributions(h, meas.z, meas.sensors, xb, meas.R_inv, angle_mask)
     s = _scale(opts, meas)
-    W = _weights(opts, meas.adjacency)
+    W = consensus_matrix(opts, meas.adjacency)
     y = consensus(W, yb + s[:, None] * i, opts.consensus_steps)
     Y = consensus(W, Yb + s[:, None, None] * I, opts.consensus_steps)
     return from_information(y, Y)
@@ -176,7 +207,7 @@ def icf_step(h, angle_mask, opts, post: Gaussian, meas: Measurements, F, Q) -> G
     """
     xb, _, yb, Yb = predict_information(post.x, post.P, F, Q)
     s = _scale(opts, meas)
-    W = _weights(opts, meas.adjacency)
+    W = consensus_matrix(opts, meas.adjacency)
     if opts.icf_variant == "contributions":
         i, I, _ = contributions(h, meas.z, meas.sensors, xb, meas.R_inv, angle_mask)
         i = consensus(W, i, opts.consensus_steps)
@@ -200,16 +231,20 @@ class _Neighbourhood(NamedTuple):
     M: jax.Array    # (P̄⁻¹ + S)⁻¹, the posterior covariance (n, d, d)
 
 
-def _neighbourhood_update(h, angle_mask, post: Gaussian, meas: Measurements, F, Q) -> _Neighbourhood:
+def _neighbourhood_update(h, angle_mask, opts, post: Gaussian, meas: Measurements, F, Q) -> _Neighbourhood:
     """The part the two consensus Kalman filters share: predict, then pool each agent's and its
     neighbours' measurement information, ``S_i = Σ_{J_i} U_j``, ``y_i = Σ_{J_i} u_j`` and
     ``M_i = (P̄_i⁻¹ + S_i)⁻¹`` (Olfati-Saber 2009's KCF; Chen & Lu 2013, eq. 8)."""
     xb, Pb = predict_moments(post.x, post.P, F, Q)
     u, U, _ = contributions(h, meas.z, meas.sensors, xb, meas.R_inv, angle_mask)
     A = meas.adjacency
-    inclusive = A + jnp.eye(A.shape[0], dtype=A.dtype)
-    S = weighted_agent_sum(inclusive, U)
-    yv = weighted_agent_sum(inclusive, u)
+    if opts.exchange == "sparse":
+        lists = _lists(opts, A)
+        S, yv = exchange.inclusive_sum(lists, U), exchange.inclusive_sum(lists, u)
+    else:
+        inclusive = A + jnp.eye(A.shape[0], dtype=A.dtype)
+        S = weighted_agent_sum(inclusive, U)
+        yv = weighted_agent_sum(inclusive, u)
     Yb = spd_inverse(Pb)
     Y = symmetrize(Yb + S)
     M = symmetrize(spd_inverse(Y))
@@ -232,12 +267,12 @@ def kcf_step(h, angle_mask, opts, epsilon, post: Gaussian, meas: Measurements, F
     """
     if meas.late is not None:
         own = meas._replace(adjacency=jnp.zeros_like(meas.adjacency))
-        xb, Pb, A, S, yv, Yb, Y, M = _neighbourhood_update(h, angle_mask, post, own, F, Q)
+        xb, Pb, A, S, yv, Yb, Y, M = _neighbourhood_update(h, angle_mask, opts, post, own, F, Q)
         A, sent = meas.late.adjacency, meas.late.means
-        disagreement = weighted_agent_sum(A, sent) - jnp.sum(A, axis=1)[:, None] * sent
+        disagreement = _adjacent_sum(opts, A, sent) - jnp.sum(A, axis=1)[:, None] * sent
     else:
-        xb, Pb, A, S, yv, Yb, Y, M = _neighbourhood_update(h, angle_mask, post, meas, F, Q)
-        disagreement = weighted_agent_sum(A, xb) - jnp.sum(A, axis=1)[:, None] * xb
+        xb, Pb, A, S, yv, Yb, Y, M = _neighbourhood_update(h, angle_mask, opts, post, meas, F, Q)
+        disagreement = _adjacent_sum(opts, A, xb) - jnp.sum(A, axis=1)[:, None] * xb
     base = M if opts.kcf_gain == "gamma_M" else Pb
     fro = jnp.sqrt(sum(base[:, i, j] ** 2 for i in range(base.shape[-2]) for j in range(base.shape[-1])))
     gain = (epsilon / (1.0 + fro))[:, None, None] * base
@@ -264,13 +299,20 @@ def prior_consensus_kcf_step(h, angle_mask, opts, post: Gaussian, meas: Measurem
     (``formation`` (n, n, d) or None for eq. 9). The posterior covariance is ``M_i``; the
     next prediction gives eq. 11, ``A M Aᵀ + B Q Bᵀ``. One consensus exchange per step.
     """
-    xb, Pb, A, S, yv, Yb, Y, M = _neighbourhood_update(h, angle_mask, post, meas, F, Q)
-    W = _weights(opts, A)
-    offsets = xb[None, :, :] - xb[:, None, :]                     # x̄_j − x̄_i at [i, j]
-    if formation is not None:
-        offsets = offsets + formation
-    off_diag = W * (1.0 - jnp.eye(W.shape[0], dtype=W.dtype))
-    pull = jnp.sum(off_diag[..., None] * offsets, axis=1)         # Σ_{j≠i} W_ij (…)
+    xb, Pb, A, S, yv, Yb, Y, M = _neighbourhood_update(h, angle_mask, opts, post, meas, F, Q)
+    W = consensus_matrix(opts, A)
+    if isinstance(W, exchange.SparseWeights):  # Σ_k W_ik (x̄_j − x̄_i + formation_ij), j = index_ik
+        pull = exchange.neighbour_sum(W.lists, W.link, xb) - exchange.neighbour_sum(
+            W.lists, W.link, jnp.ones_like(xb[:, :1])) * xb
+        if formation is not None:
+            rows = jnp.take_along_axis(formation, W.lists.index[:, :, None], axis=1)  # formation_ij (n, K, d)
+            pull = pull + jnp.sum(W.link[:, :, None] * rows, axis=1)
+    else:
+        offsets = xb[None, :, :] - xb[:, None, :]                     # x̄_j − x̄_i at [i, j]
+        if formation is not None:
+            offsets = offsets + formation
+        off_diag = W * (1.0 - jnp.eye(W.shape[0], dtype=W.dtype))
+        pull = jnp.sum(off_diag[..., None] * offsets, axis=1)         # Σ_{j≠i} W_ij (…)
     d = xb.shape[-1]
     gain = jnp.eye(d, dtype=M.dtype) - jnp.einsum("nab,nbc->nac", M, S)
     x = xb + matvec(M, yv - matvec(S, xb)) + matvec(gain, pull)

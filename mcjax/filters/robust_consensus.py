@@ -9,7 +9,8 @@ already excludes the links lost to faults): ``π_ij = 1/(1 + max(d_i, d_j))`` on
 stochastic on any undirected graph, the weights of both papers' simulations). They are fixed here,
 whatever ``opts.weights`` says: HCMCI's ``ω = N`` needs doubly stochastic weights (Sun et al.
 2011's ``"eq11"`` are only row-stochastic), and CI's guarantee needs a convex combination, which
-Metropolis weights are. ``L = opts.consensus_steps``; no other option is read.
+Metropolis weights are. ``L = opts.consensus_steps``; ``opts.exchange`` (dense or sparse sums) is the
+only other option read.
 
 Timing as everywhere in mcjax: the caller passes ``F = I, Q = 0`` at the first measurement time,
 so step 0 corrects the prior without predicting. The EKF contributions are linearised at each
@@ -22,16 +23,14 @@ papers give them (the notes of the work, and docs/equations.md once written, hol
 
 from __future__ import annotations
 
-import jax
-
-from mcjax import graph
-from mcjax.filters.consensus import FilterOptions, Measurements, consensus
+from mcjax.filters.consensus import FilterOptions, Measurements, consensus, consensus_matrix
 from mcjax.filters.gaussian import Gaussian, contributions, from_information, predict_information
 from mcjax.numerics import symmetrize
 
 
-def _metropolis(adjacency) -> jax.Array:
-    return graph.consensus_weights(adjacency, "metropolis")
+def _metropolis(opts: FilterOptions, adjacency):
+    """Metropolis weights of the links that carried a message, dense or sparse as ``opts.exchange``."""
+    return consensus_matrix(opts, adjacency, "metropolis")
 
 
 def ci_step(h, angle_mask, opts: FilterOptions, post: Gaussian, meas: Measurements, F, Q) -> Gaussian:
@@ -58,7 +57,7 @@ def ci_step(h, angle_mask, opts: FilterOptions, post: Gaussian, meas: Measuremen
     """
     xb, _, qb, Ob = predict_information(post.x, post.P, F, Q)
     dq, dO, _ = contributions(h, meas.z, meas.sensors, xb, meas.R_inv, angle_mask)
-    W = _metropolis(meas.adjacency)
+    W = _metropolis(opts, meas.adjacency)
     q = consensus(W, qb + dq, opts.consensus_steps)
     O = symmetrize(consensus(W, Ob + dO, opts.consensus_steps))
     return from_information(q, O)
@@ -91,7 +90,7 @@ def hcmci_step(h, angle_mask, opts: FilterOptions, post: Gaussian, meas: Measure
     """
     xb, _, qb, Ob = predict_information(post.x, post.P, F, Q)
     dq, dO, _ = contributions(h, meas.z, meas.sensors, xb, meas.R_inv, angle_mask)
-    W = _metropolis(meas.adjacency)
+    W = _metropolis(opts, meas.adjacency)
     L = opts.consensus_steps
     omega = meas.adjacency.shape[0]
     q = consensus(W, qb, L) + omega * consensus(W, dq, L)

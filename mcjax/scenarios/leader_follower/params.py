@@ -20,6 +20,10 @@ NAME = "leader_follower"
 PLANNERS = ("none", "gradient", "random", "cem")
 #: The filters run by default: the paper's five (the robust ones, "ci" and "hcmci", are opt-in names).
 PAPER_FILTERS = ("cif", "icf", "modified_icf", "kcf", "local")
+#: How the filters sum their neighbours' messages (Config.consensus_exchange); "auto" is sparse above
+#: SPARSE_ABOVE UAVs (chosen before measuring: every built-in config, 5 UAVs, stays dense, bit for bit).
+EXCHANGES = ("dense", "sparse", "auto")
+SPARSE_ABOVE = 20
 
 
 def _check(cfg) -> None:
@@ -55,6 +59,14 @@ Config = config_type("Config", dict(
                          "by its component's size, ours; one = eq. 9 as printed)", choices=CONTRIBUTION_KINDS),
     icf_variant=Setting("contributions", "reading of the ICF (docs/equations.md)", choices=ICF_VARIANTS),
     kcf_gain=Setting("gamma_M", "KCF consensus gain form", choices=KCF_GAINS),
+    consensus_exchange=Setting("auto", "how the filters sum their neighbours' messages: dense = over every UAV, n x n "
+                               "matrices (cost ~ n^2); sparse = over neighbour lists of consensus_neighbours slots "
+                               "(cost ~ links, ours; the same numbers to round-off; a UAV with more links than slots "
+                               "makes its filters NaN, the run's nonfinite output); auto = dense up to 20 UAVs, "
+                               "sparse above; the smoothing switch's soft links join every pair: always dense",
+                               choices=EXCHANGES),
+    consensus_neighbours=Setting(24, "slots of a UAV's neighbour list in the sparse exchange: the most links a UAV "
+                                 "may have (more: NaN)", low=1, integer=True),
     planner=Setting("none", "receding-horizon planner; none = open loop (every UAV holds heading_cmd)",
                     choices=PLANNERS),
     max_horizon=Setting(8, "steps the planning rollout runs; the horizon t_r (param horizon) <= this", "steps",
@@ -85,9 +97,19 @@ Config = config_type("Config", dict(
 ), __name__, _check)
 
 
-def filter_options(cfg) -> FilterOptions:
+def resolve_exchange(choice: str, n: int) -> str:
+    """``"dense"`` or ``"sparse"``: ``Config.consensus_exchange`` for a team of ``n``."""
+    if choice not in EXCHANGES:
+        raise ValueError(f"consensus_exchange must be one of {', '.join(map(repr, EXCHANGES))}; got {choice!r}")
+    return choice if choice != "auto" else ("sparse" if n > SPARSE_ABOVE else "dense")
+
+
+def filter_options(cfg, smooth: bool = False) -> FilterOptions:
+    """The filters' static options from the Config (``smooth``: the smoothing switch is on, whose soft
+    links join every pair of UAVs: the dense exchange)."""
+    exchange = "dense" if smooth else resolve_exchange(cfg.consensus_exchange, cfg.n_agents)
     return FilterOptions(cfg.consensus_steps, cfg.consensus_weights, cfg.contribution, cfg.icf_variant,
-                         cfg.kcf_gain)
+                         cfg.kcf_gain, exchange, cfg.consensus_neighbours)
 
 
 def _paper_positions(cfg) -> np.ndarray:
