@@ -194,8 +194,8 @@ def test_config_choice_names_the_field_and_auto_picks_by_team_size():
     with pytest.raises(ValueError, match=r"exchange must be one of 'dense', 'sparse'"):
         FilterOptions(exchange="auto")
     assert lf.filter_options(lf.Config()).exchange == "dense"                      # the built-in 5 UAVs
-    assert lf.filter_options(lf.Config(n_agents=20)).exchange == "dense"
-    assert lf.filter_options(lf.Config(n_agents=21)).exchange == "sparse"
-    assert lf.filter_options(lf.Config(n_agents=21, consensus_exchange="dense")).exchange == "dense"
-    assert lf.filter_options(lf.Config(n_agents=21), smooth=True).exchange == "dense"
+    assert lf.filter_options(lf.Config(n_agents=100)).exchange == "dense"          # the default, any size
+    assert lf.filter_options(lf.Config(n_agents=20, consensus_exchange="auto")).exchange == "dense"
+    assert lf.filter_options(lf.Config(n_agents=21, consensus_exchange="auto")).exchange == "sparse"
+    assert lf.filter_options(lf.Config(n_agents=21, consensus_exchange="sparse"), smooth=True).exchange == "dense"
     assert lf.filter_options(lf.Config(consensus_exchange="sparse", consensus_neighbours=7)).max_neighbours == 7

@@ -21,7 +21,9 @@ PLANNERS = ("none", "gradient", "random", "cem")
 #: The filters run by default: the paper's five (the robust ones, "ci" and "hcmci", are opt-in names).
 PAPER_FILTERS = ("cif", "icf", "modified_icf", "kcf", "local")
 #: How the filters sum their neighbours' messages (Config.consensus_exchange); "auto" is sparse above
-#: SPARSE_ABOVE UAVs (chosen before measuring: every built-in config, 5 UAVs, stays dense, bit for bit).
+#: SPARSE_ABOVE UAVs. The default is "dense" for every team size: measured (docs/benchmarks.md, 2026-12-04),
+#: the sparse exchange was slower at 20 and 50 UAVs and even at 100, and a UAV with more links than
+#: consensus_neighbours slots turns NaN, a trap a default must not set.
 EXCHANGES = ("dense", "sparse", "auto")
 SPARSE_ABOVE = 20
 
@@ -59,11 +61,12 @@ Config = config_type("Config", dict(
                          "by its component's size, ours; one = eq. 9 as printed)", choices=CONTRIBUTION_KINDS),
     icf_variant=Setting("contributions", "reading of the ICF (docs/equations.md)", choices=ICF_VARIANTS),
     kcf_gain=Setting("gamma_M", "KCF consensus gain form", choices=KCF_GAINS),
-    consensus_exchange=Setting("auto", "how the filters sum their neighbours' messages: dense = over every UAV, n x n "
+    consensus_exchange=Setting("dense", "how the filters sum their neighbours' messages: dense = over every UAV, n x n "
                                "matrices (cost ~ n^2); sparse = over neighbour lists of consensus_neighbours slots "
                                "(cost ~ links, ours; the same numbers to round-off; a UAV with more links than slots "
                                "makes its filters NaN, the run's nonfinite output); auto = dense up to 20 UAVs, "
-                               "sparse above; the smoothing switch's soft links join every pair: always dense",
+                               "sparse above (not faster in our measurements: docs/benchmarks.md); the smoothing "
+                               "switch's soft links join every pair: always dense",
                                choices=EXCHANGES),
     consensus_neighbours=Setting(24, "slots of a UAV's neighbour list in the sparse exchange: the most links a UAV "
                                  "may have (more: NaN)", low=1, integer=True),
