@@ -147,8 +147,9 @@ def _advance(cfg, params, state: State, key, smoothing):
     nis = None if cfg.consistency != "on" else jnp.stack([  # each agent's own measurement against its prediction
         consistency.predicted_nis(per_agent(k, f, n), F, Q, range_bearing, sensors, z, R_inv, angle_mask)
         for k, f in zip(cfg.filters, state.filters)])
-    filters, mailbox = kit.filter_update(cfg.filters, filter_options(cfg, smoothing is not None), range_bearing, angle_mask, state.filters,
-                                         meas, F, Q, jnp.asarray(params.kcf_epsilon, dtype), fault, state.mailbox)
+    filters, mailbox = kit.filter_update(cfg.filters, filter_options(cfg, smoothing is not None), range_bearing,
+                                         angle_mask, state.filters, meas, F, Q, jnp.asarray(params.kcf_epsilon, dtype),
+                                         fault, state.mailbox)
 
     # the bound (bound = "on"): the truth's motion model (target_sigma_accel, not the filters' sigma_accel)
     bound = pcrb.update(state.bound, *first_step_model(first, cv_matrices(dt, dtype)[0],
