@@ -99,6 +99,16 @@ def _predict(m, p, Ft, Qt):
     return (m0, m1, m2, m3), (p00, p01, p02, p03, p11, p12, p13, p22, p23, p33)
 
 
+@njit
+def _store(xs, Ps, b, t, a, m0, m1, m2, m3, p00, p01, p02, p03, p11, p12, p13, p22, p23, p33):
+    """Write one agent-step's mean and its full symmetric covariance from the 10 distinct entries."""
+    xs[b, t, a, 0], xs[b, t, a, 1], xs[b, t, a, 2], xs[b, t, a, 3] = m0, m1, m2, m3
+    Ps[b, t, a, 0, 0], Ps[b, t, a, 0, 1], Ps[b, t, a, 0, 2], Ps[b, t, a, 0, 3] = p00, p01, p02, p03
+    Ps[b, t, a, 1, 0], Ps[b, t, a, 1, 1], Ps[b, t, a, 1, 2], Ps[b, t, a, 1, 3] = p01, p11, p12, p13
+    Ps[b, t, a, 2, 0], Ps[b, t, a, 2, 1], Ps[b, t, a, 2, 2], Ps[b, t, a, 2, 3] = p02, p12, p22, p23
+    Ps[b, t, a, 3, 0], Ps[b, t, a, 3, 1], Ps[b, t, a, 3, 2], Ps[b, t, a, 3, 3] = p03, p13, p23, p33
+
+
 @njit(parallel=True, cache=True)
 def local_kernel(z, s, x0, P0, F, Q, Rinv, xs, Ps):
     """Local EKF in moment form for every run ``b`` and agent; writes ``xs``, ``Ps``.
@@ -187,26 +197,7 @@ def local_kernel(z, s, x0, P0, F, Q, Rinv, xs, Ps):
                     p22 -= k20 * a2 + k21 * c2
                     p23 -= k20 * a3 + k21 * c3
                     p33 -= k30 * a3 + k31 * c3
-                xs[b, t, a, 0] = m0
-                xs[b, t, a, 1] = m1
-                xs[b, t, a, 2] = m2
-                xs[b, t, a, 3] = m3
-                Ps[b, t, a, 0, 0] = p00
-                Ps[b, t, a, 0, 1] = p01
-                Ps[b, t, a, 0, 2] = p02
-                Ps[b, t, a, 0, 3] = p03
-                Ps[b, t, a, 1, 0] = p01
-                Ps[b, t, a, 1, 1] = p11
-                Ps[b, t, a, 1, 2] = p12
-                Ps[b, t, a, 1, 3] = p13
-                Ps[b, t, a, 2, 0] = p02
-                Ps[b, t, a, 2, 1] = p12
-                Ps[b, t, a, 2, 2] = p22
-                Ps[b, t, a, 2, 3] = p23
-                Ps[b, t, a, 3, 0] = p03
-                Ps[b, t, a, 3, 1] = p13
-                Ps[b, t, a, 3, 2] = p23
-                Ps[b, t, a, 3, 3] = p33
+                _store(xs, Ps, b, t, a, m0, m1, m2, m3, p00, p01, p02, p03, p11, p12, p13, p22, p23, p33)
 
 
 @njit(inline="always")
@@ -421,26 +412,7 @@ def modified_icf_kernel(z, s, adj, x0, P0, F, Q, Rinv, steps, weight_kind, compo
                 X[a, 0], X[a, 1], X[a, 2], X[a, 3] = m0, m1, m2, m3
                 Pu[a, 0], Pu[a, 1], Pu[a, 2], Pu[a, 3], Pu[a, 4] = p00, p01, p02, p03, p11
                 Pu[a, 5], Pu[a, 6], Pu[a, 7], Pu[a, 8], Pu[a, 9] = p12, p13, p22, p23, p33
-                xs[b, t, a, 0] = m0
-                xs[b, t, a, 1] = m1
-                xs[b, t, a, 2] = m2
-                xs[b, t, a, 3] = m3
-                Ps[b, t, a, 0, 0] = p00
-                Ps[b, t, a, 0, 1] = p01
-                Ps[b, t, a, 0, 2] = p02
-                Ps[b, t, a, 0, 3] = p03
-                Ps[b, t, a, 1, 0] = p01
-                Ps[b, t, a, 1, 1] = p11
-                Ps[b, t, a, 1, 2] = p12
-                Ps[b, t, a, 1, 3] = p13
-                Ps[b, t, a, 2, 0] = p02
-                Ps[b, t, a, 2, 1] = p12
-                Ps[b, t, a, 2, 2] = p22
-                Ps[b, t, a, 2, 3] = p23
-                Ps[b, t, a, 3, 0] = p03
-                Ps[b, t, a, 3, 1] = p13
-                Ps[b, t, a, 3, 2] = p23
-                Ps[b, t, a, 3, 3] = p33
+                _store(xs, Ps, b, t, a, m0, m1, m2, m3, p00, p01, p02, p03, p11, p12, p13, p22, p23, p33)
 
 
 def run_filter_numba(kind, measurements, sensor_positions, adjacency, x0, P0, F, Q, R,
