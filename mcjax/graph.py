@@ -29,7 +29,7 @@ import math
 import jax
 import jax.numpy as jnp
 
-from mcjax.numerics import matmul, require_x64, safe_norm
+from mcjax.numerics import eigvalsh, matmul, require_x64, safe_norm
 
 WEIGHT_KINDS = ("eq11", "metropolis", "max_degree")
 
@@ -154,15 +154,15 @@ def algebraic_connectivity(adj) -> jax.Array:
     """Algebraic connectivity λ2, the second-smallest eigenvalue of ``L = D − A``.
 
     docs/equations.md (Sun et al. 2011 Figs. 6/10, Lou et al. 2013 "λ2 > 0"): λ2 = 0 iff the graph is
-    disconnected. (..., n, n) -> (...,), via ``jnp.linalg.eigvalsh``. Round-off can make the
-    eigenvalue of a disconnected graph a tiny negative number (~−1e−16); it is clipped to 0,
-    so the result is always ≥ 0. Needs ``n ≥ 2`` (λ2 does not exist for one agent): a
+    disconnected. (..., n, n) -> (...,), via :func:`mcjax.numerics.eigvalsh` (LAPACK, on the
+    calling thread). Round-off can make the eigenvalue of a disconnected graph a tiny negative
+    number (~−1e−16); it is clipped to 0, so the result is always ≥ 0. Needs ``n ≥ 2`` (λ2 does not exist for one agent): a
     ``ValueError`` otherwise.
     """
     n = jnp.shape(adj)[-1]
     if n < 2:
         raise ValueError(f"algebraic_connectivity needs at least 2 agents, got adj with n={n}")
-    lam = jnp.linalg.eigvalsh(laplacian(adj))
+    lam = eigvalsh(laplacian(adj))
     return jnp.maximum(lam[..., 1], 0.0)
 
 

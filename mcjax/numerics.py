@@ -13,6 +13,7 @@ few vectorised loops over the batch (docs/architecture.md). They fall back to
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import jax
@@ -207,3 +208,60 @@ def is_finite_tree(*arrays: jax.Array) -> jax.Array:
     for x in arrays:
         out = jnp.logical_and(out, jnp.all(jnp.isfinite(x)))
     return out
+
+
+#: jaxlib's CPU LAPACK kernels split a batch over XLA's CPU thread pool once the batch's estimated
+#: work (``batch × 5 n³`` for ``syevd``) reaches 2·10⁵ flops, and the calling thread then blocks
+#: until pool threads have run the pieces. With one CPU device per core, every pool thread may
+#: be a device running its program and blocked the same way: the sweep hangs at 0 % CPU
+#: (2026-12-04, jax 0.10.2: two devices, teams of ≥ 8 UAVs at 100 runs per batch). Batches are
+#: therefore handed to LAPACK in pieces below that size, which jaxlib runs on the calling thread.
+LAPACK_INLINE_WORK = 200_000
+
+
+def _in_pieces(fn, x: jax.Array):
+    """``fn`` (a batched LAPACK call) over the matrices (…, n, n) of ``x``, in pieces of
+    ``k`` matrices with ``k · 5 n³ < LAPACK_INLINE_WORK`` (one matrix at a time from n = 35)."""
+    n, lead = x.shape[-1], x.shape[:-2]
+    m = math.prod(lead)
+    k = max(1, (LAPACK_INLINE_WORK - 1) // (5 * n ** 3))
+    flat = jnp.reshape(x, (m, n, n))
+    out = jax.tree.map(lambda *parts: jnp.concatenate(parts), *[fn(flat[i:i + k]) for i in range(0, m, k)])
+    return jax.tree.map(lambda o: jnp.reshape(o, lead + o.shape[1:]), out)
+
+
+@jax.custom_batching.custom_vmap
+def _eigvalsh_batched(x: jax.Array) -> jax.Array:
+    return _in_pieces(jnp.linalg.eigvalsh, x)
+
+
+@_eigvalsh_batched.def_vmap
+def _eigvalsh_rule(axis_size, in_batched, x):
+    return _eigvalsh_batched(x), True  # the vmapped axis leads x: it is cut into pieces too
+
+
+@jax.custom_batching.custom_vmap
+def _eigh_batched(x: jax.Array):
+    return tuple(_in_pieces(jnp.linalg.eigh, x))
+
+
+@_eigh_batched.def_vmap
+def _eigh_rule(axis_size, in_batched, x):
+    return _eigh_batched(x), (True, True)
+
+
+@jax.custom_jvp
+def eigvalsh(x: jax.Array) -> jax.Array:
+    """Eigenvalues in ascending order of symmetric matrices (…, n, n), as ``jnp.linalg.eigvalsh``
+    computes them (the same LAPACK call per matrix: the same bits), batched and vmapped alike,
+    but handed to LAPACK in pieces that run on the calling thread (:data:`LAPACK_INLINE_WORK`).
+    Differentiable: ``dλ_i = v_iᵀ dX v_i`` (first-order perturbation of a simple eigenvalue),
+    the eigenvectors ``v`` from ``jnp.linalg.eigh`` in the same pieces."""
+    return _eigvalsh_batched(x)
+
+
+@eigvalsh.defjvp
+def _eigvalsh_jvp(primals, tangents):
+    (x,), (dx,) = primals, tangents
+    _, v = _eigh_batched(x)
+    return eigvalsh(x), jnp.einsum("...ji,...jk,...ki->...i", v, symmetrize(dx), v)

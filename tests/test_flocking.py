@@ -1025,19 +1025,20 @@ def test_rk4_adaptive_matches_solve_ivp_and_resizes_mid_step():
     assert float((s.q[1, 0] - s.q[0, 0]) * (s.p[1, 0] - s.p[0, 0])) > 0
 
 
-def test_the_flock_runs_on_one_device_where_there_are_two():
-    """Lou, Cui & Li 2013's flock declares ``one_device`` (two of its programs running at once on
-    two CPU devices deadlocked in XLA's CPU runtime): a process with two CPU devices (the count is
-    fixed when JAX starts: a subprocess) gives its sweeps and tunes one, the other scenarios two."""
+def test_the_flock_runs_on_every_device_and_one_device_still_means_one():
+    """Lou, Cui & Li 2013's flock declared ``one_device`` until 2026-12-04 (its λ2 eigenvalue batches
+    deadlocked two CPU devices: tests/test_numerics.py, mcjax.numerics.eigvalsh); it now gets every
+    device, and a scenario that declares ``one_device`` still gets one (a subprocess with two CPU
+    devices: the count is fixed when JAX starts)."""
     import os
     import subprocess
     import sys
 
-    code = ("import mcjax; mcjax.configure(); from mcjax import engine; "
+    code = ("import dataclasses, mcjax; mcjax.configure(); from mcjax import engine; "
             "from mcjax.scenarios import flocking, leader_follower; "
             "print(len(engine.devices()), len(engine.devices(flocking.SCENARIO)), "
-            "len(engine.devices(leader_follower.SCENARIO)))")
+            "len(engine.devices(dataclasses.replace(leader_follower.SCENARIO, one_device=True))))")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
                        env={**os.environ, "MCJAX_CPU_DEVICES": "2"})
     assert r.returncode == 0, r.stderr[-2000:]
-    assert r.stdout.split() == ["2", "1", "2"], r.stdout
+    assert r.stdout.split() == ["2", "2", "1"], r.stdout

@@ -152,9 +152,6 @@ SCENARIO = Scenario(
     "filter", Config=Config, Params=Params, init=init, step=step, summary=summary, series=series,
     check_params=check_params, smooth=Smooth(Smoothing, kit.training_errors, training_weights, ROUGH),
     compiler_options=FAST_COMPILE,
-    # two of its programs running at once on two CPU devices wait for each other for good (XLA's CPU
-    # runtime, its sub-steps in a data-dependent while loop): a sweep of four 100-run batches hung
-    one_device=True,
     filter_names={"kcf": "KCF", "local": "local KF", "ci": "CI", "hcmci": "HCMCI"},
     filter_words={
         "kcf": "Kalman-consensus filter of Lou, Cui & Li 2013 (Alg. 1): a local update with the neighbours' "
