@@ -404,7 +404,7 @@ a = a + np.swapaxes(a, -1, -2)
 xs = [jax.device_put(a, d) for d in jax.devices()]
 first = [np.asarray(f(x)) for x in xs]
 def work(x):
-    for _ in range(50):
+    for _ in range(20):
         np.asarray(f(x))
 threads = [threading.Thread(target=work, args=(x,)) for x in xs]
 [t.start() for t in threads]

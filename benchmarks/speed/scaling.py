@@ -161,6 +161,8 @@ def main(argv=None) -> int:
                     help="Config.robustness_paths: how the planner computes R_I")
     ap.add_argument("--exchange", nargs="+", default=["auto"], choices=["auto", "dense", "sparse"],
                     help="Config.consensus_exchange of the agents curve (several: each point side by side)")
+    ap.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE", help="Config fields for every point, "
+                    "e.g. plan_iterations=3 plan_learning_rate=1.0 plan_dtype=float32 (a planner budget)")
     ap.add_argument("--horizons", type=int, nargs="+", default=[1, 2, 5, 10, 20])
     ap.add_argument("--consensus", type=int, nargs="+", default=[1, 2, 5, 10])
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "scaling")
@@ -171,7 +173,8 @@ def main(argv=None) -> int:
         _report(pd.read_csv(args.from_csv), args.out)
         return 0
     sc, base, values = load_config_file(ROOT / "configs" / "sun2011.toml")
-    base = dataclasses.replace(base, filters=tuple(args.filters), robustness_paths=args.robustness_paths)
+    base = dataclasses.replace(base, filters=tuple(args.filters), robustness_paths=args.robustness_paths,
+                               **{k: type(getattr(base, k))(v) for k, v in (a.split("=", 1) for a in args.set)})
     print(f"scaling, {runtime.settings()['cpu_devices']} CPU device(s), {args.steps} steps per run, "
           f"{time.strftime('%Y-%m-%d')}")
     rows = []
