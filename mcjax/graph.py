@@ -156,8 +156,8 @@ def algebraic_connectivity(adj) -> jax.Array:
     docs/equations.md (Sun et al. 2011 Figs. 6/10, Lou et al. 2013 "λ2 > 0"): λ2 = 0 iff the graph is
     disconnected. (..., n, n) -> (...,), via :func:`mcjax.numerics.eigvalsh` (LAPACK, on the
     calling thread). Round-off can make the eigenvalue of a disconnected graph a tiny negative
-    number (~−1e−16); it is clipped to 0, so the result is always ≥ 0. Needs ``n ≥ 2`` (λ2 does not exist for one agent): a
-    ``ValueError`` otherwise.
+    number (~−1e−16); it is clipped to 0, so the result is always ≥ 0. Needs ``n ≥ 2`` (λ2 does
+    not exist for one agent): a ``ValueError`` otherwise.
     """
     n = jnp.shape(adj)[-1]
     if n < 2:

@@ -226,7 +226,7 @@ def _in_pieces(fn, x: jax.Array):
     m = math.prod(lead)
     k = max(1, (LAPACK_INLINE_WORK - 1) // (5 * n ** 3))
     flat = jnp.reshape(x, (m, n, n))
-    out = jax.tree.map(lambda *parts: jnp.concatenate(parts), *[fn(flat[i:i + k]) for i in range(0, m, k)])
+    out = fn(flat) if m <= k else jax.lax.map(fn, flat, batch_size=k)  # a loop: one program size for any m
     return jax.tree.map(lambda o: jnp.reshape(o, lead + o.shape[1:]), out)
 
 
