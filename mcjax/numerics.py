@@ -230,24 +230,23 @@ def _in_pieces(fn, x: jax.Array):
     return jax.tree.map(lambda o: jnp.reshape(o, lead + o.shape[1:]), out)
 
 
-@jax.custom_batching.custom_vmap
-def _eigvalsh_batched(x: jax.Array) -> jax.Array:
-    return _in_pieces(jnp.linalg.eigvalsh, x)
+def _batched_in_pieces(fn):
+    """``fn`` over (…, n, n) in pieces (:func:`_in_pieces`), also when vmapped: the vmapped axis
+    leads the rule's input, so it is cut into pieces with the others."""
+    @jax.custom_batching.custom_vmap
+    def batched(x: jax.Array):
+        return _in_pieces(fn, x)
+
+    @batched.def_vmap
+    def _rule(axis_size, in_batched, x):
+        out = batched(x)
+        return out, jax.tree.map(lambda _: True, out)
+
+    return batched
 
 
-@_eigvalsh_batched.def_vmap
-def _eigvalsh_rule(axis_size, in_batched, x):
-    return _eigvalsh_batched(x), True  # the vmapped axis leads x: it is cut into pieces too
-
-
-@jax.custom_batching.custom_vmap
-def _eigh_batched(x: jax.Array):
-    return tuple(_in_pieces(jnp.linalg.eigh, x))
-
-
-@_eigh_batched.def_vmap
-def _eigh_rule(axis_size, in_batched, x):
-    return _eigh_batched(x), (True, True)
+_eigvalsh_batched = _batched_in_pieces(jnp.linalg.eigvalsh)
+_eigh_batched = _batched_in_pieces(lambda x: tuple(jnp.linalg.eigh(x)))
 
 
 @jax.custom_jvp

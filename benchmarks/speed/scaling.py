@@ -35,6 +35,7 @@ import os
 import resource
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import pandas as pd
@@ -173,8 +174,18 @@ def main(argv=None) -> int:
         _report(pd.read_csv(args.from_csv), args.out)
         return 0
     sc, base, values = load_config_file(ROOT / "configs" / "sun2011.toml")
-    base = dataclasses.replace(base, filters=tuple(args.filters), robustness_paths=args.robustness_paths,
-                               **{k: type(getattr(base, k))(v) for k, v in (a.split("=", 1) for a in args.set)})
+    changes = dict(a.partition("=")[::2] for a in args.set)
+    for key, raw in changes.items():  # TOML values (3, 1.0, true); a bare word is a string (float32)
+        if key not in {f.name for f in dataclasses.fields(base)} or not raw:
+            ap.error(f"--set {key}={raw}: FIELD=VALUE with FIELD one of the Config's fields")
+        try:
+            changes[key] = tomllib.loads(f"v = {raw}")["v"]
+        except tomllib.TOMLDecodeError:
+            pass
+    try:
+        base = dataclasses.replace(base, filters=tuple(args.filters), robustness_paths=args.robustness_paths, **changes)
+    except (TypeError, ValueError) as e:
+        ap.error(f"--set: {e}")
     print(f"scaling, {runtime.settings()['cpu_devices']} CPU device(s), {args.steps} steps per run, "
           f"{time.strftime('%Y-%m-%d')}")
     rows = []
