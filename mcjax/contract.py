@@ -13,7 +13,8 @@ class); the layers above use a scenario only through it and name no scenario, fi
   ``(F,)`` per filter, ``()`` per run; the record derives ``reduce(cfg, records, params)``
   (:class:`Reduce`) and ``outputs(cfg)`` from it, and ``timeseries`` / ``timeseries_outputs``
   from an optional ``series``; optionally ``check_params``, ``smooth``
-  (:class:`mcjax.smoothing.Smooth`) and ``compiler_options`` (:data:`FAST_COMPILE`).
+  (:class:`mcjax.smoothing.Smooth`) and ``compiler_options`` (:data:`FAST_COMPILE`, or a function
+  of the Config returning such a mapping, where a team's size calls for other options).
 
 Validation is :mod:`mcjax.validation`'s (the declarations' ``problem`` methods call it): it reads
 values as a spec (TOML) writes them — kinds are exact (:meth:`Param.problem` with
@@ -267,7 +268,8 @@ class Scenario:
     series: Summary | None = None        # optional: the per-step outputs, declared the same way
     check_params: Callable[[Any, dict], list] | None = None
     smooth: Any = None                   # its smoothing switch, a mcjax.smoothing.Smooth (optional)
-    compiler_options: Mapping[str, Any] | None = None  # XLA options of its programs (optional)
+    #: XLA options of its programs (optional): a mapping, or ``cfg -> mapping`` (options by Config)
+    compiler_options: Mapping[str, Any] | Callable[[Any], Mapping[str, Any] | None] | None = None
     filter_words: Mapping[str, str] | None = None  # each filter kind in plain words (the report's glossary)
     filter_names: Mapping[str, str] | None = None  # each filter kind's short name in sentences ("modified ICF")
     #: its programs run on one CPU device (True where two running at once deadlock in XLA's CPU runtime)

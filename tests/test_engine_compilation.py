@@ -259,6 +259,28 @@ def test_scenario_compiler_options_apply_and_unknown_ones_are_dropped():
         np.testing.assert_allclose(x, y, rtol=1e-9, atol=1e-9, err_msg=name)
 
 
+def test_compiler_options_given_as_a_function_of_the_config():
+    """A scenario may give its options as ``cfg -> mapping``: the engine asks it with the Config
+    the program is built for, and the program store's label names the options used. The
+    leader–follower scenario keeps :data:`FAST_COMPILE` below ``LARGE_TEAM`` UAVs (the program
+    of its golden rows) and drops XLA's YNN reduction kernels from there."""
+    from mcjax.contract import FAST_COMPILE
+    from mcjax.scenarios.leader_follower.scenario import LARGE_TEAM
+
+    small, large = (dataclasses.replace(CFG, n_agents=n) for n in (LARGE_TEAM - 1, LARGE_TEAM))
+    assert engine.compiler_options(lf.SCENARIO, small) == dict(FAST_COMPILE)
+    assert engine.compiler_options(lf.SCENARIO, large) == {**FAST_COMPILE, "xla_cpu_experimental_ynn_fusion_type": ""}
+    assert engine.compiler_options(lf.SCENARIO) == dict(FAST_COMPILE)  # Config() has five UAVs
+    assert "ynn" in compilation.store_label(lf.SCENARIO, large, False, False)
+    assert "ynn" not in compilation.store_label(lf.SCENARIO, small, False, False)
+    asked = []
+    mine = dataclasses.replace(lf.SCENARIO, compiler_options=lambda cfg: asked.append(cfg) or dict(FAST_COMPILE))
+    cfg = dataclasses.replace(CFG, filters=("local",), n_steps=3, warmup_steps=0)
+    params, keys = engine.chunk_inputs(_points({}), 2, 0, 0, 2, 2)
+    engine.compiled(mine, cfg)(params, keys)
+    assert asked == [cfg]
+
+
 def test_the_program_store_keeps_under_its_limit_dropping_the_least_recently_used(tmp_path, monkeypatch):
     """runtime._prune: past the limit the oldest files go (loading a program touches its time),
     never the one just stored; MCJAX_CACHE_MAX_GB sets the limit and a bad value names itself."""

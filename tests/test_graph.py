@@ -277,6 +277,38 @@ def test_component_sizes_long_path_needs_all_squarings():
     np.testing.assert_array_equal(np.asarray(F.component_sizes(a)), [5, 5, 3, 5, 3, 3, 5, 5])
 
 
+def test_component_sizes_of_large_teams_by_label_propagation_vs_networkx():
+    """Above ``SQUARING_MAX_AGENTS`` the sizes come from label propagation: the same exact
+    integers as networkx on random graphs from nearly empty to dense, a batch at once (the loop
+    runs until every graph of it is done), a long path in scrambled order (as many rounds as
+    hops) and a path cut in two; no gradient flows through the sizes."""
+    n = graph.SQUARING_MAX_AGENTS + 16
+    rng = np.random.default_rng(7)
+    batch = []
+    for p in (0.0, 0.02, 0.05, 0.1, 0.4):
+        a = np.triu(rng.random((n, n)) < p, 1)
+        batch.append((a | a.T).astype(float))
+    order = rng.permutation(n)
+    path = np.zeros((n, n))
+    for u, v in zip(order[:-1], order[1:]):
+        path[u, v] = path[v, u] = 1.0
+    cut = path.copy()
+    cut[order[9], order[10]] = cut[order[10], order[9]] = 0.0
+    batch += [path, cut]
+    got = np.asarray(F.component_sizes(np.stack(batch)))
+    for a, sizes in zip(batch, got):
+        ref = np.zeros(n)
+        for comp in nx.connected_components(to_nx(a)):
+            ref[list(comp)] = len(comp)
+        np.testing.assert_array_equal(sizes, ref)
+    assert set(got[-1]) == {10.0, n - 10.0}
+    pos = jnp.asarray(rng.random((n, 2)) * 4.0)
+    g = np.asarray(jax.grad(lambda q: jnp.sum(graph.component_sizes(graph.adjacency(q, 1.0)) * q[:, 0]))(pos))
+    # reverse mode runs through the loop; the sizes are constants to the gradient
+    np.testing.assert_array_equal(g[:, 0], np.asarray(graph.component_sizes(graph.adjacency(pos, 1.0))))
+    np.testing.assert_array_equal(g[:, 1], 0.0)
+
+
 @fast_jit
 def _adjacency_metrics(a):
     return [graph.degree(a), graph.laplacian(a), graph.component_sizes(a), graph.algebraic_connectivity(a),

@@ -38,7 +38,7 @@ def _compiled(scenario: Scenario, cfg, records: bool, timeseries: bool, sensitiv
     def run(params, keys):
         return simulate(scenario, cfg, params, keys, records=records, timeseries=timeseries, sensitivity=sensitivity)
 
-    options = compiler_options(scenario)
+    options = compiler_options(scenario, cfg)
     top = jax.jit(run, compiler_options=options)
     return top if options is None else _Program(top, jax.jit(run))
 
@@ -59,11 +59,15 @@ class _Program:
         return getattr(self._top, name)
 
 
-def compiler_options(scenario: Scenario) -> dict | None:
-    """The scenario's XLA options (:attr:`mcjax.contract.Scenario.compiler_options`) that this
-    JAX knows; an unknown one is dropped (with a RuntimeWarning) rather than failing every
-    compilation."""
-    return runtime.known_compiler_options(scenario.compiler_options)
+def compiler_options(scenario: Scenario, cfg=None) -> dict | None:
+    """The scenario's XLA options (:attr:`mcjax.contract.Scenario.compiler_options`) for ``cfg``
+    (default ``scenario.Config()``; read only where the scenario gives its options as a function
+    of the Config) that this JAX knows; an unknown one is dropped (with a RuntimeWarning) rather
+    than failing every compilation."""
+    options = scenario.compiler_options
+    if callable(options):
+        options = options(scenario.Config() if cfg is None else cfg)
+    return runtime.known_compiler_options(options)
 
 
 def devices(scenario: Scenario | None = None) -> list:
@@ -207,7 +211,7 @@ def store_label(scenario: Scenario, cfg, records: bool, timeseries: bool, sensit
     where = module if module.startswith("mcjax.") else _source_digest(scenario)
     if where is None:
         return None
-    text = f"{scenario.name}|{where}|{cfg!r}|{bool(records)}|{bool(timeseries)}|{compiler_options(scenario)}"
+    text = f"{scenario.name}|{where}|{cfg!r}|{bool(records)}|{bool(timeseries)}|{compiler_options(scenario, cfg)}"
     return text if sensitivity is None else f"{text}|{sensitivity!r}"
 
 

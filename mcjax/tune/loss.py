@@ -117,7 +117,7 @@ def _batch_function(spec: TuneSpec) -> Callable:
 
     from mcjax.engine import compiler_options
 
-    return jax.jit(jax.vmap(one, in_axes=(None, 0, None)), compiler_options=compiler_options(scenario))
+    return jax.jit(jax.vmap(one, in_axes=(None, 0, None)), compiler_options=compiler_options(scenario, cfg))
 
 
 def train_keys(spec: TuneSpec):

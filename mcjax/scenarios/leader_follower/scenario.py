@@ -76,12 +76,29 @@ def series(cfg, records: Record | None, params) -> dict:
     )
 
 
+#: Teams of at least this many UAVs compile without XLA's YNN reduction kernels (see
+#: :func:`compiler_options`).
+LARGE_TEAM = 64
+
+
+def compiler_options(cfg):
+    """XLA's older fusion emitters (:data:`mcjax.contract.FAST_COMPILE`) for every team; from
+    :data:`LARGE_TEAM` UAVs also without XLA's YNN reduction kernels: at 100 UAVs the planner's
+    gradient summed its pairwise terms in one YNN kernel that took ~27 % of a closed-loop run,
+    which took 10–31 % less time without (docs/benchmarks.md, 2026-12-04). Smaller teams keep the program
+    every built-in configuration was checked with (their golden rows): the option changes the
+    order of the sums, so the last bits of the results."""
+    if cfg.n_agents >= LARGE_TEAM:
+        return {**FAST_COMPILE, "xla_cpu_experimental_ynn_fusion_type": ""}
+    return FAST_COMPILE
+
+
 SCENARIO = Scenario(
     name=NAME, title="Sun, Zhou, Zou & Ding 2011: leader-follower UAVs, consensus information filters, "
     "receding-horizon planning", Config=Config, Params=Params, init=init, step=step, summary=summary,
     series=series, check_params=check_params,
     smooth=Smooth(Smoothing, kit.training_errors, kit.training_weights, ROUGH),
-    compiler_options=FAST_COMPILE,
+    compiler_options=compiler_options,
     filter_names={"cif": "CIF", "icf": "ICF", "modified_icf": "modified ICF", "kcf": "KCF", "local": "local EKF",
                   "ci": "CI", "hcmci": "HCMCI"},
     filter_words={
