@@ -168,7 +168,8 @@ def algebraic_connectivity(adj) -> jax.Array:
 
 #: Teams up to this size get their component sizes by repeated squaring (one fused loop per
 #: squaring, the program every built-in configuration was checked with); larger teams by label
-#: propagation, O(n²) per round instead of O(n³) per squaring (100 agents: ~90× fewer operations).
+#: propagation, O(n²) per round, about the graph's diameter in rounds, instead of O(n³) per squaring
+#: (100 agents: 8 squarings of 10⁶ multiply–adds against 10⁴ comparisons per round).
 SQUARING_MAX_AGENTS = 24
 
 

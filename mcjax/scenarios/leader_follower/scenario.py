@@ -85,9 +85,9 @@ def compiler_options(cfg):
     """XLA's older fusion emitters (:data:`mcjax.contract.FAST_COMPILE`) for every team; from
     :data:`LARGE_TEAM` UAVs also without XLA's YNN reduction kernels: at 100 UAVs the planner's
     gradient summed its pairwise terms in one YNN kernel that took ~27 % of a closed-loop run,
-    which took 10–31 % less time without (docs/benchmarks.md, 2026-12-04). Smaller teams keep the program
-    every built-in configuration was checked with (their golden rows): the option changes the
-    order of the sums, so the last bits of the results."""
+    which took 10–31 % less time without (docs/benchmarks.md, 2026-12-04). Smaller teams keep
+    the program every built-in configuration was checked with (their golden rows): the option
+    changes the order of the sums, so the last bits of the results."""
     if cfg.n_agents >= LARGE_TEAM:
         return {**FAST_COMPILE, "xla_cpu_experimental_ynn_fusion_type": ""}
     return FAST_COMPILE
