@@ -27,6 +27,9 @@ one process. Six measurements, a subcommand each:
   XLA's per-kernel trace events on (sets ``XLA_FLAGS``). Prints the kernels' total time, the
   ``--top`` kinds of kernel (the name less its number) by time and, with ``--match TEXT``, every
   kernel whose name contains TEXT with its output shape and the JAX operation it comes from.
+  ``--agents N`` profiles a team of N UAVs (the paper's five, the rest in the scenario's default
+  layout) and ``--filters`` runs only the filters named (``profile --runs 50 --steps 50 --agents 100
+  --filters modified_icf``: where a 100-UAV closed-loop run goes, docs/benchmarks.md).
 
 CPU devices: ``MCJAX_CPU_DEVICES`` (default every core; ``options`` 1 unless set; ``profile`` 1).
 How to run (``due`` ~5 min, ``options`` ~3 min per round, ``profile`` ~1 min on the 2-core VM)::
@@ -224,6 +227,10 @@ def main(argv=None) -> int:
     sub.choices["profile"].add_argument("--top", type=int, default=25, help="kinds of kernel to print")
     sub.choices["profile"].add_argument("--match", default=None,
                                         help="also print every kernel whose name contains this text")
+    sub.choices["profile"].add_argument("--agents", type=int, default=None,
+                                        help="UAVs in the team (default: the config's five)")
+    sub.choices["profile"].add_argument("--filters", nargs="+", default=["icf", "modified_icf", "cif"],
+                                        choices=["cif", "icf", "modified_icf", "kcf", "local"])
     args = ap.parse_args(argv)
     if min(args.runs, args.steps, getattr(args, "rounds", 1), getattr(args, "top", 1)) < 1:
         ap.error("--runs, --steps, --rounds and --top must be >= 1")
@@ -234,10 +241,17 @@ def main(argv=None) -> int:
         os.environ["MCJAX_CPU_DEVICES"] = "1"
     configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
     sc, base, values = load_config_file(ROOT / "configs" / "sun2011.toml")
-    base = dataclasses.replace(base, filters=("icf", "modified_icf", "cif"), n_steps=args.steps,
-                               warmup_steps=min(base.warmup_steps, args.steps - 1))
+    team = {}
+    if getattr(args, "agents", None) is not None:  # a larger team takes the scenario's default layout
+        if args.agents < 2:
+            ap.error("--agents must be >= 2")
+        team = dict(n_agents=args.agents)
+        values = {k: v for k, v in values.items() if k not in ("initial_positions", "alive")}
+    base = dataclasses.replace(base, filters=tuple(getattr(args, "filters", ("icf", "modified_icf", "cif"))),
+                               n_steps=args.steps, warmup_steps=min(base.warmup_steps, args.steps - 1), **team)
     points = engine.stack_points([sc.default_params(base, **values)])
-    print(f"Sun et al. 2011 closed loop, {args.runs} runs x {args.steps} steps, {runtime.settings()['cpu_devices']} "
+    print(f"Sun et al. 2011 closed loop, {base.n_agents} UAVs, {args.runs} runs x {args.steps} steps, "
+          f"{runtime.settings()['cpu_devices']} "
           f"CPU device(s), load average {os.getloadavg()[0]:.2f}, {time.strftime('%Y-%m-%d %H:%M')}")
     return {"due": due, "options": options, "dispatch": dispatch, "profile": profile,
             "faults": timed, "bound": timed}[args.what](args, sc, base, points)
