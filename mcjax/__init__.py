@@ -13,7 +13,7 @@ def configure() -> None:
 
     * JAX's 64-bit mode (``jax_enable_x64``): computations run in the dtype of their input,
       float64 by default, float32 where a Config or caller asks for it. A library function
-      called without it warns once (:func:`mcjax.numerics.require_x64`) and computes in
+      called without it warns once (:func:`mcjax.tracking.numerics.require_x64`) and computes in
       float32.
     * one CPU device per core, or ``$MCJAX_CPU_DEVICES`` (the engine spreads a sweep's batches
       over them). If JAX's backend already runs (something computed with JAX before), its

@@ -21,13 +21,17 @@ values.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 import pandas as pd
 
 from mcjax import configure
+
+if TYPE_CHECKING:
+    from mcjax.analysis.summary import Summary
 
 __all__ = ["SweepRows", "sweep", "run"]
 
@@ -36,33 +40,41 @@ __all__ = ["SweepRows", "sweep", "run"]
 class SweepRows:
     """A sweep's runs in memory: ``rows`` (one per run and filter, every output), ``metadata`` (the
     declarations, spec and provenance a dataset carries), ``summary`` (per swept point and filter,
-    :func:`mcjax.tables.summarize`), ``axes`` (the swept parameters) and ``out_dir`` (where the
-    dataset was written, or None)."""
+    :func:`mcjax.analysis.tables.summarize`), ``axes`` (the swept parameters) and ``out_dir`` (where the
+    dataset was written, or None). ``built``: the :class:`mcjax.analysis.summary.Summary` ``summary``
+    is the table of; the table, findings and figures read it (built once when not given)."""
 
     rows: pd.DataFrame
     metadata: Mapping[str, Any]
     summary: pd.DataFrame
     axes: tuple[str, ...]
     out_dir: Path | None = None
+    built: Summary | None = field(default=None, repr=False)
+
+    @cached_property
+    def _one(self) -> Summary:
+        from mcjax.analysis.summary import summarize_dataset
+
+        return self.built if self.built is not None else summarize_dataset(self.rows, self.metadata)
 
     def table(self, fmt: str = "text") -> str:
         """The summary table as ``mcjax sweep`` prints it (``fmt``: text, markdown or csv)."""
         from mcjax.report import summary_text
 
-        return summary_text(self.rows, self.metadata, fmt)
+        return summary_text(self.rows, self.metadata, fmt, summary=self._one)
 
     def findings(self) -> list[str]:
-        """The sentences of the report's "What this shows" (:func:`mcjax.findings.findings`)."""
-        from mcjax.findings import findings
+        """The sentences of the report's "What this shows" (:func:`mcjax.analysis.findings.findings`)."""
+        from mcjax.analysis.findings import findings
 
-        return [f.text for f in findings(self.rows, self.metadata)]
+        return [f.text for f in findings(self.rows, self.metadata, summary=self._one)]
 
     def figures(self) -> list:
-        """The report's figures of these rows: :class:`mcjax.plots.Plot` records (``name``,
+        """The report's figures of these rows: :class:`mcjax.report.plots.Plot` records (``name``,
         ``figure`` — a matplotlib Figure a notebook cell displays —, ``caption``)."""
-        from mcjax.plots import Plot, plots
+        from mcjax.report.plots import Plot, plots
 
-        return [p for p in plots(self.rows, self.metadata) if isinstance(p, Plot)]
+        return [p for p in plots(self.rows, self.metadata, summary=self._one) if isinstance(p, Plot)]
 
 
 def _bar(total: int, progress: bool):
@@ -74,7 +86,8 @@ def _bar(total: int, progress: bool):
 
 
 def _execute(study, out: str | Path | None, force: bool, progress: bool, spec_file=None) -> SweepRows:
-    from mcjax import results, tables
+    from mcjax.base import parquet
+    from mcjax.analysis.summary import summarize_dataset
     from mcjax.study import part_metadata, run_sweep, run_sweep_folder
 
     configure()
@@ -86,13 +99,12 @@ def _execute(study, out: str | Path | None, force: bool, progress: bool, spec_fi
         else:  # as `mcjax sweep --out`: the folder's lock, identity file and parts; the rows read back
             run_sweep_folder(study, spec_file=spec_file, out_dir=out, force=force,
                              progress=None if bar is None else (lambda p: bar.update(p.runs_done - bar.n)))
-            rows, metadata = results.read_table(out), results.read_metadata(out)
+            rows, metadata = parquet.read_table(out), parquet.read_metadata(out)
     finally:
         if bar is not None:
             bar.close()
-    axes = tuple(tables.swept_axes(metadata, rows.columns))
-    return SweepRows(rows, metadata, tables.summarize(rows, metadata, list(axes)), axes,
-                     None if out is None else Path(out))
+    one = summarize_dataset(rows, metadata)  # the one summary its table, findings and figures read
+    return SweepRows(rows, metadata, one.table, one.axes, None if out is None else Path(out), one)
 
 
 def sweep(spec: str | Path | Mapping[str, Any], *, seeds: int | None = None, set: Mapping[str, Any] | None = None,

@@ -25,7 +25,7 @@ per weight vector over the buildings, with the true shadow and reflection region
 ``error_over_time.png`` — the mean error per step (eq. 23) per weight vector with its 95 % band and
 the median, log scale.
 
-The planners on the same states: ``benchmarks/papers/urban_planners.py``; in closed loop:
+The planners on the same states: ``benchmarks/papers/chen2022_planners.py``; in closed loop:
 ``mcjax check benchmarks/claims/chen2022_planners.toml``.
 """
 
@@ -41,9 +41,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax import engine
-from mcjax.scenarios.urban_bearing import environment as env
-from mcjax.scenarios import urban_bearing as ub
-from mcjax.statistics import t_critical, wilson_interval
+from mcjax.scenarios.chen2022 import environment as env
+from mcjax.scenarios import chen2022 as ub
+from mcjax.analysis.statistics import t_critical, wilson_interval
 from mcjax.study import load_spec
 from mcjax import configure
 

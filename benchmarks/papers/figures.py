@@ -32,7 +32,7 @@ import matplotlib
 import numpy as np
 
 from mcjax import configure, engine
-from mcjax.scenarios import wind_formation as S
+from mcjax.scenarios import chen2013 as S
 from mcjax.study import load_config_file
 
 configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them

@@ -2,8 +2,8 @@
 paper's claims (KCF beats KF, λ2 > 0, no link breaks, no collision, links stable by 15 s, spacing
 6.5 m, energy falls, Theorem 2's ideal case) are ``benchmarks/claims/lou2013.toml``
 (``mcjax check benchmarks/claims/lou2013.toml``); the integrators compared:
-``benchmarks/papers/flocking_integrator.py``; the cost from 20 to 100 nodes:
-``benchmarks/speed/flocking_scaling.py``. This script draws and prints, and checks nothing.
+``benchmarks/papers/lou2013_integrator.py``; the cost from 20 to 100 nodes:
+``benchmarks/speed/lou2013_scaling.py``. This script draws and prints, and checks nothing.
 
 What is run: ``configs/lou2013.toml`` as it stands, N seeds (default 1,000) of 300 steps of 0.1 s
 through ``mcjax.engine.run_chunks`` (per-run summaries and per-step series from one simulation).
@@ -37,8 +37,8 @@ import jax
 import numpy as np
 
 from mcjax import engine
-from mcjax.scenarios.flocking import target_state
-from mcjax.statistics import t_critical, wilson_interval
+from mcjax.scenarios.lou2013 import target_state
+from mcjax.analysis.statistics import t_critical, wilson_interval
 from figures import run_records  # the one run set-up of the papers' figures (this folder)
 from mcjax import configure
 

@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def _stats(df: pd.DataFrame) -> dict:
-    from mcjax.statistics import mean_ci, wilson_interval
+    from mcjax.analysis.statistics import mean_ci, wilson_interval
 
     n = len(df)
     k = int(df["diverged"].astype(bool).sum())
@@ -119,7 +119,7 @@ def main() -> None:
 
     import jax
 
-    from mcjax.validation import read_toml
+    from mcjax.base.validation import read_toml
     from mcjax import engine, tune
     from mcjax.study import build_spec
 

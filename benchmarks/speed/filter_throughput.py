@@ -2,13 +2,13 @@
 
 The five filters of docs/equations.md run on the open-loop leader–follower data of Sun et al. 2011
 (5 UAVs, 200 steps, range–bearing, comm range 100 km) over B runs, float64. mcjax runs the B
-runs in one call of :func:`mcjax.filters.run_filter` (every run with its own measurements,
+runs in one call of :func:`mcjax.tracking.filters.run_filter` (every run with its own measurements,
 sensor positions and graph). The peers, all timed in this one process:
 
 * ``filterpy``: a per-run loop of filterpy's ``ExtendedKalmanFilter``, one object per agent
   (local filter only; filterpy has no consensus filters);
-* ``numpy``: ``mcjax/peers/numpy_peer.py``, plain numpy, one run at a time;
-* ``numba``: ``mcjax/peers/numba_peer.py``, an ``@njit(parallel=True)`` kernel with ``prange``
+* ``numpy``: ``benchmarks/peers/numpy_peer.py``, plain numpy, one run at a time;
+* ``numba``: ``benchmarks/peers/numba_peer.py``, an ``@njit(parallel=True)`` kernel with ``prange``
   over runs (local filter and modified ICF), ``--threads`` threads (default 2). numba is a
   benchmark-only dependency: ``pip install -e .[bench]``.
 
@@ -20,12 +20,12 @@ component's scale, must be ≤ 1e-9).
 
     python benchmarks/speed/filter_throughput.py                      # local, modified_icf; B = 1000, 10000
     python benchmarks/speed/filter_throughput.py --filters cif icf modified_icf kcf local --batches 1000
-    git show REV:mcjax/filters/batched.py > /tmp/batched_rev.py     # an older pure-JAX kernel beside today's
+    git show REV:mcjax/tracking/filters/batched.py > /tmp/batched_rev.py     # an older pure-JAX kernel beside today's
     python benchmarks/speed/filter_throughput.py --no-variants --baseline /tmp/batched_rev.py
 
 Prints a markdown table: ns per agent-step for each engine. "mcjax" is ``run_filter`` as a user
 calls it: for the local filter and the modified ICF in float64 that is the native kernels
-(``mcjax/filters/native_kernels.cc`` through XLA's FFI) when the machine has a C++ compiler,
+(``mcjax/tracking/filters/native_kernels.cc`` through XLA's FFI) when the machine has a C++ compiler,
 else the pure-JAX kernels (the first lines say which). Beside it: mcjax with its outputs
 copied to C order (``np.ascontiguousarray``, the peers' layout; the pure-JAX kernels return
 views of batch-last buffers), the pure-JAX kernels (always timed) and, unless
@@ -42,13 +42,15 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from mcjax.peers import numpy_peer
-from mcjax.peers.filterpy_peer import filterpy_local, make_runs, max_relative_error
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the peers live in benchmarks/peers/, not in mcjax
+from benchmarks.peers import numpy_peer  # noqa: E402
+from benchmarks.peers.filterpy_peer import filterpy_local, make_runs, max_relative_error  # noqa: E402
 
 FILTERS = ("cif", "icf", "modified_icf", "kcf", "local")
 NUMBA_FILTERS = ("local", "modified_icf")
@@ -81,7 +83,7 @@ def interleaved_times(fns, repeats):
 
 
 def load_baseline(path):
-    """A copy of an older ``mcjax/filters/batched.py`` (e.g. ``git show REV:mcjax/filters/batched.py``)
+    """A copy of an older ``mcjax/tracking/filters/batched.py`` (e.g. ``git show REV:mcjax/tracking/filters/batched.py``)
     loaded as a module, to time beside the current pure-JAX kernels."""
     import importlib.util
 
@@ -138,7 +140,7 @@ def main(argv=None) -> None:
                     help="skip the mcjax variants: the other device choice (split over every CPU device, "
                          "or one device), and the general (vmap) path of before")
     ap.add_argument("--baseline", type=Path, default=None,
-                    help="a copy of an older mcjax/filters/batched.py: its pure-JAX kernels, today's and numba "
+                    help="a copy of an older mcjax/tracking/filters/batched.py: its pure-JAX kernels, today's and numba "
                          "are then also timed interleaved, --repeats rounds (one line per row)")
     ap.add_argument("--general-max-batch", type=int, default=1000,
                     help="largest B timed through the general path (it is slow)")
@@ -147,13 +149,13 @@ def main(argv=None) -> None:
     import jax
 
     from mcjax import configure
-    from mcjax.filters import recorded, run_filter
+    from mcjax.tracking.filters import recorded, run_filter
 
     configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
     try:
         import numba
 
-        from mcjax.peers import numba_peer
+        from benchmarks.peers import numba_peer
         numba.set_num_threads(args.threads)
     except ImportError:
         numba_peer = None
@@ -173,9 +175,9 @@ def main(argv=None) -> None:
 
     print(f"# filter throughput: {n_agents} agents x {args.steps} steps per run, float64; ns per agent-step, "
           f"median of {args.repeats}")
-    from mcjax.filters.recorded import SPLIT_OVER_DEVICES as split
+    from mcjax.tracking.filters.recorded import SPLIT_OVER_DEVICES as split
     other = "1 device" if split else f"{len(jax.local_devices())} devices"
-    from mcjax.filters import native
+    from mcjax.tracking.filters import native
     engine = "native kernels" if native.available() else f"pure-JAX kernels ({native.STATUS['reason']})"
     print(f"# mcjax's default for local and modified_icf here: {engine}")
     print(f"| filter | B | mcjax ns | mcjax C-ordered ns | mcjax pure JAX ns | mcjax pure JAX {other} ns | "
@@ -219,7 +221,7 @@ def main(argv=None) -> None:
                     ns_one = median_time(lambda: run_filter(kind, **batch, x0=x0, **common),
                                          args.repeats) / (B * per_run) * 1e9
                     recorded.SPLIT_OVER_DEVICES = saved[0]
-                    recorded.BATCHED_KINDS = ()  # the general path (vmap of consensus.filter_step)
+                    recorded.BATCHED_KINDS = ()  # the general path (vmap of steps.filter_step)
                     if B <= args.general_max_batch:
                         run_filter(kind, **batch, x0=x0, **common)
                         ns_general = median_time(lambda: run_filter(kind, **batch, x0=x0, **common),

@@ -34,7 +34,7 @@ def main() -> None:
     def rss() -> float:  # peak resident memory of this process so far, GiB (Linux: KiB)
         return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
 
-    from mcjax.validation import read_toml
+    from mcjax.base.validation import read_toml
     from mcjax import tune
 
     raw = read_toml(ROOT / "sweeps" / "tune_sun2011.toml", "spec")

@@ -1,12 +1,12 @@
 """The verdict of every claim of a claims file from its sweeps' runs: each side's statistic with
-its 95 % interval (:mod:`mcjax.verdicts`) and the claim's relation judged on them, as one row per
+its 95 % interval (:mod:`mcjax.claims.verdicts`) and the claim's relation judged on them, as one row per
 claim (:data:`COLUMNS`) — the table ``claims.parquet`` holds.
 
 A side's runs are its sweep's rows at its point and filter, ordered by seed. A ``rate`` counts a
 flag output's non-zero values, or ``output > over`` (a non-finite value counts: it is above any
 bound) or ``output < under``; ``mean``, ``median`` and ``quantile`` take the finite values (the
 runs they leave out show in ``runs``). A difference (``minus``) is matched seed by seed
-(:func:`mcjax.verdicts.paired`, which refuses sides whose seeds differ). Nothing pools points:
+(:func:`mcjax.claims.verdicts.paired`, which refuses sides whose seeds differ). Nothing pools points:
 every estimate is of one design point, or of one pairing.
 
 Pure functions of tables; no JAX.
@@ -21,9 +21,9 @@ from typing import Mapping
 import numpy as np
 import pandas as pd
 
-from mcjax import verdicts
+from mcjax.claims import verdicts
 from mcjax.claims.spec import Claim, ClaimsFile, Side
-from mcjax.verdicts import Estimate, Verdict
+from mcjax.claims.verdicts import Estimate, Verdict
 
 #: The columns of the verdict table, in order.
 COLUMNS = ("id", "claim", "where", "paper", "ours", "verdict", "runs_to_decide", "statistic", "relation",

@@ -9,7 +9,7 @@ from typing import Any
 
 import pandas as pd
 
-from mcjax.files import atomic_write
+from mcjax.base.files import atomic_write
 
 CHECK_FILE = "check.json"
 TABLE_FILE = "claims.parquet"

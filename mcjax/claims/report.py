@@ -12,7 +12,7 @@ from typing import Callable
 
 import pandas as pd
 
-from mcjax import tables
+from mcjax.analysis import tables
 from mcjax.claims.folder import read_verdicts
 
 VERDICT_ORDER = ("holds", "fails", "undecided")

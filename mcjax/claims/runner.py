@@ -27,7 +27,7 @@ from typing import Callable, NamedTuple
 
 import pandas as pd
 
-from mcjax import results
+from mcjax.base import parquet, provenance
 from mcjax.claims.evaluate import needed_columns, verdict_table
 from mcjax.claims.spec import ClaimsFile, load_claims
 from mcjax.claims.folder import CHECK_FILE, TABLE_FILE, write_table
@@ -119,5 +119,5 @@ def run_check(claims_file: str | Path | ClaimsFile, *, out_dir: str | Path | Non
         table = verdict_table(claims, rows)
         write_table(out / TABLE_FILE, table, {"paper": claims.paper, "title": claims.title,
                                               "claims_file": str(claims.path.resolve()),
-                                              "seeds": ident["seeds"], **results.environment_metadata()})
+                                              "seeds": ident["seeds"], **provenance.environment_metadata()})
     return CheckResult(claims, out, table, False)

@@ -39,7 +39,7 @@ difference of the two sides paired by seed. Relations (:data:`RELATIONS`):
   ``direction = "increasing"`` (default) or ``"decreasing"``;
 * ``monotone`` along a swept axis (``along``; ``direction``);
 * ``consistent``: the paper's number (``paper``, from ``paper_runs`` runs) is one its runs could
-  give if ours were the truth (:func:`mcjax.verdicts.consistent`).
+  give if ours were the truth (:func:`mcjax.claims.verdicts.consistent`).
 
 Every problem is a :class:`ClaimsError` of one line naming the claim and the field.
 """
@@ -56,8 +56,8 @@ import numpy as np
 
 from mcjax.study.plan import Study
 from mcjax.study.spec import MAX_SEEDS, build_spec, is_config_file
-from mcjax.validation import SpecError, check_keys, key_text, read_toml, show, suggest
-from mcjax.verdicts import STATISTICS
+from mcjax.base.validation import SpecError, check_keys, key_text, read_toml, show, suggest
+from mcjax.claims.verdicts import STATISTICS
 
 RELATIONS = ("below", "above", "within", "equal", "ordered", "monotone", "consistent")
 DIRECTIONS = ("increasing", "decreasing")

@@ -4,8 +4,8 @@ programs, the cache, devices, store labels), :mod:`~mcjax.engine.chunks` (runs t
 
 The batch engine: ``vmap`` over runs of ``lax.scan`` over time, cut into fixed-size chunks.
 
-A *scenario* is a :class:`mcjax.contract.Scenario` (``init``, ``step``, ``reduce``, optional
-``timeseries``; docs/architecture.md). A sweep is ``points × seeds`` runs, ordered
+A *scenario* is a :class:`mcjax.contract.Scenario` (``init``, ``step``, the ``reduce`` its ``summary``
+declares, optional ``timeseries``; docs/architecture.md). A sweep is ``points × seeds`` runs, ordered
 point-major (run r = point ``r // n_seeds``, seed ``r % n_seeds``). Runs are cut into chunks
 of one fixed size, the last one padded and trimmed, so one compiled program serves every
 chunk and memory is bounded by the chunk, not the sweep.
@@ -17,7 +17,7 @@ size. Step t's key is ``fold_in(run_key, t)`` (noise drawn per step, never pre-d
 Every CPU core works: the process has one CPU device per core (:mod:`mcjax.runtime`), the
 B-run batch program is compiled once, with the scenario's ``compiler_options``, and loaded
 on every device (an XLA program is bound to its device; the copies run the same machine
-code: :func:`mcjax.jaxcompat.deserialise`), and the batches of a
+code: :func:`mcjax.runtime.jaxcompat.deserialise`), and the batches of a
 chunk go to the devices in turn, each device called from its own thread so they compute side
 by side. Every device runs the same program on B-aligned slices, so the numbers do not depend
 on the device count either (a ``shard_map`` over the devices gave other bits in the last place).

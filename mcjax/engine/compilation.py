@@ -17,7 +17,8 @@ from typing import Callable, Hashable
 import jax
 import numpy as np
 
-from mcjax import jaxcompat, runtime
+from mcjax import runtime
+from mcjax.runtime import jaxcompat
 from mcjax.contract import Scenario
 from mcjax.engine.loop import simulate
 
@@ -125,7 +126,7 @@ def program_futures(fn, args: tuple, devs, label: str | None = None, local=None)
     """Futures of ``fn`` compiled ahead of time for arguments shaped as ``args`` (e.g. a batch's
     Params and keys) for each device of ``devs``: the same program on every device, compiled
     once and loaded on the other devices (~1 s each,
-    :func:`mcjax.jaxcompat.deserialise`; should that fail, the device compiles its own). With a
+    :func:`mcjax.runtime.jaxcompat.deserialise`; should that fail, the device compiles its own). With a
     ``label`` (what names the program: :func:`store_label`), the program is also stored on
     disk and loaded from there next time (:func:`mcjax.runtime.load_executable`; ``local``: a
     user's scenario module, whose classes in ``args`` are stored by their name in it).

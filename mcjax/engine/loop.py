@@ -12,7 +12,7 @@ import jax.numpy as jnp
 from mcjax import runtime
 from mcjax.contract import Scenario
 from mcjax.engine.keys import init_key
-from mcjax.smoothing import column
+from mcjax.contract.relaxation import column
 
 
 def time_loop(step: Callable, state, key, n_steps: int, *, block: int | None = None, remat: bool = False):
@@ -51,22 +51,22 @@ def time_loop(step: Callable, state, key, n_steps: int, *, block: int | None = N
     return state, jax.tree.map(lambda a: a.reshape((n_blocks * block,) + a.shape[2:])[:n_steps], outs)
 
 
-def run_records(scenario, cfg, params, key, smoothing=None):
-    """One run's records stacked over time: the exact simulation (``smoothing`` None) or the
-    smooth one at those temperatures (:class:`mcjax.smoothing.Smooth`), with the same keys."""
+def run_records(scenario, cfg, params, key, temperatures=None):
+    """One run's records stacked over time: the exact simulation (``temperatures`` None) or the
+    smooth one at those temperatures (:class:`mcjax.contract.relaxation.Relaxation`), with the same keys."""
     state = scenario.init(cfg, params, init_key(key))
-    smooth = () if smoothing is None else (smoothing,)
+    smooth = () if temperatures is None else (temperatures,)
     return time_loop(lambda s, k, t: scenario.step(cfg, params, s, k, *smooth), state, key, cfg.n_steps)[1]
 
 
 def derivatives(scenario, cfg, params, key, sensitivity) -> dict:
     """One run's d output / d Param of the smooth system (a sweep's ``[sensitivity]``), forward
-    mode (a per-agent Param moves every agent's value together), by :func:`mcjax.smoothing.column`."""
-    names, outputs, smoothing = sensitivity
+    mode (a per-agent Param moves every agent's value together), by :func:`mcjax.contract.relaxation.column`."""
+    names, outputs, temperatures = sensitivity
 
     def outputs_at(shift):
         q = params._replace(**{n: getattr(params, n) + shift[i] for i, n in enumerate(names)})
-        reduced = scenario.reduce(cfg, run_records(scenario, cfg, q, key, smoothing), q)
+        reduced = scenario.reduce(cfg, run_records(scenario, cfg, q, key, temperatures), q)
         return {o: jnp.asarray(reduced[o]).astype(jnp.result_type(float)) for o in outputs}  # a flag's: 0
 
     jac = jax.jacfwd(outputs_at)(jnp.zeros(len(names), jnp.result_type(float)))
@@ -74,11 +74,11 @@ def derivatives(scenario, cfg, params, key, sensitivity) -> dict:
 
 
 def simulate(scenario: Scenario, cfg, params, keys, *, records: bool = False, timeseries: bool = False,
-             smoothing=None, sensitivity=None):
+             temperatures=None, sensitivity=None):
     """Run a batch: ``params`` and ``keys`` carry a leading run axis. Returns each run's reduced
     outputs (``scenario.reduce``: a dict of (runs, …) arrays) or, with ``records=True``, the
     records stacked over time (run, time, …): the caller chooses what is kept. ``timeseries``:
-    ``(outputs, scenario.timeseries(...))`` from one simulation. ``smoothing``: the smooth
+    ``(outputs, scenario.timeseries(...))`` from one simulation. ``temperatures``: the smooth
     system (:func:`run_records`); ``sensitivity`` (a sweep's ``[sensitivity]``): each run's
     :func:`derivatives` instead (a program of their own beside the exact one, whose outputs
     so stay bit for bit those of a sweep without them). Not jitted: see :func:`compiled`."""
@@ -87,7 +87,7 @@ def simulate(scenario: Scenario, cfg, params, keys, *, records: bool = False, ti
     def one(p, k):
         if sensitivity is not None:
             return derivatives(scenario, cfg, p, k, sensitivity)
-        recs = run_records(scenario, cfg, p, k, smoothing)
+        recs = run_records(scenario, cfg, p, k, temperatures)
         if records:
             return recs
         if timeseries:

@@ -25,13 +25,13 @@ from importlib.metadata import entry_points
 from pathlib import Path
 
 from mcjax.contract import Scenario
-from mcjax.scenarios import flocking, leader_follower, urban_bearing, uuv_imm, wind_formation
+from mcjax.scenarios import chen2013, chen2022, lou2013, ren2017, sun2011
 
 #: Entry-point group of third-party scenarios.
 ENTRY_POINT_GROUP = "mcjax.scenarios"
 
-BUILTIN: dict[str, Scenario] = {s.name: s for s in (leader_follower.SCENARIO, uuv_imm.SCENARIO, urban_bearing.SCENARIO,
-                                                  flocking.SCENARIO, wind_formation.SCENARIO)}
+BUILTIN: dict[str, Scenario] = {s.name: s for s in (sun2011.SCENARIO, ren2017.SCENARIO, chen2022.SCENARIO,
+                                                  lou2013.SCENARIO, chen2013.SCENARIO)}
 
 
 #: Where each scenario that is not built in was imported from, by id (kept alive with it).
@@ -92,7 +92,11 @@ def _from_reference(ref: str, base_dir: Path | None) -> Scenario:
             spec = importlib.util.spec_from_file_location(name, path)
             module = importlib.util.module_from_spec(spec)
             sys.modules[name] = module  # before exec: its dataclasses look their module up
-            spec.loader.exec_module(module)
+            try:
+                spec.loader.exec_module(module)
+            except BaseException:  # not half a module for the next call to find: it fails the same way
+                del sys.modules[name]
+                raise
         source = str(path)
     else:
         module = importlib.import_module(where)

@@ -21,7 +21,7 @@ names below are the pipeline's public face::
     rows = run_sweep(study)                # the parts, into study.out_dir; and the rows
 """
 
-from mcjax.validation import SpecError
+from mcjax.base.validation import SpecError
 from mcjax.study.execute import ChunkError, ChunkRows, Executor, LocalExecutor, chunk_rows, publish_chunk, run_sweep
 from mcjax.study.plan import DEFAULT_SEEDS, Study, describe_chunk, memory_budget, step_sizes
 from mcjax.study.rows import chunk_keys, chunk_parts, part_metadata, run_rows, timeseries_rows

@@ -55,7 +55,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any, Callable, Iterator, NamedTuple
 
-from mcjax.validation import one_line
+from mcjax.base.validation import one_line
 from mcjax.study.execute import ChunkError, ChunkRows, chunk_rows
 from mcjax.study.plan import Study, describe_chunk
 

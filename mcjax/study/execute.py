@@ -12,7 +12,7 @@ from typing import Callable, Iterator, NamedTuple, Protocol
 
 import pandas as pd
 
-from mcjax import results
+from mcjax.base import parquet
 from mcjax.study.plan import Study
 from mcjax.study.rows import chunk_keys, part_metadata, run_rows, timeseries_rows
 from mcjax.study.sensitivity import declarations
@@ -86,12 +86,12 @@ class LocalExecutor:
 
 def publish_chunk(out_dir: str | Path, rows: ChunkRows, metadata: dict) -> None:
     """Write a chunk's rows as its part files (one per point it touches, in ``runs/`` and, with
-    per-step rows, ``timeseries/``), each atomically (:func:`mcjax.results.write_part`:
+    per-step rows, ``timeseries/``), each atomically (:func:`mcjax.base.parquet.write_part`:
     staging file, fsync, rename). The chunk counts as done once all its parts exist."""
     tables = [("runs", rows.runs)] + ([("timeseries", rows.timeseries)] if rows.timeseries is not None else [])
     for name, frame in tables:
         for pid, part in frame.groupby("point_id", sort=True):  # hive layout: OUT/<table>/point_id=P/
-            results.write_part(out_dir, name, part, f"part-{rows.index:06d}", metadata,
+            parquet.write_part(out_dir, name, part, f"part-{rows.index:06d}", metadata,
                                partition={"point_id": int(pid)})
 
 
@@ -138,6 +138,6 @@ def run_sweep(study: Study, out_dir: str | Path | None = None, *, chunks: list[i
         if close is not None:
             close()  # a remote executor cancels what is still queued or running
         if out_dir is not None:
-            results.remove_empty_staging(out_dir)
+            parquet.remove_empty_staging(out_dir)
     return pd.concat([done[i] for i in sorted(done)], ignore_index=True) if done else pd.DataFrame()
 

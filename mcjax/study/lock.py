@@ -7,7 +7,7 @@ process id, the process's start and the command line, in one atomic step (the co
 hard-linked into place, which fails when a lock is already there). A second command on the same
 folder stops with one line naming the holder (exit code 2). The holder refreshes the file's
 modification time every :data:`HEARTBEAT` seconds and removes it on any exit: at the end, on an
-error, on Ctrl-C (:data:`mcjax.interrupt.AT_EXIT`).
+error, on Ctrl-C (:data:`mcjax.base.interrupt.AT_EXIT`).
 
 A lock left by a process that is gone (``kill -9``, a crashed node) is taken over, with one
 warning line naming it: on this host when its process no longer runs (or its process id now
@@ -29,7 +29,7 @@ import uuid
 from pathlib import Path
 from typing import Callable, Iterator
 
-from mcjax import interrupt
+from mcjax.base import interrupt
 
 #: The lock's file name in an output folder.
 LOCK_FILE = ".mcjax.lock"

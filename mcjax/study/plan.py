@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from mcjax.contract import Scenario
-from mcjax.validation import SpecError, show
+from mcjax.base.validation import SpecError, show
 
 #: Seeds per point when neither the spec nor the config file gives a number.
 DEFAULT_SEEDS = 20

@@ -103,7 +103,7 @@ def chunk_parts(study: Study, index: int, start: int, stop: int) -> list[str]:
 def part_metadata(study: Study, chunk_size: int) -> dict:
     """The schema metadata of every part: the scenario's declarations (outputs, params, filter
     order), the spec, config, seeds and provenance — everything ``mcjax report`` needs."""
-    from mcjax import results
+    from mcjax.base import parquet, provenance
 
     meta = study.scenario.metadata(study.config)
     extra = declarations(study.scenario, study.config, study.sensitivity)
@@ -113,5 +113,5 @@ def part_metadata(study: Study, chunk_size: int) -> dict:
             "seeds": study.seeds, "base_seed": study.base_seed, "chunk_size": chunk_size,
             "n_points": study.n_points, "n_runs": study.n_runs,
             "base_params": {k: np.asarray(v).tolist() for k, v in study.base_params._asdict().items()},
-            **results.environment_metadata()}
+            **provenance.environment_metadata()}
 

@@ -22,7 +22,8 @@ from typing import Any, Callable, NamedTuple
 
 import pandas as pd
 
-from mcjax import configure, results, scenarios
+from mcjax import configure, scenarios
+from mcjax.base import parquet
 from mcjax.study.execute import Executor, run_sweep
 from mcjax.study.plan import Study
 from mcjax.study.spec import load_spec
@@ -141,5 +142,5 @@ def run_sweep_folder(study: Study, *, spec_file: str | Path | None = None, out_d
     if stop():
         return SweepResult(study, out_dir, *run, time.perf_counter() - t0, True, None)
     elapsed = time.perf_counter() - t0
-    rows = results.read_table(out_dir, "runs", summary_columns(study) if columns is None else columns)
+    rows = parquet.read_table(out_dir, "runs", summary_columns(study) if columns is None else columns)
     return SweepResult(study, out_dir, *run, elapsed, False, rows)

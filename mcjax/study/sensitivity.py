@@ -5,14 +5,14 @@
     [sensitivity]
     params = ["comm_radius", "sigma_range"]   # Params with a smooth path (mcjax list SCENARIO)
     outputs = ["rmse"]                         # declared outputs (default: the error output)
-    [sensitivity.smoothing]                    # the scenario's temperatures (default: its own)
+    [sensitivity.relaxation]                   # the scenario's temperatures (default: its own; formerly smoothing)
     comm = 1000.0
 
 For every run and point the sweep then also runs the scenario's smooth system
-(:class:`mcjax.smoothing.Smooth`, the same keys) and writes, beside the outputs, the derivative of
+(:class:`mcjax.contract.relaxation.Relaxation`, the same keys) and writes, beside the outputs, the derivative of
 each chosen output of that system with respect to each chosen Param, pushed forward with the run
 (forward mode, one tangent per Param): the column ``d_<output>_d_<param>``
-(:func:`mcjax.smoothing.column`), per filter when the output is. A per-agent Param moves every
+(:func:`mcjax.contract.relaxation.column`), per filter when the output is. A per-agent Param moves every
 agent's value together. A flag's or a count's derivative is 0 (a step function of the Params:
 differentiate a smooth output instead). The exact outputs are computed in a program of their
 own, bit for bit as without the table.
@@ -23,11 +23,12 @@ from __future__ import annotations
 from typing import Any, NamedTuple
 
 from mcjax.contract import Output, Scenario
-from mcjax.smoothing import column
-from mcjax.smoothing import problem as smooth_problem
-from mcjax.validation import SpecError, check_keys, is_number, show, suggest
+from mcjax.contract.relaxation import column
+from mcjax.contract.relaxation import problem as smooth_problem
+from mcjax.contract.relaxation import relaxation_key
+from mcjax.base.validation import SpecError, check_keys, is_number, show, suggest
 
-SENSITIVITY_KEYS = ("params", "outputs", "smoothing")
+SENSITIVITY_KEYS = ("params", "outputs", "relaxation", "smoothing")
 
 
 class Sensitivity(NamedTuple):
@@ -36,7 +37,7 @@ class Sensitivity(NamedTuple):
 
     params: tuple
     outputs: tuple
-    smoothing: Any
+    temperatures: Any
 
 
 def _names(where: str, value) -> tuple:
@@ -58,7 +59,7 @@ def read_sensitivity(scenario: Scenario, cfg, table) -> Sensitivity | None:
     if not isinstance(table, dict):
         raise SpecError(f"sensitivity: must be a table ([sensitivity] params = [...]); got {show(table)}")
     check_keys("sensitivity.", table, SENSITIVITY_KEYS)
-    if scenario.smooth is None:
+    if scenario.relaxation is None:
         raise SpecError(f"sensitivity: {smooth_problem(scenario, cfg, '')}")
     if "params" not in table:
         raise SpecError("sensitivity.params: missing; name the Params to differentiate by")
@@ -74,15 +75,16 @@ def read_sensitivity(scenario: Scenario, cfg, table) -> Sensitivity | None:
         if name not in declared:
             raise SpecError(f"sensitivity.outputs: {name!r} is not an output of {scenario.name}"
                             f"{suggest(name, list(declared))}; allowed: {', '.join(declared)}")
-    Smoothing = scenario.smooth.Smoothing
-    st = table.get("smoothing", {})
+    Temperatures = scenario.relaxation.Temperatures
+    key = relaxation_key("sensitivity", table)
+    st = table.get(key, {})
     if not isinstance(st, dict):
-        raise SpecError(f"sensitivity.smoothing: must be a table ([sensitivity.smoothing]); got {show(st)}")
-    check_keys("sensitivity.smoothing.", st, list(Smoothing._fields))
+        raise SpecError(f"sensitivity.{key}: must be a table ([sensitivity.{key}]); got {show(st)}")
+    check_keys(f"sensitivity.{key}.", st, list(Temperatures._fields))
     for k, v in st.items():
         if not is_number(v) or not v > 0:
-            raise SpecError(f"sensitivity.smoothing.{k}: must be a number > 0; got {show(v)}")
-    return Sensitivity(params, outputs, Smoothing(**{k: float(v) for k, v in st.items()}))
+            raise SpecError(f"sensitivity.{key}.{k}: must be a number > 0; got {show(v)}")
+    return Sensitivity(params, outputs, Temperatures(**{k: float(v) for k, v in st.items()}))
 
 
 def declarations(scenario: Scenario, cfg, sens: Sensitivity | None) -> dict[str, Output]:

@@ -22,7 +22,7 @@ spec (``sweeps/*.toml``) names a base config file and adds overrides and axes::
     turn_rate_max = [0.1, 0.2]
 
 Every check derives from the scenario's declarations (:mod:`mcjax.contract`) and is made by
-:mod:`mcjax.validation`; a bad spec stops with one :class:`SpecError` naming the key path, before
+:mod:`mcjax.base.validation`; a bad spec stops with one :class:`SpecError` naming the key path, before
 anything compiles or is written.
 """
 
@@ -38,7 +38,7 @@ import numpy as np
 
 from mcjax import scenarios
 from mcjax.contract import Scenario
-from mcjax.validation import (SpecError, check_keys, check_text, count, is_int, is_number, key_text, one_line, read_toml,
+from mcjax.base.validation import (SpecError, check_keys, check_text, count, is_int, is_number, key_text, one_line, read_toml,
                               setting_problem, show, subtable)
 from mcjax.study.plan import DEFAULT_SEEDS, Study, check_memory
 from mcjax.study.sensitivity import read_sensitivity

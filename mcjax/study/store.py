@@ -1,7 +1,7 @@
 """A study's output folder: its identity file, the part files on disk, ``--resume`` and
 ``--force`` (for sweeps, tunes and a tune's held-out evaluation alike). Every file is written
-atomically (:func:`mcjax.files.atomic_write`); the Parquet parts themselves are written by
-:func:`mcjax.results.write_part`. One command writes a folder at a time (:func:`hold_output`,
+atomically (:func:`mcjax.base.files.atomic_write`); the Parquet parts themselves are written by
+:func:`mcjax.base.parquet.write_part`. One command writes a folder at a time (:func:`hold_output`,
 the lock of :mod:`mcjax.study.lock`). No JAX.
 """
 
@@ -14,10 +14,10 @@ import shutil
 from pathlib import Path
 from typing import Callable, Iterator
 
-from mcjax import results
-from mcjax.files import atomic_write
+from mcjax.base import parquet
+from mcjax.base.files import atomic_write
 from mcjax.study import lock
-from mcjax.validation import is_int, one_line
+from mcjax.base.validation import is_int, one_line
 from mcjax.study.plan import Study
 from mcjax.study.rows import chunk_parts
 
@@ -181,7 +181,7 @@ def prepare_output(study: Study, out_dir: str | Path, *, resume: bool = False, f
                 raise OutputError(f"{out_dir} holds a different sweep ({', '.join(diff)} differ); --resume needs the "
                                   f"same spec, seeds, chunk size and --set values (leave them out to take the saved "
                                   f"ones)")
-            results.clean_staging(out_dir)
+            parquet.clean_staging(out_dir)
             todo, problems = check_parts(study, out_dir)
             for line in problems:
                 (note or (lambda _: None))(f"resume: {line}")
@@ -201,7 +201,7 @@ def check_parts(study: Study, out_dir: str | Path) -> tuple[list[int], list[str]
     out_dir = Path(out_dir)
     tables = ["runs"] + (["timeseries"] if study.timeseries else [])
     rows_per_run = {"runs": len(study.config.filters), "timeseries": len(study.config.filters) * study.config.n_steps}
-    have = {t: set(results.existing_parts(out_dir, t)) for t in tables}
+    have = {t: set(parquet.existing_parts(out_dir, t)) for t in tables}
     todo, problems, planned = [], [], {t: set() for t in tables}
     for i, (a, b) in enumerate(study.plan):
         bad = []
@@ -213,17 +213,17 @@ def check_parts(study: Study, out_dir: str | Path) -> tuple[list[int], list[str]
                 if part not in have[t]:
                     bad.append(f"{t}/{part}.parquet is missing")
                     continue
-                why = results.part_problem(out_dir, t, part, range(lo, hi), rows_per_run[t])
+                why = parquet.part_problem(out_dir, t, part, range(lo, hi), rows_per_run[t])
                 if why:
                     bad.append(f"{t}/{part}.parquet is damaged ({why})")
-                    results.remove_part(out_dir, t, part)
+                    parquet.remove_part(out_dir, t, part)
         if bad:
             todo.append(i)
             problems += [f"chunk {i}: {line}; re-running it" for line in bad]
     for t in tables:
         for part in sorted(have[t] - planned[t]):
             problems.append(f"{t}/{part}.parquet belongs to no chunk of this sweep; removed")
-            results.remove_part(out_dir, t, part)
+            parquet.remove_part(out_dir, t, part)
     return todo, problems
 
 
@@ -231,7 +231,7 @@ def missing_chunks(study: Study, out_dir: str | Path) -> list[int]:
     """Chunks not completely on disk: some part (of ``runs/``, or ``timeseries/`` when the spec
     asks for it) is missing. Re-running one rewrites its parts under the same names."""
     tables = ["runs"] + (["timeseries"] if study.timeseries else [])
-    have = {t: set(results.existing_parts(out_dir, t)) for t in tables}
+    have = {t: set(parquet.existing_parts(out_dir, t)) for t in tables}
     return [i for i, (a, b) in enumerate(study.plan)
             if not all(set(chunk_parts(study, i, a, b)) <= have[t] for t in tables)]
 
@@ -286,9 +286,9 @@ def prepare_evaluation(ev: Study, out_dir: str | Path, *, spec_file: str | Path 
         except (UnicodeDecodeError, ValueError):
             saved = None
         if isinstance(saved, dict) and {k: saved.get(k) for k in ident} == ident:
-            results.clean_staging(out_dir)
+            parquet.clean_staging(out_dir)
             return check_parts(ev, out_dir)[0]
-    for folder in ("runs", results.STAGING_DIR):
+    for folder in ("runs", parquet.STAGING_DIR):
         if (out_dir / folder).exists():
             shutil.rmtree(out_dir / folder)
     write_identity(out_dir, IDENTITY_FILE, {**ident, "set": {}, "spec_file": _spec_file(spec_file), "tune": True})

@@ -19,14 +19,15 @@ A tune spec is a sweep spec (``base``, ``[config]``, ``[params]``, ``chunk_size`
     scale = "log"               # "linear" or "log" (low > 0)
     [tune.loss]                 # the training loss (Loss)
     filter = "modified_icf"
-    [tune.smoothing]            # temperatures of the scenario's smoothing switch (Smooth.Smoothing)
+    [tune.relaxation]           # temperatures of the scenario's relaxation switch (Relaxation.Temperatures;
+                                # [tune.smoothing], its former name, is still read)
 
 **The training loss** of a run is ``rmse_c / c + w · sigmoid((smax − D)/τ)``: ``rmse_c`` the
 RMS over steps after warm-up and alive agents of the softly clipped error ``c·tanh(e/c)`` of the
 chosen filter, ``smax = τ_m·logsumexp(e/τ_m)`` a soft maximum of the same errors (≥ their max,
 by at most ``τ_m·log N``), ``D`` the scenario's ``divergence_threshold`` — so the second term is
 a soft version of the divergence flag. The loss of a batch is the mean over its runs. Runs use
-the scenario's step with its smoothing switch on (:class:`mcjax.smoothing.Smooth`) and the
+the scenario's step with its relaxation switch on (:class:`mcjax.contract.relaxation.Relaxation`) and the
 engine's keys (run ``i`` of base seed ``b`` draws what ``mcjax sweep`` draws for seed ``i``).
 
 **Gradients** go through every step: dynamics, sensing, filters and the planner's unrolled

@@ -1,5 +1,5 @@
 """A tune's training loss and its gradient: one run's loss through the engine's time-loop
-driver with the scenario's smoothing switch on (:func:`run_loss`), the jitted batch function
+driver with the scenario's relaxation switch on (:func:`run_loss`), the jitted batch function
 (:func:`batch_function`) and the :class:`Evaluator` that spreads the training batch over the
 devices (see :mod:`mcjax.tune` for the loss)."""
 
@@ -23,10 +23,10 @@ def params_at(bounds, base, x):
     return type(base)(**values)
 
 
-def run_loss(scenario, cfg, loss: Loss, smoothing, block: int, params, key, window: int = 0, remat: bool = True):
+def run_loss(scenario, cfg, loss: Loss, temperatures, block: int, params, key, window: int = 0, remat: bool = True):
     """The training loss of one run (module docstring) with its parts:
     ``(loss, (soft RMSE, soft divergence))``. The closed loop runs the scenario's step with its
-    smoothing switch on (``step(..., smoothing)``, :class:`mcjax.contract.Smooth`) through the engine's time-loop driver (:func:`mcjax.engine.time_loop`: the exact
+    relaxation switch on (``step(..., temperatures)``, :class:`mcjax.contract.Relaxation`) through the engine's time-loop driver (:func:`mcjax.engine.time_loop`: the exact
     simulation's keys) over ``ceil(T / block)`` blocks of ``block`` steps, each block under
     ``jax.checkpoint`` when ``remat`` (reverse mode; forward mode stores no intermediates and
     skips it); the loss is computed from the stacked errors (T, n) of the loss's filter.
@@ -41,7 +41,7 @@ def run_loss(scenario, cfg, loss: Loss, smoothing, block: int, params, key, wind
 
     from mcjax import engine
 
-    sm = scenario.smooth
+    sm = scenario.relaxation
     f = cfg.filters.index(loss.filter)
     weights = sm.weights(cfg, params)
     state = scenario.init(cfg, params, engine.init_key(key))
@@ -54,7 +54,7 @@ def run_loss(scenario, cfg, loss: Loss, smoothing, block: int, params, key, wind
         if window > 0:  # a new window: the state's derivative is dropped (the value is kept)
             cut = (t % window == 0) & (t > 0)
             state = jax.tree.map(lambda a: jnp.where(cut, jax.lax.stop_gradient(a), a), state)
-        state, record = scenario.step(cfg, params, state, key_t, smoothing)
+        state, record = scenario.step(cfg, params, state, key_t, temperatures)
         return state, sm.errors(cfg, params, record)[f]
 
     _, e = engine.time_loop(advance, state, key, T, block=block, remat=remat)  # (T, n)
@@ -71,11 +71,11 @@ def run_loss(scenario, cfg, loss: Loss, smoothing, block: int, params, key, wind
 
 def program_key(spec: TuneSpec) -> str:
     """What fixes a tune's compiled program: scenario and Config, the tuned Params and their
-    bounds, the loss, the smoothing, the gradient mode and blocks (not the Params' values,
+    bounds, the loss, the temperatures, the gradient mode and blocks (not the Params' values,
     which the program takes as an argument)."""
     s = spec.study
     return json.dumps([s.scenario.name, repr(s.config), [[b.name, b.low, b.high, b.scale] for b in spec.bounds],
-                       list(spec.loss), list(spec.smoothing), spec.checkpoint_every, spec.gradient,
+                       list(spec.loss), list(spec.temperatures), spec.checkpoint_every, spec.gradient,
                        spec.gradient_window],
                       sort_keys=True, default=str)
 
@@ -95,14 +95,14 @@ def _batch_function(spec: TuneSpec) -> Callable:
     import jax
 
     s = spec.study
-    scenario, cfg, loss, smoothing, block, bounds = (s.scenario, s.config, spec.loss, spec.smoothing,
+    scenario, cfg, loss, temperatures, block, bounds = (s.scenario, s.config, spec.loss, spec.temperatures,
                                                      spec.checkpoint_every, spec.bounds)
     window = spec.gradient_window
 
     def one(z, key, base):
         def of_z(z):
             params = params_at(bounds, base, from_unconstrained(bounds, z))
-            return run_loss(scenario, cfg, loss, smoothing, block, params, key, window, spec.gradient == "reverse")
+            return run_loss(scenario, cfg, loss, temperatures, block, params, key, window, spec.gradient == "reverse")
 
         if spec.gradient == "reverse":
             (value, (rmse, div)), g = jax.value_and_grad(of_z, has_aux=True)(z)

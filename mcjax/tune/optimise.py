@@ -15,7 +15,7 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from mcjax.files import atomic_write
+from mcjax.base.files import atomic_write
 from mcjax.study import ChunkError, LocalExecutor, Study, build_spec, run_sweep, store
 from mcjax.tune.loss import Evaluator
 from mcjax.tune.spec import TuneSpec, from_unconstrained, to_unconstrained
@@ -203,7 +203,7 @@ def run_evaluation(ev: Study, out_dir: Path, **options) -> None:
 def summary_text(runs: pd.DataFrame, ev: Study) -> str:
     """The held-out evaluation's summary as ``mcjax report`` prints a sweep's (legend, then one
     row per role and filter), the initial row first and a column ``role`` saying which is which."""
-    from mcjax import tables
+    from mcjax.analysis import tables
 
     runs = runs if ROLE_COLUMN in runs.columns else with_role(runs)  # an evaluation written before the column
     metadata = {**ev.scenario.metadata(ev.config), "spec": ev.source}
@@ -219,7 +219,7 @@ def paired_differences(runs: pd.DataFrame, columns: list[str]) -> pd.DataFrame:
     """The held-out comparison, paired: per filter and column, the mean over seeds of tuned
     (point 1) − initial (point 0) with its 95 % Student-t interval (a flag's difference is
     one of rates). Empty if the evaluation has one point (nothing changed)."""
-    from mcjax.statistics import paired_by_seed
+    from mcjax.analysis.statistics import paired_by_seed
 
     if runs["point_id"].nunique() < 2:
         return pd.DataFrame([])

@@ -21,10 +21,12 @@ from typing import Any, Callable, NamedTuple
 
 import pandas as pd
 
-from mcjax import configure, results, scenarios
-from mcjax import tune as tuning  # called through the package: its names are the ones that run
+from mcjax import configure, scenarios
+from mcjax.base import parquet
 from mcjax.study.plan import Study
-from mcjax.study.store import hold_output
+from mcjax.study.store import hold_output, prepare_evaluation
+from mcjax.tune.optimise import (TRACE_FILE, evaluation_spec, final_values, finished, load_state, optimise,
+                                 paired_differences, plot_trace, prepare_tune_output, run_evaluation)
 from mcjax.tune.spec import TuneSpec
 
 
@@ -94,13 +96,13 @@ def run_tune(spec: TuneSpec, *, out_dir: str | Path, spec_file: str | Path | Non
     out_dir = Path(out_dir)
     keep = [] if spec_file is None else [Path(spec_file), (Path(spec_file).parent / spec.source["base"]).resolve()]
     with hold_output(out_dir):
-        tuning.prepare_tune_output(spec, out_dir, resume=resume, force=force, spec_file=spec_file, keep=keep)
+        prepare_tune_output(spec, out_dir, resume=resume, force=force, spec_file=spec_file, keep=keep)
         (started or _ignore)()
         configure()
         if stop():
             return TuneResult(spec, True)
         say(tune_headline(spec))
-        saved = tuning.load_state(out_dir, spec)
+        saved = load_state(out_dir, spec)
         done = 0 if saved is None else saved[0]
         total = spec.steps + 1
         if done:
@@ -113,17 +115,17 @@ def run_tune(spec: TuneSpec, *, out_dir: str | Path, spec_file: str | Path | Non
             at = at._replace(done=at.done + 1, row=row)
             tell(at)
 
-        trace = tuning.optimise(spec, out_dir, progress=step_done, should_stop=stop)
-        if stop() and not tuning.finished(spec, trace):
+        trace = optimise(spec, out_dir, progress=step_done, should_stop=stop)
+        if stop() and not finished(spec, trace):
             return TuneResult(spec, True, trace)
-        tuning.plot_trace(spec, trace, out_dir / "trace.png")
+        plot_trace(spec, trace, out_dir / "trace.png")
         first, last = trace.iloc[0], trace.iloc[-1]
         for b in spec.bounds:
             say(f"{b.name}: {first[b.name]:.6g} -> {last[b.name]:.6g}")
         say(f"training loss: {first['loss']:.6g} -> {last['loss']:.6g} ({len(trace) - 1} step(s)); trace: "
-            f"{out_dir / tuning.TRACE_FILE}, {out_dir / 'trace.png'}")
-        ev = tuning.evaluation_spec(spec, tuning.final_values(spec, trace))
-        todo = tuning.prepare_evaluation(ev, out_dir, spec_file=spec_file)
+            f"{out_dir / TRACE_FILE}, {out_dir / 'trace.png'}")
+        ev = evaluation_spec(spec, final_values(spec, trace))
+        todo = prepare_evaluation(ev, out_dir, spec_file=spec_file)
         remaining = ev.runs_in(todo)
         say(f"held-out evaluation (exact simulation): {ev.n_points} point(s) x {ev.seeds} seed(s) = "
             f"{ev.n_runs} runs" + ("" if todo is None else f", {remaining} still to run"))
@@ -135,10 +137,10 @@ def run_tune(spec: TuneSpec, *, out_dir: str | Path, spec_file: str | Path | Non
             at = at._replace(done=at.done + runs)
             tell(at)
 
-        tuning.run_evaluation(ev, out_dir, chunks=todo, progress=chunk_done, should_stop=stop)
+        run_evaluation(ev, out_dir, chunks=todo, progress=chunk_done, should_stop=stop)
         if stop():
             return TuneResult(spec, True, trace, ev)
-        runs = results.read_table(out_dir, "runs")
-    paired = tuning.paired_differences(runs, [k for k, o in ev.scenario.outputs(ev.config).items()
+        runs = parquet.read_table(out_dir, "runs")
+    paired = paired_differences(runs, [k for k, o in ev.scenario.outputs(ev.config).items()
                                        if o.role in ("error", "divergence")])
     return TuneResult(spec, False, trace, ev, runs, paired)

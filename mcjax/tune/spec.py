@@ -1,6 +1,6 @@
 """A tune spec: a sweep spec (``base``, ``[config]``, ``[params]``, ``chunk_size``,
 ``description``; no ``[grid]``, ``[zip]``, ``seeds`` or ``base_seed``) with a ``[tune]`` table
-(see :mod:`mcjax.tune`), read and validated (:mod:`mcjax.validation`) into a :class:`TuneSpec`,
+(see :mod:`mcjax.tune`), read and validated (:mod:`mcjax.base.validation`) into a :class:`TuneSpec`,
 and the bounded transform of the tuned Params (:class:`Bound`)."""
 
 from __future__ import annotations
@@ -15,17 +15,18 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from mcjax import scenarios
-from mcjax.smoothing import problem as smooth_problem
-from mcjax.smoothing import smooth_params
+from mcjax.contract.relaxation import problem as smooth_problem
+from mcjax.contract.relaxation import relaxation_key
+from mcjax.contract.relaxation import smooth_params
 from mcjax.study import MAX_BASE_SEED, MAX_SEEDS, SpecError, Study, build_spec, is_config_file
-from mcjax.validation import check_keys, choice, count, number, read_toml, show
+from mcjax.base.validation import check_keys, choice, count, number, read_toml, show
 
 #: optax optimisers a spec may name (each is called as ``optax.NAME(learning_rate)``).
 OPTIMIZERS = ("adam", "adamw", "sgd", "rmsprop", "adagrad", "adabelief", "lamb", "lion", "nadam", "radam",
               "yogi", "adamax", "amsgrad", "novograd")
 SCALES = ("linear", "log")
 TUNE_KEYS = ("optimizer", "learning_rate", "steps", "train_seeds", "train_base_seed", "heldout_seeds",
-             "heldout_base_seed", "gradient", "gradient_window", "checkpoint_every", "params", "loss", "smoothing")
+             "heldout_base_seed", "gradient", "gradient_window", "checkpoint_every", "params", "loss", "relaxation", "smoothing")
 #: How the gradient is computed: forward mode (one tangent per tuned Param, memory independent
 #: of the number of steps) or reverse mode (one backward pass, memory bounded by jax.checkpoint).
 GRADIENT_MODES = ("forward", "reverse")
@@ -69,7 +70,7 @@ class TuneSpec:
     study: Study
     bounds: tuple
     loss: Loss
-    smoothing: Any
+    temperatures: Any
     optimizer: str = "adam"
     learning_rate: float = 0.1
     steps: int = 30
@@ -169,7 +170,7 @@ def _bound(scenario, cfg, base_params, name: str, table) -> Bound:
 
 
 def continuous_params(scenario, cfg) -> list[str]:
-    """The Params a tune spec may name (:func:`mcjax.smoothing.smooth_params`)."""
+    """The Params a tune spec may name (:func:`mcjax.contract.relaxation.smooth_params`)."""
     return smooth_params(scenario, cfg)
 
 
@@ -186,10 +187,10 @@ def build_tune_spec(data: dict, base_dir: str | Path) -> TuneSpec:
     shared = {k: v for k, v in data.items() if k != "tune"}
     spec = build_spec(shared, base_dir, seeds=1)
     scenario, cfg = spec.scenario, spec.config
-    if scenario.smooth is None:
-        raise SpecError(f"scenario: {scenario.name} has no smoothing switch (Scenario.smooth), which "
+    if scenario.relaxation is None:
+        raise SpecError(f"scenario: {scenario.name} has no relaxation switch (Scenario.relaxation), which "
                         f"mcjax tune needs; tunable built-in scenarios: "
-                        f"{', '.join(n for n, s in scenarios.BUILTIN.items() if s.smooth is not None)}")
+                        f"{', '.join(n for n, s in scenarios.BUILTIN.items() if s.relaxation is not None)}")
     optimizer = choice("tune.optimizer", tune.get("optimizer", "adam"), OPTIMIZERS, hint=True)
     lr = number("tune.learning_rate", tune.get("learning_rate", 0.1), positive=True)
     steps = count("tune.steps", tune.get("steps", 30), 1, MAX_STEPS)
@@ -220,10 +221,11 @@ def build_tune_spec(data: dict, base_dir: str | Path) -> TuneSpec:
                 number("tune.loss.divergence_temperature", lt.get("divergence_temperature", D / 5), positive=True),
                 number("tune.loss.max_temperature", lt.get("max_temperature", D / 50), positive=True),
                 D, int(cfg.warmup_steps))
-    Smoothing = scenario.smooth.Smoothing
-    st = _tune_table("tune.", tune, "smoothing")
-    check_keys("tune.smoothing.", st, list(Smoothing._fields))
-    smoothing = Smoothing(**{k: number(f"tune.smoothing.{k}", v, positive=True) for k, v in st.items()})
+    Temperatures = scenario.relaxation.Temperatures
+    key = relaxation_key("tune", tune)
+    st = _tune_table("tune.", tune, key)
+    check_keys(f"tune.{key}.", st, list(Temperatures._fields))
+    temperatures = Temperatures(**{k: number(f"tune.{key}.{k}", v, positive=True) for k, v in st.items()})
     for b in bounds:  # checks across fields (e.g. the horizon) at both bounds
         for v in (b.low, b.high):
             if scenario.check_params is not None:
@@ -231,7 +233,7 @@ def build_tune_spec(data: dict, base_dir: str | Path) -> TuneSpec:
                 for name, allowed in scenario.check_params(cfg, values):
                     if name == b.name:
                         raise SpecError(f"tune.params.{b.name}: must be {allowed} over its bounds")
-    return TuneSpec(spec, bounds, loss, smoothing, optimizer, lr, steps, train_seeds, train_base, heldout,
+    return TuneSpec(spec, bounds, loss, temperatures, optimizer, lr, steps, train_seeds, train_base, heldout,
                     heldout_base, block, mode, window, data, str(Path(base_dir).resolve()))
 
 

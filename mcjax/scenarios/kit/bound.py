@@ -1,8 +1,8 @@
-"""The posterior Cramér–Rao bound of a team's target, one step at a time (:mod:`mcjax.filters.bounds`,
+"""The posterior Cramér–Rao bound of a team's target, one step at a time (:mod:`mcjax.tracking.filters.bounds`,
 Tichavský, Muravchik & Nehorai 1998): what a scenario with ``bound = "on"`` carries in its state and
 records. The information of every measurement taken is added at the true target, so the bound is
 conditioned on the run's trajectory (and, in closed loop, on the agents' paths; Zuo, Niu & Varshney
-2011). It is carried as a covariance (:func:`mcjax.filters.bounds.pcrb_covariance_step`), so it may
+2011). It is carried as a covariance (:func:`mcjax.tracking.filters.bounds.pcrb_covariance_step`), so it may
 start from a state the filters are given exactly (``initial`` with a zero covariance): a filter that
 starts at the true state has no initial error, and a bound that assumed one would not be its floor."""
 
@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from mcjax.contract import Output, Setting
-from mcjax.filters.bounds import measurement_information, pcrb_covariance_step
+from mcjax.tracking.filters.bounds import measurement_information, pcrb_covariance_step
 from mcjax.scenarios.kit.consistency import run_average, step_average
 
 #: The Config switch (off: the program without the bound, bit for bit).

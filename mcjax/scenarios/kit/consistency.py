@@ -2,7 +2,7 @@
 §5.4) that a scenario with ``consistency = "on"`` records for every filter.
 
 * NEES ``eᵀ P⁻¹ e`` of each agent's estimate of the state it tracks (the scenario computes it with
-  :func:`mcjax.metrics.nees`; an IMM's from its combined mean and covariance): χ² with the state's
+  :func:`mcjax.tracking.metrics.nees`; an IMM's from its combined mean and covariance): χ² with the state's
   dimension when the filter is consistent.
 * NIS ``νᵀ S⁻¹ ν`` of each agent's own measurement against its own prediction from its last
   estimate (:func:`predicted_nis`): ``ν = z − h(x̄)``, ``S = H P̄ Hᵀ + R`` with ``x̄ = F x``,
@@ -11,7 +11,7 @@
   prediction, so the same χ² holds when the filter is consistent.
 
 The outputs carry their degrees of freedom (:class:`mcjax.contract.Output` ``dof``), from which
-the report draws the χ² bands (:func:`mcjax.statistics.chi2_band`)."""
+the report draws the χ² bands (:func:`mcjax.analysis.statistics.chi2_band`)."""
 
 from __future__ import annotations
 
@@ -20,11 +20,11 @@ from functools import cache
 import jax
 import jax.numpy as jnp
 
-from mcjax import metrics
+from mcjax.tracking import metrics
 from mcjax.contract import Output, Setting
-from mcjax.filters.gaussian import Gaussian
-from mcjax.filters.imm import IMMState, combine, mix
-from mcjax.numerics import spd_inverse, symmetrize, wrap_angle
+from mcjax.tracking.filters.gaussian import Gaussian
+from mcjax.tracking.filters.imm import IMMState, combine, mix
+from mcjax.tracking.numerics import spd_inverse, symmetrize, wrap_angle
 
 #: The Config switch (off: the program without the NIS and the per-step series, bit for bit).
 SETTING = Setting("off", "consistency outputs (Bar-Shalom et al. 2001): on adds each filter's average NIS (anis) "
@@ -55,8 +55,8 @@ def predicted_nis(prior, F, Q, h, sensors, z, R_inv, angle_mask):
 
 def imm_prediction(state, transition, F_modes, Q_modes):
     """The combined prediction of an IMM (a Gaussian with an agent axis first: x (n, d), P (n, d, d)):
-    mixed (:func:`mcjax.filters.imm.mix`), each mode predicted by its linear model, then
-    moment-matched over the predicted mode probabilities c̄ (:func:`mcjax.filters.imm.combine`) —
+    mixed (:func:`mcjax.tracking.filters.imm.mix`), each mode predicted by its linear model, then
+    moment-matched over the predicted mode probabilities c̄ (:func:`mcjax.tracking.filters.imm.combine`) —
     the prediction whose NIS :func:`predicted_nis` takes with ``(I, 0)``. ``state`` an IMMState with
     the agent axis first; ``F_modes``, ``Q_modes`` (M, d, d)."""
     def one(s):

@@ -4,7 +4,7 @@ less those lost to faults).
 
 **Dropped-out agents** (``alive = 0``) count in no team statistic: RMSE, mean, final and
 largest error and the divergence rule run over the alive agents only (a run with no alive
-agent gets NaN); an agent lost to faults during a run (:mod:`mcjax.scenarios.faults`) leaves
+agent gets NaN); an agent lost to faults during a run (:mod:`mcjax.scenarios.kit.faults`) leaves
 them from its loss step on. Per-agent columns (a named agent's own error) report that agent
 regardless.
 """
@@ -15,9 +15,9 @@ from functools import cache
 
 import jax.numpy as jnp
 
-from mcjax import metrics
+from mcjax.tracking import metrics
 from mcjax.contract import Output, declare
-from mcjax.scenarios import faults
+from mcjax.scenarios.kit import faults
 
 
 def declarations(items) -> dict[str, Output]:
@@ -52,7 +52,7 @@ def error_outputs(unit: str = "m", what: str = "position error") -> dict[str, Ou
 def error_summary(errors, alive, warmup: int, threshold) -> dict:
     """Per-filter error statistics of one run: ``errors`` (T, F, n) for F filters and n
     agents, ``alive`` 0/1 weights, (n,) or per step (T, n) (agents lost during the run:
-    :func:`mcjax.scenarios.faults.weights`). Returns each field of :func:`error_outputs` as (F,)."""
+    :func:`mcjax.scenarios.kit.faults.weights`). Returns each field of :func:`error_outputs` as (F,)."""
     T = errors.shape[0]
     errors = faults.masked(errors, alive)
     last = alive[-1] if alive.ndim == 2 else alive
@@ -74,7 +74,7 @@ def error_summary(errors, alive, warmup: int, threshold) -> dict:
 
 
 def graph_items(lambda2):
-    """The comm-graph statistics of one run (:func:`mcjax.metrics.graph_summary` of the λ2
+    """The comm-graph statistics of one run (:func:`mcjax.tracking.metrics.graph_summary` of the λ2
     series that the function of no arguments ``lambda2`` gives), each declared next to its value."""
     stats = cache(lambda: metrics.graph_summary(lambda2()))
     return declare(
@@ -87,12 +87,12 @@ def graph_items(lambda2):
     )
 
 
-#: Declarations of :func:`mcjax.metrics.graph_summary`'s fields (those of :func:`graph_items`).
+#: Declarations of :func:`mcjax.tracking.metrics.graph_summary`'s fields (those of :func:`graph_items`).
 GRAPH_OUTPUTS = declarations(graph_items(None))
 
 
 def error_series_items(errors, alive, unit: str = "m", what: str = "position error"):
-    """The per-step series of :func:`mcjax.metrics.error_series` (``errors`` (T, F, n) and the
+    """The per-step series of :func:`mcjax.tracking.metrics.error_series` (``errors`` (T, F, n) and the
     ``alive`` weights (n,) or (T, n) given by functions of no arguments), each declared next to its value."""
     series = cache(lambda: _error_series(errors(), alive()))
     return declare(error_mean=(Output(unit, f"mean {what} over alive agents", True, "error"),
@@ -101,14 +101,14 @@ def error_series_items(errors, alive, unit: str = "m", what: str = "position err
 
 
 def _error_series(errors, alive):
-    """:func:`mcjax.metrics.error_series` of (T, F, n) errors with (n,) or (T, n) weights."""
+    """:func:`mcjax.tracking.metrics.error_series` of (T, F, n) errors with (n,) or (T, n) weights."""
     if alive.ndim == 2:
         return metrics.error_series(faults.masked(errors, alive), alive[:, None, :])
     return metrics.error_series(errors, alive)
 
 
 def error_series_outputs(unit: str = "m", what: str = "position error") -> dict[str, Output]:
-    """Declarations of the per-step series of :func:`mcjax.metrics.error_series`."""
+    """Declarations of the per-step series of :func:`mcjax.tracking.metrics.error_series`."""
     return declarations(error_series_items(None, None, unit, what))
 
 
@@ -116,7 +116,7 @@ def team_weights(cfg, params, r, switched_on=None):
     """``(switched_on, alive)``: functions of no arguments (each computed once) giving the weights
     (n,) of the agents the spec switched on (``params.alive``, unless a ``switched_on`` function
     is given) and, per step (T, n), of those not yet lost to faults
-    (:func:`mcjax.scenarios.faults.weights` of the records ``r``)."""
+    (:func:`mcjax.scenarios.kit.faults.weights` of the records ``r``)."""
     if switched_on is None:
         switched_on = cache(lambda: metrics.alive_weights(params.alive, cfg.n_agents, r.error.dtype))
     return switched_on, cache(lambda: faults.weights(switched_on(), r.faults))

@@ -9,17 +9,17 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from mcjax import graph, robustness
-from mcjax.filters.consensus import filter_step
-from mcjax.models.sensors import measure_range_bearing, range_bearing
-from mcjax.scenarios import faults
+from mcjax.tracking import graph, connectivity
+from mcjax.tracking.filters.steps import filter_step
+from mcjax.tracking.models.sensors import measure_range_bearing, range_bearing
+from mcjax.scenarios.kit import faults
 from mcjax.scenarios.kit.settings import per_run
 
 
 def team_measurements(key, target, sensors, sigma_range, sigma_bearing, sensing_radius, alive):
     """Every agent's noisy range–bearing measurement of ``target`` (n, 2), NaN where the
     target is out of the agent's ``sensing_radius`` (n,) or the agent is not ``alive`` (n,)
-    — :func:`mcjax.models.sensors.measure_range_bearing` with one key per agent."""
+    — :func:`mcjax.tracking.models.sensors.measure_range_bearing` with one key per agent."""
     keys = jax.random.split(key, sensors.shape[0])
     return jax.vmap(measure_range_bearing, in_axes=(0, None, 0, None, None, 0, 0))(
         keys, target, sensors, sigma_range, sigma_bearing, sensing_radius, alive)
@@ -27,7 +27,7 @@ def team_measurements(key, target, sensors, sigma_range, sigma_bearing, sensing_
 
 def soft_team_measurements(key, target, sensors, sigma_range, sigma_bearing, sensing_radius, alive, temperature):
     """:func:`team_measurements` (the same noise draws) with the range gate ``r ≤ R_s`` replaced
-    by a soft gate ``g_i = sigmoid((R_s − r_i)/T)``, for a scenario's smoothing switch: returns
+    by a soft gate ``g_i = sigmoid((R_s − r_i)/T)``, for a scenario's relaxation switch: returns
     ``(z (n, 2), g (n,))``, every alive agent's measurement and its weight (the caller weighs
     agent i's measurement information by ``g_i``). Dead agents: NaN, ``g = 0``."""
     z = team_measurements(key, target, sensors, sigma_range, sigma_bearing,
@@ -41,70 +41,70 @@ class Sensed(NamedTuple):
 
     z: jax.Array                 # (n, 2) range–bearing measurements, NaN where there is none
     comm_graph: jax.Array        # (n, n) the comm graph among the agents switched on (0/1, or soft weights)
-    carried: jax.Array           # (n, n) its links whose message was not lost (:func:`mcjax.scenarios.faults.messages`)
+    carried: jax.Array           # (n, n) its links whose message was not lost (:func:`mcjax.scenarios.kit.faults.messages`)
     gates: jax.Array | None      # (n,) the soft sensing gates (smooth system), else None
     sizes: jax.Array | None      # (n,) the soft component sizes (smooth system), else None
 
 
-def sense_and_link(key, target, sensors, params, sensing, comm, alive, fault, smoothing=None) -> Sensed:
+def sense_and_link(key, target, sensors, params, sensing, comm, alive, fault, temperatures=None) -> Sensed:
     """Every agent's range–bearing measurement of ``target`` (noise ``params.sigma_range``,
     ``params.sigma_bearing``) within its ``sensing`` radius (n,), the comm graph of radius ``comm`` (n,)
     among the agents ``alive`` (n,) (switched on by the spec) and the links that carried the step's
-    message, with the step's ``fault`` (:func:`mcjax.scenarios.faults.advance`; None: off) applied:
+    message, with the step's ``fault`` (:func:`mcjax.scenarios.kit.faults.advance`; None: off) applied:
     a lost agent senses nothing, a dropped-out sensor returns nothing, a lost link carries nothing.
 
-    ``smoothing`` (a scenario's smoothing switch with ``sensing`` and ``comm`` temperatures; None:
+    ``temperatures`` (a scenario's relaxation switch with ``sensing`` and ``comm`` temperatures; None:
     exact) swaps the range gate for soft gates (:func:`soft_team_measurements`) and the comm graph
-    for soft links (:func:`mcjax.graph.soft_adjacency`), with the same random draws, and gives the
-    soft component sizes (:func:`mcjax.robustness.soft_component_sizes`), which see lost agents, not lost links."""
-    if smoothing is None:
+    for soft links (:func:`mcjax.tracking.graph.soft_adjacency`), with the same random draws, and gives the
+    soft component sizes (:func:`mcjax.tracking.connectivity.soft_component_sizes`), which see lost agents, not lost links."""
+    if temperatures is None:
         z = faults.measurements(team_measurements(key, target, sensors, params.sigma_range, params.sigma_bearing,
                                                   sensing, alive), fault)
         gates = sizes = None
     else:
         z, gates = soft_team_measurements(key, target, sensors, params.sigma_range, params.sigma_bearing,
-                                          sensing, alive, smoothing.sensing)
+                                          sensing, alive, temperatures.sensing)
         z = faults.measurements(z, fault)
-        sizes = robustness.soft_component_sizes(sensors, comm, smoothing.comm, alive & faults.alive(fault, sensors.shape[0]))
-    return Sensed(z, *link(sensors, comm, fault, smoothing, alive), gates, sizes)
+        sizes = connectivity.soft_component_sizes(sensors, comm, temperatures.comm, alive & faults.alive(fault, sensors.shape[0]))
+    return Sensed(z, *link(sensors, comm, fault, temperatures, alive), gates, sizes)
 
 
-def link(positions, comm, fault, smoothing=None, alive=None) -> tuple:
+def link(positions, comm, fault, temperatures=None, alive=None) -> tuple:
     """``(comm_graph, carried)``: the comm graph of radius ``comm`` (scalar or (n,)) among the agents
-    ``alive`` (all if None) — Sun et al. 2011 eq. 13, or its soft links at ``smoothing.comm``
-    (:func:`mcjax.graph.soft_adjacency`) — and its links whose message the step's ``fault`` did not lose."""
-    if smoothing is None:
+    ``alive`` (all if None) — Sun et al. 2011 eq. 13, or its soft links at ``temperatures.comm``
+    (:func:`mcjax.tracking.graph.soft_adjacency`) — and its links whose message the step's ``fault`` did not lose."""
+    if temperatures is None:
         comm_graph = graph.adjacency(positions, comm, alive)
     else:
-        comm_graph = graph.soft_adjacency(positions, comm, smoothing.comm, alive)
+        comm_graph = graph.soft_adjacency(positions, comm, temperatures.comm, alive)
     return comm_graph, faults.messages(comm_graph, fault)
 
 
 def shield_filters(fault, kinds, states, exempt=("cif",)) -> tuple:
     """The filters' states (one per kind of ``kinds``) as they enter a step under faults: each lost
-    agent's entries replaced by a finite stand-in (:func:`mcjax.scenarios.faults.shield`), but for
+    agent's entries replaced by a finite stand-in (:func:`mcjax.scenarios.kit.faults.shield`), but for
     the kinds ``exempt`` (the centralised CIF, which no link carries)."""
     return tuple(s if k in exempt else faults.shield(fault, s) for k, s in zip(kinds, states))
 
 
 def hold_filters(fault, kinds, new, old, exempt=("cif",)) -> tuple:
     """The filters' states after a step under faults: a lost agent's stay as they were
-    (:func:`mcjax.scenarios.faults.hold`), but for the kinds ``exempt``."""
+    (:func:`mcjax.scenarios.kit.faults.hold`), but for the kinds ``exempt``."""
     return tuple(s if k in exempt else faults.hold(fault, s, o) for k, s, o in zip(kinds, new, old))
 
 
 def kcf_mailbox(cfg, params, x0):
-    """The KCF's consensus messages in flight before step 0 (:func:`mcjax.scenarios.faults.mailbox`;
+    """The KCF's consensus messages in flight before step 0 (:func:`mcjax.scenarios.kit.faults.mailbox`;
     None without a message delay or without a ``"kcf"`` filter), per-run from the start (:func:`per_run`)."""
     box = faults.mailbox(cfg, x0) if "kcf" in cfg.filters else None
     return None if box is None else faults.Mailbox(*per_run(params.dt, *box))
 
 
 def filter_update(kinds, opts, h, angle_mask, states, meas, F, Q, kcf_epsilon, fault, mailbox=None) -> tuple:
-    """``(filters, mailbox)``: every filter of ``kinds`` one step on (:func:`mcjax.filters.consensus.filter_step`)
+    """``(filters, mailbox)``: every filter of ``kinds`` one step on (:func:`mcjax.tracking.filters.steps.filter_step`)
     under faults — the states shielded before (:func:`shield_filters`), a lost agent's held after
     (:func:`hold_filters`) — and, with a ``mailbox`` (:func:`kcf_mailbox`), the KCF's consensus messages
-    arriving late (:func:`mcjax.scenarios.faults.late`), this step's posted over the links that carried
+    arriving late (:func:`mcjax.scenarios.kit.faults.late`), this step's posted over the links that carried
     one (``meas.adjacency``)."""
     shielded = shield_filters(fault, kinds, states)
     if mailbox is None:
