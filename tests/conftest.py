@@ -4,7 +4,7 @@ import tempfile
 
 # One CPU device per test process: pytest-xdist already runs one process per core, and a
 # second device would compile every batch program twice (tests that need several devices
-# start a subprocess with MCJAX_CPU_DEVICES set; see tests/test_engine_chunks.py).
+# start a subprocess with MCJAX_CPU_DEVICES set; see tests/engine/test_chunks.py).
 os.environ.setdefault("MCJAX_CPU_DEVICES", "1")
 # Tests compile small programs once and run them briefly, so XLA's cheapest backend options
 # (no LLVM optimisation) are set for the suite and the subprocesses it starts: the suite's CPU
@@ -16,8 +16,8 @@ os.environ.setdefault("MCJAX_CPU_DEVICES", "1")
 # XLA's older CPU fusion emitters too, for every program (the built-in scenarios but Ren & Lv 2017's
 # already ask for them, mcjax.contract.FAST_COMPILE): the tests' own jitted functions compile with
 # ~30 % less CPU time (measured on 5 test files: 116 -> 83 s); Ren & Lv 2017's golden rows moved by
-# round-off (< 5e-12 relative) and were written again. tests/test_engine_loop.py and the reference
-# program of tests/test_sensitivity.py ask for the newer emitters by name.
+# round-off (< 5e-12 relative) and were written again. tests/engine/test_loop.py and the reference
+# program of tests/study/test_sensitivity.py ask for the newer emitters by name.
 _FAST_COMPILE = "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true --xla_cpu_use_fusion_emitters=false"
 if _FAST_COMPILE not in os.environ.get("XLA_FLAGS", ""):  # xdist workers inherit it from the controller
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_FAST_COMPILE}".strip()
@@ -26,7 +26,7 @@ if _FAST_COMPILE not in os.environ.get("XLA_FLAGS", ""):  # xdist workers inheri
 # program is compiled once per session instead of once per process, and no program stored
 # by an earlier session or another mcjax version is ever used. It replaces a MCJAX_CACHE_DIR
 # the user exported (the tests write nothing into the user's store, counted against its size
-# limit; tests/test_suite_store.py checks). tests/test_engine_compilation.py tests the store itself in
+# limit; tests/product/test_suite_store.py checks). tests/engine/test_compilation.py tests the store itself in
 # subprocesses with folders of their own.
 if "MCJAX_TEST_PROGRAMS" not in os.environ:  # the controller (or a plain run): make the folder
     os.environ["MCJAX_TEST_PROGRAMS"] = tempfile.mkdtemp(prefix="mcjax-test-programs-")

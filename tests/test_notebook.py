@@ -12,7 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 import mcjax.notebook as mc
-from mcjax import results
+from mcjax.base import parquet
 from mcjax.cli import main
 from mcjax.study import SpecError
 
@@ -45,7 +45,7 @@ def both(tmp_path_factory):
     with contextlib.chdir(tmp):
         api = mc.sweep(SPEC, set=SET)
         written = sorted(p.name for p in tmp.iterdir())
-    return api, results.read_table(tmp / "cli"), printed.output, written, tmp
+    return api, parquet.read_table(tmp / "cli"), printed.output, written, tmp
 
 
 def test_the_rows_are_the_clis_bit_for_bit_and_nothing_is_written(both):

@@ -45,7 +45,7 @@ def fault_rows(name: str):
 
     import pandas as pd
 
-    from mcjax.results import read_table
+    from mcjax.base.parquet import read_table
     from mcjax.study import build_spec, run_sweep
 
     def tidy(df, keys):

@@ -1,4 +1,4 @@
-"""Writes the rows tests/test_golden_rows.py compares with: every built-in config and the
+"""Writes the rows tests/product/test_golden_rows.py compares with: every built-in config and the
 docs' example scenario, 6 runs x 40 steps, as the code of the commit that wrote them computes
 them (run from the repository root: ``python tests/golden/make_rows.py``; the suite's XLA
 flags are set the same way as in tests/conftest.py)."""
