@@ -149,10 +149,25 @@ def ceiling(name: str, setting) -> int | None:
 def setting_allowed(s) -> str:
     """What a :class:`~mcjax.contract.Setting` allows, in words."""
     if s.many:
-        return "a non-empty list of distinct values from " + ", ".join(map(str, s.choices))
+        more = (f", a name installed under {getattr(s, 'plugins')} or 'file.py:ATTRIBUTE'"
+                if getattr(s, "plugins", None) else "")
+        return "a non-empty list of distinct values from " + ", ".join(map(str, s.choices)) + more
     if s.choices is not None:
         return "one of " + ", ".join(map(str, s.choices))
     return range_text(s.low, s.high, s.low_open, s.integer)
+
+
+def is_plugin_name(value, group: str) -> bool:
+    """Whether ``value`` may name a plugin of the entry-point ``group`` (a Setting's ``plugins``): a name an
+    installed package declares there, or a reference ``FILE.py:ATTR`` / ``MODULE:ATTR``. Whether it loads and
+    is what it should be is the registry's to say (the scenario's checks ask it)."""
+    if not isinstance(value, str) or not value:
+        return False
+    if ":" in value:
+        return True
+    from importlib.metadata import entry_points
+
+    return value in {ep.name for ep in entry_points(group=group)}
 
 
 def setting_value_problem(s, value) -> str | None:
@@ -161,7 +176,8 @@ def setting_value_problem(s, value) -> str | None:
     if s.many:
         if not isinstance(value, (tuple, list)):
             return bad(setting_allowed(s), value)
-        unknown = [v for v in value if not any(same(v, c) for c in s.choices)]
+        unknown = [v for v in value if not any(same(v, c) for c in s.choices)
+                   and not (getattr(s, "plugins", None) and is_plugin_name(v, s.plugins))]
         if unknown:
             return bad(setting_allowed(s), value) + f" (unknown: {', '.join(map(show, unknown))})"
         return bad(setting_allowed(s), value) if len(value) == 0 or len(set(value)) != len(value) else None

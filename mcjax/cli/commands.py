@@ -437,7 +437,15 @@ def list_scenarios(scenario, config_file):
             except Exception as exc:  # a broken plugin must not hide the others
                 title = f"(cannot be loaded: {exc})"
             click.echo(f"{name:18s} {title}")
-        click.echo("details: mcjax list SCENARIO (add --config FILE for a config's values)")
+        click.echo("details: mcjax list SCENARIO (add --config FILE for a config's values); the filters: mcjax list filters")
+        return
+    if scenario == "filters" and config_file is None:
+        from mcjax.cli.listing import filters_text
+
+        try:
+            click.echo(filters_text())
+        except (ValueError, ImportError) as exc:
+            _fail(str(exc))
         return
     file = None
     if config_file is not None:

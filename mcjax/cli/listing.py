@@ -102,3 +102,37 @@ def _config_keys(path: Path) -> set[str]:
     data = tomllib.loads(Path(path).read_bytes().decode("utf-8").removeprefix("\ufeff"))
     table = data.get("config", {})
     return set(table) if isinstance(table, dict) else set()
+
+
+def filters_text() -> str:
+    """``mcjax list filters``: every filter (built-in, then installed plugins) with its title, reference,
+    traits and the scenarios that can run it (a scenario lists a built-in filter among its ``filters``
+    choices; a plugin runs in every scenario whose ``filters`` take plugins). A plugin that cannot be
+    loaded is listed with its one-line reason, not hidden."""
+    from mcjax import scenarios
+    from mcjax.tracking.filters import registry
+
+    takers = {}
+    for name in scenarios.known():
+        try:
+            sc = scenarios.get(name)
+        except Exception:  # a broken scenario plugin: `mcjax list` says why
+            continue
+        setting = sc.settings.get("filters")
+        if setting is not None:
+            takers[sc.name] = (set(setting.choices or ()), bool(setting.plugins))
+    lines = []
+    for name in registry.known():
+        try:
+            f = registry.get(name)
+        except Exception as exc:  # a broken plugin must not hide the others
+            lines += [f"{name}", f"    cannot be loaded: {exc}"]
+            continue
+        builtin = name in registry.BUILTIN
+        runs = [s for s, (choices, plugins) in takers.items() if (name in choices if builtin else plugins)]
+        where = "" if builtin else f"  [plugin: {registry.origin(name)}]"
+        lines += [f"{name:14s} {f.title}{where}", f"    reference: {f.reference}",
+                  f"    traits: {f.traits.words()}", f"    scenarios: {', '.join(runs) or 'none'}"]
+    lines.append("a filter of your own: docs/library.md, 'Writing a filter' (entry-point group mcjax.filters, "
+                 "or \"file.py:ATTRIBUTE\" in a config's filters)")
+    return "\n".join(lines)

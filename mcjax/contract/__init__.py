@@ -75,6 +75,7 @@ class Setting(NamedTuple):
     low_open: bool = False
     integer: bool = False
     many: bool = False            # a non-empty tuple of distinct choices (e.g. ``filters``)
+    plugins: str | None = None    # a ``many`` field's members may also be plugins of this entry-point group
 
     def allowed(self) -> str:
         return validation.setting_allowed(self)

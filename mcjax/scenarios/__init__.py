@@ -19,11 +19,11 @@ from __future__ import annotations
 
 import difflib
 import importlib
-import importlib.util
 import sys
 from importlib.metadata import entry_points
 from pathlib import Path
 
+from mcjax.base.plugins import import_reference, module_file
 from mcjax.contract import Scenario
 from mcjax.scenarios import chen2013, chen2022, lou2013, ren2017, sun2011
 
@@ -57,11 +57,6 @@ def describe(scenario: Scenario) -> str:
     return scenario.name if where is None else f"{scenario.name} (imported from {where})"
 
 
-def _module_file(module) -> str:
-    where = getattr(module, "__file__", None)
-    return f" ({where})" if where else ""
-
-
 def _plugin_points() -> dict:
     return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name not in BUILTIN}
 
@@ -78,32 +73,8 @@ def _checked(obj, ref: str) -> Scenario:
 
 
 def _from_reference(ref: str, base_dir: Path | None) -> Scenario:
-    where, _, attr = ref.rpartition(":")
-    if where.endswith(".py"):
-        path = Path(where)
-        if not path.is_absolute() and base_dir is not None:
-            path = base_dir / path
-        path = path.resolve()
-        if not path.is_file():
-            raise ValueError(f"scenario file not found: {path}")
-        name = f"mcjax_user_scenario_{abs(hash(str(path)))}"
-        module = sys.modules.get(name)
-        if module is None:
-            spec = importlib.util.spec_from_file_location(name, path)
-            module = importlib.util.module_from_spec(spec)
-            sys.modules[name] = module  # before exec: its dataclasses look their module up
-            try:
-                spec.loader.exec_module(module)
-            except BaseException:  # not half a module for the next call to find: it fails the same way
-                del sys.modules[name]
-                raise
-        source = str(path)
-    else:
-        module = importlib.import_module(where)
-        source = f"module {where}{_module_file(module)}"
-    if not hasattr(module, attr):
-        raise ValueError(f"scenario {ref!r}: {where} has no attribute {attr!r}")
-    return _note_origin(_checked(getattr(module, attr), ref), source)
+    obj, source = import_reference(ref, base_dir, "scenario")
+    return _note_origin(_checked(obj, ref), source)
 
 
 def get(name: str, base_dir: str | Path | None = None) -> Scenario:
@@ -115,7 +86,7 @@ def get(name: str, base_dir: str | Path | None = None) -> Scenario:
     if name in plugins:
         point = plugins[name]
         obj = _checked(point.load(), name)
-        return _note_origin(obj, f"plugin {point.value}{_module_file(sys.modules.get(point.module))}")
+        return _note_origin(obj, f"plugin {point.value}{module_file(sys.modules.get(point.module))}")
     if ":" in name:
         return _from_reference(name, None if base_dir is None else Path(base_dir))
     raise ValueError(f"scenario must be one of {', '.join(known())} (or 'file.py:ATTRIBUTE'); got {name!r}"

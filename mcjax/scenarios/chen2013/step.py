@@ -34,8 +34,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax.tracking import graph, metrics
-from mcjax.tracking.filters.consensus import FilterOptions, Measurements, cif_step, per_agent
-from mcjax.tracking.filters.steps import filter_step
+from mcjax.tracking.filters.consensus import FilterOptions, Measurements, cif_step
+from mcjax.tracking.filters.steps import centralised, filter_step, per_agent
 from mcjax.tracking.filters.gaussian import Gaussian, first_step_model
 from mcjax.tracking.numerics import spd_inverse, symmetrize
 from mcjax.scenarios import kit
@@ -104,8 +104,8 @@ def init(cfg, params, key) -> State:
     n = cfg.n_agents
     P0 = jnp.eye(2, dtype=dtype) * p.sigma_wind_prior ** 2
     g = Gaussian(kit.per_run(p.dt, jnp.zeros(2, dtype)), P0, symmetrize(spd_inverse(P0)))  # per-run: kit.per_run
-    per_agent = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), g)
-    filters = tuple(g if k == "cif" else per_agent for k in cfg.filters)
+    every = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), g)
+    filters = tuple(g if centralised(k) else every for k in cfg.filters)
     return State(jnp.asarray(0, jnp.int32), p.start, filters, g, faults.init(cfg, key, p), pcrb.initial(cfg, P0))
 
 

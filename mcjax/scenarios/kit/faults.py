@@ -61,7 +61,8 @@ SETTINGS = {
 }
 
 #: The Config field of late consensus messages, for a scenario whose filters can take them
-#: (:data:`mcjax.tracking.filters.consensus.LATE_KINDS`; a scenario whose filters cannot does not declare it).
+#: (a filter's traits say whether it takes late messages, :class:`mcjax.contract.filter.Traits`; a scenario whose
+#: filters cannot does not declare it).
 DELAY_SETTINGS = {
     "message_delay": Setting(0, "steps late the neighbours' consensus messages arrive (0: the same step); only "
                              "for the filters whose structure takes late messages (kcf; cif and local send none)",

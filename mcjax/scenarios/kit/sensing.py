@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 
 from mcjax.tracking import graph, connectivity
-from mcjax.tracking.filters.steps import filter_step
+from mcjax.tracking.filters.steps import centralised, delayed_sender, filter_step
 from mcjax.tracking.models.sensors import measure_range_bearing, range_bearing
 from mcjax.scenarios.kit import faults
 from mcjax.scenarios.kit.settings import per_run
@@ -80,23 +80,24 @@ def link(positions, comm, fault, temperatures=None, alive=None) -> tuple:
     return comm_graph, faults.messages(comm_graph, fault)
 
 
-def shield_filters(fault, kinds, states, exempt=("cif",)) -> tuple:
+def shield_filters(fault, kinds, states) -> tuple:
     """The filters' states (one per kind of ``kinds``) as they enter a step under faults: each lost
     agent's entries replaced by a finite stand-in (:func:`mcjax.scenarios.kit.faults.shield`), but for
-    the kinds ``exempt`` (the centralised CIF, which no link carries)."""
-    return tuple(s if k in exempt else faults.shield(fault, s) for k, s in zip(kinds, states))
+    a centralised filter (its traits: one estimate, which no link carries)."""
+    return tuple(s if centralised(k) else faults.shield(fault, s) for k, s in zip(kinds, states))
 
 
-def hold_filters(fault, kinds, new, old, exempt=("cif",)) -> tuple:
+def hold_filters(fault, kinds, new, old) -> tuple:
     """The filters' states after a step under faults: a lost agent's stay as they were
-    (:func:`mcjax.scenarios.kit.faults.hold`), but for the kinds ``exempt``."""
-    return tuple(s if k in exempt else faults.hold(fault, s, o) for k, s, o in zip(kinds, new, old))
+    (:func:`mcjax.scenarios.kit.faults.hold`), but for a centralised filter's."""
+    return tuple(s if centralised(k) else faults.hold(fault, s, o) for k, s, o in zip(kinds, new, old))
 
 
 def kcf_mailbox(cfg, params, x0):
-    """The KCF's consensus messages in flight before step 0 (:func:`mcjax.scenarios.kit.faults.mailbox`;
-    None without a message delay or without a ``"kcf"`` filter), per-run from the start (:func:`per_run`)."""
-    box = faults.mailbox(cfg, x0) if "kcf" in cfg.filters else None
+    """The consensus messages in flight before step 0 of the filter that sends them late (the KCF among the
+    built-ins; :func:`mcjax.tracking.filters.steps.delayed_sender`; :func:`mcjax.scenarios.kit.faults.mailbox`;
+    None without a message delay or without such a filter), per-run from the start (:func:`per_run`)."""
+    box = faults.mailbox(cfg, x0) if delayed_sender(cfg.filters) is not None else None
     return None if box is None else faults.Mailbox(*per_run(params.dt, *box))
 
 
@@ -109,9 +110,10 @@ def filter_update(kinds, opts, h, angle_mask, states, meas, F, Q, kcf_epsilon, f
     shielded = shield_filters(fault, kinds, states)
     if mailbox is None:
         filters = filter_step(kinds, opts, h, angle_mask, shielded, meas, F, Q, kcf_epsilon)
-    else:  # the KCF's consensus messages arrive message_delay steps late
+    else:  # the sender's consensus messages arrive message_delay steps late
+        sender = delayed_sender(kinds)
         late = meas._replace(late=faults.late(mailbox, F))
-        filters = tuple(filter_step((k,), opts, h, angle_mask, (f,), late if k == "kcf" else meas, F, Q,
-                                    kcf_epsilon)[0] for k, f in zip(kinds, shielded))
-        mailbox = faults.post(mailbox, shielded[kinds.index("kcf")].x, meas.adjacency)
+        filters = tuple(filter_step((k,), opts, h, angle_mask, (f,), late if i == sender else meas, F, Q,
+                                    kcf_epsilon)[0] for i, (k, f) in enumerate(zip(kinds, shielded)))
+        mailbox = faults.post(mailbox, shielded[sender].x, meas.adjacency)
     return hold_filters(fault, kinds, filters, states), mailbox

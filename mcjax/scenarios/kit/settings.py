@@ -9,22 +9,26 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax.contract import Setting
+from mcjax.tracking.filters.registry import ENTRY_POINT_GROUP, FILTER_KINDS, get
 
 DTYPES = ("float64", "float32")
 
 
 def common_settings(*, filter_kinds: tuple[str, ...], filters: tuple[str, ...] | None = None, n_agents: int,
                     n_steps: int, min_steps: int = 1, warmup_steps: int, divergence_threshold: float,
-                    error_unit: str = "m") -> dict[str, Setting]:
+                    error_unit: str = "m", plugin_filters: bool = False) -> dict[str, Setting]:
     """The Config fields every scenario shares, with this scenario's defaults: ``n_agents``,
     ``n_steps`` (≥ ``min_steps``), ``filters`` (from ``filter_kinds``; default all of them),
     ``divergence_threshold`` (in ``error_unit``), ``warmup_steps`` and ``dtype``. Check
-    ``warmup_steps < n_steps`` with :func:`check_common`."""
+    ``warmup_steps < n_steps`` with :func:`check_common`. ``plugin_filters``: the scenario runs any
+    filter of the filter contract (:mod:`mcjax.contract.filter`), so ``filters`` may also name an installed
+    plugin (entry-point group ``mcjax.filters``) or a reference ``"file.py:ATTRIBUTE"``."""
     return dict(
         n_agents=Setting(n_agents, "number of agents", low=1, integer=True),
         n_steps=Setting(n_steps, "simulated steps", "steps", low=min_steps, integer=True),
         filters=Setting(tuple(filters or filter_kinds), "filters run side by side, in display order",
-                        choices=tuple(filter_kinds), many=True),
+                        choices=tuple(filter_kinds), many=True,
+                        plugins=ENTRY_POINT_GROUP if plugin_filters else None),
         divergence_threshold=Setting(divergence_threshold, "a run diverged if an alive agent's error "
                                      "exceeds this after warm-up (or went non-finite)", error_unit,
                                      low=0, low_open=True),
@@ -36,9 +40,18 @@ def common_settings(*, filter_kinds: tuple[str, ...], filters: tuple[str, ...] |
 
 
 def check_common(cfg) -> None:
-    """The check across the common fields: ``warmup_steps < n_steps``."""
+    """The checks across the common fields: ``warmup_steps < n_steps``; every filter that is not a built-in
+    one resolves to a filter record (:func:`mcjax.tracking.filters.registry.get`: an unknown plugin, one that
+    fails to import or is not a Filter, a name that clashes with a built-in: one line)."""
     if cfg.warmup_steps >= cfg.n_steps:
         raise ValueError(f"warmup_steps must be an integer in [0, n_steps = {cfg.n_steps}); got {cfg.warmup_steps}")
+    if getattr(type(cfg), "SETTINGS", {}).get("filters", Setting(None, "")).plugins:
+        for name in cfg.filters:
+            if name not in FILTER_KINDS:
+                try:
+                    get(name)
+                except ValueError as exc:
+                    raise ValueError(f"filters: {exc}") from None
 
 
 def param_value(Params, cfg, values: dict, name: str) -> np.ndarray:

@@ -9,6 +9,8 @@ import numpy as np
 
 from mcjax.contract import Param, Setting, config_type, params_type
 from mcjax.tracking.filters.consensus import KCF_GAINS
+from mcjax.tracking.filters.registry import get
+from mcjax.tracking.filters.steps import delayed_sender
 from mcjax.scenarios import kit
 from mcjax.scenarios.kit import faults
 from mcjax.scenarios.kit import bound as kit_bound
@@ -27,21 +29,24 @@ INTEGRATORS = ("dopri5", "rk4")
 
 def _check(cfg) -> None:
     kit.check_common(cfg)
-    robust = [f for f in cfg.filters if f in ("ci", "hcmci")]
+    robust = [f for f in cfg.filters if get(f).traits.weights == "doubly_stochastic"]
     if robust and cfg.filter_nodes != "all":
         raise ValueError(f"filter_nodes must be 'all' with the filters {', '.join(robust)} (their consensus "
                          f"averages over every node, and HCMCI's omega = N counts every node as a filter); got "
                          f"filter_nodes = {cfg.filter_nodes!r}")
-    if robust and cfg.message_delay > 0:
-        raise ValueError(f"message_delay must be 0 with the filters {', '.join(robust)} (they average this "
+    early = [f for f in cfg.filters if not get(f).traits.late_messages]
+    if early and cfg.message_delay > 0:
+        raise ValueError(f"message_delay must be 0 with the filters {', '.join(early)} (they average this "
                          f"step's information, which a late message cannot join); got {cfg.message_delay}")
+    if cfg.message_delay > 0:
+        delayed_sender(cfg.filters)  # one mailbox
     if cfg.message_delay > 0 and cfg.kcf_gain == "prior_consensus":
         raise ValueError("kcf_gain must be mu_P or gamma_M when message_delay > 0 (prior_consensus averages "
                          "this step's priors); got 'prior_consensus'")
 
 
 Config = config_type("Config", dict(
-    **kit.common_settings(filter_kinds=FILTER_KINDS, filters=PAPER_FILTERS, n_agents=20, n_steps=300, min_steps=2,
+    **kit.common_settings(filter_kinds=FILTER_KINDS, plugin_filters=True, filters=PAPER_FILTERS, n_agents=20, n_steps=300, min_steps=2,
                           warmup_steps=20, divergence_threshold=5.0),
     max_substeps=Setting(200, "most sub-steps per step (dopri5: attempts, rejected ones included; rk4: each "
                          "sized from the flock's stiffness and closing speeds) (ours)", low=1, integer=True),

@@ -12,7 +12,7 @@
 * :mod:`.planner` — the leader's re-planning in the closed loop (§4.2);
 """
 
-from mcjax.tracking.filters.consensus import per_agent
+from mcjax.tracking.filters.steps import per_agent
 from mcjax.scenarios.sun2011.planner import planner_options
 from mcjax.scenarios.kit import training_errors, training_weights
 from mcjax.scenarios.sun2011.params import NAME, PLANNERS, Config, Params, check_params, filter_options

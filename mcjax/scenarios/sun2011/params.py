@@ -7,8 +7,10 @@ from __future__ import annotations
 import numpy as np
 
 from mcjax.contract import Param, Setting, config_type, params_type
-from mcjax.tracking.filters.consensus import (CONTRIBUTION_KINDS, FILTER_KINDS, ICF_VARIANTS, KCF_GAINS, LATE_KINDS,
-                                     WEIGHT_KINDS, FilterOptions)
+from mcjax.tracking.filters.consensus import (CONTRIBUTION_KINDS, ICF_VARIANTS, KCF_GAINS, WEIGHT_KINDS,
+                                              FilterOptions)
+from mcjax.tracking.filters.registry import FILTER_KINDS, get
+from mcjax.tracking.filters.steps import delayed_sender
 from mcjax.scenarios import kit
 from mcjax.scenarios.kit import faults
 from mcjax.scenarios.kit import bound as kit_bound
@@ -36,16 +38,18 @@ def _check(cfg) -> None:
             raise ValueError("filters must include 'modified_icf' when a planner is on: "
                              "the leader plans from its modified-ICF estimate (Sun et al. 2011, sec. 4)")
         planner_options(cfg)  # validates the planner budget
-    robust = [f for f in cfg.filters if f in ("ci", "hcmci")]
+    robust = [f for f in cfg.filters if get(f).traits.consensus_only]
     if robust and cfg.consensus_steps < 1:
         raise ValueError(f"consensus_steps must be an integer >= 1 with the filters {', '.join(robust)} (they "
                          f"fuse by consensus only); got {cfg.consensus_steps}")
     if cfg.message_delay > 0:
-        other = [f for f in cfg.filters if f not in LATE_KINDS]
+        other = [f for f in cfg.filters if not get(f).traits.late_messages]
         if other:
-            raise ValueError(f"filters must be among {', '.join(LATE_KINDS)} when message_delay > 0 (the ICF and "
+            late = [k for k in FILTER_KINDS if get(k).traits.late_messages]
+            raise ValueError(f"filters must be among {', '.join(late)} when message_delay > 0 (the ICF and "
                              f"modified ICF average this step's information, which a late message cannot join; "
                              f"so the planner, which needs modified_icf, must be 'none'); got {', '.join(other)}")
+        delayed_sender(cfg.filters)  # one mailbox
         if cfg.kcf_gain == "prior_consensus":
             raise ValueError("kcf_gain must be gamma_M or mu_P when message_delay > 0 (prior_consensus averages "
                              "this step's priors); got 'prior_consensus'")
@@ -53,7 +57,7 @@ def _check(cfg) -> None:
 
 #: Config: everything that fixes shapes or the compiled program (changing it recompiles).
 Config = config_type("Config", dict(
-    **kit.common_settings(filter_kinds=FILTER_KINDS, filters=PAPER_FILTERS, n_agents=5, n_steps=200, warmup_steps=10,
+    **kit.common_settings(filter_kinds=FILTER_KINDS, plugin_filters=True, filters=PAPER_FILTERS, n_agents=5, n_steps=200, warmup_steps=10,
                           divergence_threshold=1000.0),
     consensus_steps=Setting(1, "consensus iterations L per step (paper: one message per comm interval)",
                             low=0, integer=True),

@@ -8,7 +8,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from mcjax.tracking.filters.consensus import per_agent
+from mcjax.tracking.filters.steps import per_agent
 from mcjax.tracking.numerics import symmetrize
 from mcjax.tracking.planning.solvers import PlannerOptions, solve
 from mcjax.scenarios import kit

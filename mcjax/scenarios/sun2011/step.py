@@ -10,7 +10,8 @@ import jax
 import jax.numpy as jnp
 
 from mcjax.tracking import graph, metrics, connectivity
-from mcjax.tracking.filters.consensus import Measurements, init_states, per_agent
+from mcjax.tracking.filters.consensus import Measurements
+from mcjax.tracking.filters.steps import init_states, per_agent
 from mcjax.tracking.filters.gaussian import first_step_model
 from mcjax.tracking.models.motion import cv_matrices, cv_process_noise, cv_step
 from mcjax.tracking.models.platforms import UnicycleLimits, unicycle_step

@@ -28,6 +28,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from mcjax.contract.filter import Filter, Model, Traits
 from mcjax.tracking import graph
 from mcjax.tracking.filters import exchange
 from mcjax.tracking.filters.gaussian import (
@@ -39,7 +40,6 @@ from mcjax.tracking.filters.gaussian import (
 )
 from mcjax.tracking.numerics import matvec, spd_inverse, symmetrize, weighted_agent_sum
 
-FILTER_KINDS = ("cif", "icf", "modified_icf", "kcf", "local", "ci", "hcmci")
 CONTRIBUTION_KINDS = ("component", "one")
 ICF_VARIANTS = ("contributions", "priors")
 KCF_GAINS = ("gamma_M", "mu_P", "prior_consensus")
@@ -106,15 +106,6 @@ class Measurements(NamedTuple):
     R_inv: jax.Array
     component_sizes: jax.Array | None = None
     late: Late | None = None
-
-
-#: The filters whose structure takes consensus messages that arrive late (``Measurements.late``):
-#: the KCF's consensus term is a correction toward the neighbours' estimates, and a disagreement
-#: of k steps ago is the delayed consensus of Olfati-Saber & Murray 2004. The information filters
-#: (ICF, modified ICF) average quantities of the current step — a k-step-old pair describes
-#: another time and breaks the average (and its convergence to the centralised filter); the
-#: CIF and the local EKF send no consensus message.
-LATE_KINDS = ("kcf", "cif", "local")
 
 
 def consensus(W: jax.Array, values: jax.Array, steps: int) -> jax.Array:
@@ -319,17 +310,35 @@ def prior_consensus_kcf_step(h, angle_mask, opts, post: Gaussian, meas: Measurem
     return Gaussian(x, M, Y)
 
 
-def init_states(kinds, x0, P0, n_agents):
-    """Every filter's state at the first measurement time: the prior ``(x0, P0)``
-    (CIF: one Gaussian; the others: one per agent)."""
-    Y0 = symmetrize(spd_inverse(P0))
-    single = Gaussian(x0, P0, Y0)
-    per_agent = jax.tree.map(lambda a: jnp.broadcast_to(a, (n_agents,) + a.shape), single)
-    return tuple(single if k == "cif" else per_agent for k in kinds)
+def _kcf(model: Model, post: Gaussian, meas: Measurements) -> Gaussian:
+    """The KCF with its gain (``options.kcf_gain``): Olfati-Saber's γM or μP form (:func:`kcf_step`), or Chen
+    & Lu 2013's prior consensus (:func:`prior_consensus_kcf_step`, with the formation term where given)."""
+    if model.options.kcf_gain == "prior_consensus":
+        return prior_consensus_kcf_step(model.h, model.angle_mask, model.options, post, meas, model.F, model.Q,
+                                        model.formation)
+    return kcf_step(model.h, model.angle_mask, model.options, model.epsilon, post, meas, model.F, model.Q)
 
 
-def per_agent(kind, state: Gaussian, n_agents) -> Gaussian:
-    """A filter state with an agent axis (CIF's single estimate repeated for every agent)."""
-    if kind == "cif":
-        return jax.tree.map(lambda a: jnp.broadcast_to(a, (n_agents,) + a.shape), state)
-    return state
+# The filters of this module as records (mcjax.contract.filter). Late messages: the KCF's consensus term is
+# a correction toward the neighbours' estimates, and a disagreement of k steps ago is the delayed consensus
+# of Olfati-Saber & Murray 2004; the information filters (ICF, modified ICF) average quantities of the
+# current step — a k-step-old pair describes another time and breaks the average (and its convergence to
+# the centralised filter); the CIF and the local EKF send no consensus message.
+CIF = Filter("cif", "centralised information filter: one filter fuses every agent's measurements",
+             "Sun et al. 2011, sec. 2.2 (the bound of Table 1)",
+             lambda m, post, meas: cif_step(m.h, m.angle_mask, post, meas, m.F, m.Q),
+             Traits(centralised=True, late_messages=True, messages=False))
+ICF = Filter("icf", "information consensus filter: consensus on the new measurement information",
+             "Casbeer & Beard 2009 (Sun et al. 2011, refs. 4-5)",
+             lambda m, post, meas: icf_step(m.h, m.angle_mask, m.options, post, meas, m.F, m.Q))
+MODIFIED_ICF = Filter("modified_icf", "modified information consensus filter: consensus on the updated "
+                      "information pairs", "Sun et al. 2011, eqs. 8-12",
+                      lambda m, post, meas: modified_icf_step(m.h, m.angle_mask, m.options, post, meas, m.F, m.Q))
+KCF = Filter("kcf", "Kalman-consensus filter: a local update with the neighbours' measurements, then a "
+             "consensus correction toward their estimates",
+             "Olfati-Saber 2009 (gains gamma_M, mu_P); Chen & Lu 2013, eqs. 6-12 (prior_consensus)",
+             _kcf, Traits(late_messages=True))
+LOCAL = Filter("local", "local extended Kalman filter: each agent on its own measurements, nothing shared",
+               "the baseline of Sun et al. 2011",
+               lambda m, post, meas: local_step(m.h, m.angle_mask, post, meas, m.F, m.Q),
+               Traits(late_messages=True, messages=False))

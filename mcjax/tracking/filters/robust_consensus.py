@@ -23,6 +23,7 @@ papers give them (the notes of the work, and docs/equations.md once written, hol
 
 from __future__ import annotations
 
+from mcjax.contract.filter import Filter, Traits
 from mcjax.tracking.filters.consensus import FilterOptions, Measurements, consensus, consensus_matrix
 from mcjax.tracking.filters.gaussian import Gaussian, contributions, from_information, predict_information
 from mcjax.tracking.numerics import symmetrize
@@ -96,3 +97,16 @@ def hcmci_step(h, angle_mask, opts: FilterOptions, post: Gaussian, meas: Measure
     q = consensus(W, qb, L) + omega * consensus(W, dq, L)
     O = symmetrize(consensus(W, Ob, L)) + omega * symmetrize(consensus(W, dO, L))
     return from_information(q, O)
+
+
+# As records (mcjax.contract.filter): both average with Metropolis weights of the links that carried a
+# message (doubly stochastic on any undirected graph), fuse by consensus only, and average quantities of
+# the current step (a late message cannot join the average).
+CI = Filter("ci", "consensus on information: each agent updates with its own measurement, then averages "
+            "its information pair with its neighbours'", "Battistelli & Chisci 2014",
+            lambda m, post, meas: ci_step(m.h, m.angle_mask, m.options, post, meas, m.F, m.Q),
+            Traits(weights="doubly_stochastic", consensus_only=True))
+HCMCI = Filter("hcmci", "hybrid consensus on measurements and information: the agents average their new "
+               "measurement information and their priors, then combine them", "Battistelli et al. 2015",
+               lambda m, post, meas: hcmci_step(m.h, m.angle_mask, m.options, post, meas, m.F, m.Q),
+               Traits(weights="doubly_stochastic", consensus_only=True))

@@ -1,37 +1,62 @@
-"""One step of any of the consensus filters by its kind: the consensus filters of Sun et al. 2011 and
-Chen & Lu 2013 (:mod:`.consensus`) and the robust ones of Battistelli & Chisci (:mod:`.robust_consensus`),
-side by side, so neither module imports the other."""
+"""Any filter's step, start and agent axis, by its record (:mod:`.registry`): what the scenarios call, so that
+none of them names a filter to learn how it runs. Each is resolved by name at trace time."""
 
 from __future__ import annotations
 
-from mcjax.tracking.filters.consensus import (FILTER_KINDS, FilterOptions, Measurements, cif_step, icf_step,
-                                              kcf_step, local_step, modified_icf_step, prior_consensus_kcf_step)
-from mcjax.tracking.filters.robust_consensus import ci_step, hcmci_step
+import jax
+import jax.numpy as jnp
+
+from mcjax.contract.filter import Model
+from mcjax.tracking.filters.consensus import FilterOptions, Measurements
+from mcjax.tracking.filters.gaussian import Gaussian
+from mcjax.tracking.filters.registry import get
+from mcjax.tracking.numerics import spd_inverse, symmetrize
 
 
 def filter_step(kinds, opts: FilterOptions, h, angle_mask, states, meas: Measurements, F, Q, kcf_epsilon,
                 formation=None):
-    """Advance every filter in ``kinds`` by one step. Returns the new states (same
-    structure as ``states``). ``formation``: eq. 12's formation term of Chen & Lu 2013's
-    consensus Kalman filter (:func:`prior_consensus_kcf_step`), if any."""
-    out = []
-    for kind, post in zip(kinds, states):
-        if kind == "cif":
-            out.append(cif_step(h, angle_mask, post, meas, F, Q))
-        elif kind == "local":
-            out.append(local_step(h, angle_mask, post, meas, F, Q))
-        elif kind == "modified_icf":
-            out.append(modified_icf_step(h, angle_mask, opts, post, meas, F, Q))
-        elif kind == "icf":
-            out.append(icf_step(h, angle_mask, opts, post, meas, F, Q))
-        elif kind == "kcf" and opts.kcf_gain == "prior_consensus":
-            out.append(prior_consensus_kcf_step(h, angle_mask, opts, post, meas, F, Q, formation))
-        elif kind == "kcf":
-            out.append(kcf_step(h, angle_mask, opts, kcf_epsilon, post, meas, F, Q))
-        elif kind == "ci":  # Battistelli & Chisci 2014
-            out.append(ci_step(h, angle_mask, opts, post, meas, F, Q))
-        elif kind == "hcmci":  # Battistelli et al. 2015
-            out.append(hcmci_step(h, angle_mask, opts, post, meas, F, Q))
-        else:
-            raise ValueError(f"kind must be one of {', '.join(map(repr, FILTER_KINDS))}; got {kind!r}")
-    return tuple(out)
+    """Advance every filter in ``kinds`` (names, :func:`mcjax.tracking.filters.registry.get`) by one step: each
+    record's ``step(Model(h, angle_mask, F, Q, opts, kcf_epsilon, formation), state, meas)``. Returns the new
+    states (same structure as ``states``). ``formation``: eq. 12's formation term of Chen & Lu 2013's
+    consensus Kalman filter, if any."""
+    model = Model(h, angle_mask, F, Q, opts, kcf_epsilon, formation)
+    return tuple(get(kind).step(model, post, meas) for kind, post in zip(kinds, states))
+
+
+def _with_agents(state: Gaussian, n_agents: int) -> Gaussian:
+    return jax.tree.map(lambda a: jnp.broadcast_to(a, (n_agents,) + a.shape), state)
+
+
+def init_states(kinds, x0, P0, n_agents):
+    """Every filter's state at the first measurement time: the prior ``(x0, P0)`` — one Gaussian for a
+    centralised filter (its traits), one per agent for the others."""
+    Y0 = symmetrize(spd_inverse(P0))
+    single = Gaussian(x0, P0, Y0)
+    per_agent_state = _with_agents(single, n_agents)
+    return tuple(single if get(k).traits.centralised else per_agent_state for k in kinds)
+
+
+def per_agent(kind, state: Gaussian, n_agents) -> Gaussian:
+    """A filter state with an agent axis (a centralised filter's one estimate repeated for every agent)."""
+    return _with_agents(state, n_agents) if get(kind).traits.centralised else state
+
+
+def centralised(kind) -> bool:
+    """Whether the filter ``kind`` keeps one estimate for all agents (no link carries it)."""
+    return get(kind).traits.centralised
+
+
+def late_messages(kind) -> bool:
+    """Whether the filter ``kind`` takes consensus messages that arrive late, or sends none."""
+    return get(kind).traits.late_messages
+
+
+def delayed_sender(kinds) -> int | None:
+    """The index in ``kinds`` of the one filter whose consensus messages a delay carries (it sends messages
+    and takes them late: the KCF among the built-ins), or None; two such filters is a ValueError (one
+    mailbox per run)."""
+    found = [i for i, k in enumerate(kinds) if get(k).traits.messages and get(k).traits.late_messages]
+    if len(found) > 1:
+        raise ValueError(f"filters: at most one filter that takes late consensus messages may run with "
+                         f"message_delay > 0; got {', '.join(kinds[i] for i in found)}")
+    return found[0] if found else None

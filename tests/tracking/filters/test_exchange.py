@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from mcjax.tracking.filters import exchange
-from mcjax.tracking.filters.consensus import (FILTER_KINDS, FilterOptions, Late, Measurements, init_states,
-                                              prior_consensus_kcf_step)
-from mcjax.tracking.filters.steps import filter_step
+from mcjax.tracking.filters.consensus import FilterOptions, Late, Measurements, prior_consensus_kcf_step
+from mcjax.tracking.filters.registry import FILTER_KINDS
+from mcjax.tracking.filters.steps import filter_step, init_states
 from mcjax.tracking.models.sensors import range_bearing
 from benchmarks.peers import numpy_peer
 from mcjax.scenarios import sun2011 as lf

@@ -10,8 +10,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mcjax.tracking.filters.consensus import FILTER_KINDS, FilterOptions, Measurements, init_states
-from mcjax.tracking.filters.steps import filter_step
+from mcjax.tracking.filters.consensus import FilterOptions, Measurements
+from mcjax.tracking.filters.registry import FILTER_KINDS
+from mcjax.tracking.filters.steps import filter_step, init_states
 from mcjax.tracking.filters.gaussian import first_step_model
 from mcjax.tracking.metrics import nees
 from mcjax.tracking.models.sensors import position, range_bearing
@@ -265,6 +266,6 @@ def test_unknown_kind_is_refused():
     states = init_states(("ci",), jnp.zeros(4), jnp.eye(4), n)
     meas = Measurements(jnp.full((n, 2), jnp.nan), jnp.zeros((n, 2)), jnp.zeros((n, n)), jnp.broadcast_to(jnp.eye(2), (n, 2, 2)))
     F, Q = cv_model()
-    expected = f"kind must be one of {', '.join(map(repr, FILTER_KINDS))}; got 'cii'"
+    expected = f"filter must be one of {', '.join(FILTER_KINDS)} (or 'file.py:ATTRIBUTE'); got 'cii'; did you mean 'ci'?"
     with pytest.raises(ValueError, match=re.escape(expected)):
         filter_step(("cii",), FilterOptions(), position, jnp.array([False, False]), states, meas, F, Q, 0.0)
