@@ -178,6 +178,9 @@ def setting_value_problem(s, value) -> str | None:
             return bad(setting_allowed(s), value)
         unknown = [v for v in value if not any(same(v, c) for c in s.choices)
                    and not (getattr(s, "plugins", None) and is_plugin_name(v, s.plugins))]
+        refuses = getattr(s, "refuses", None)
+        if unknown and refuses and any(is_plugin_name(v, refuses[0]) for v in unknown):
+            return f"must be among its own {', '.join(map(str, s.choices))} ({refuses[1]}); got {show(value)}"
         if unknown:
             return bad(setting_allowed(s), value) + f" (unknown: {', '.join(map(show, unknown))})"
         return bad(setting_allowed(s), value) if len(value) == 0 or len(set(value)) != len(value) else None

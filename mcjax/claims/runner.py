@@ -27,7 +27,7 @@ from typing import Callable, NamedTuple
 
 import pandas as pd
 
-from mcjax.base import parquet, provenance
+from mcjax.base import provenance
 from mcjax.claims.evaluate import needed_columns, verdict_table
 from mcjax.claims.spec import ClaimsFile, load_claims
 from mcjax.claims.folder import CHECK_FILE, TABLE_FILE, write_table

@@ -76,6 +76,7 @@ class Setting(NamedTuple):
     integer: bool = False
     many: bool = False            # a non-empty tuple of distinct choices (e.g. ``filters``)
     plugins: str | None = None    # a ``many`` field's members may also be plugins of this entry-point group
+    refuses: tuple | None = None  # (entry-point group, why): a plugin of that group is refused with this reason
 
     def allowed(self) -> str:
         return validation.setting_allowed(self)

@@ -18,7 +18,6 @@ which file or module a scenario came from (``mcjax sweep`` / ``run`` / ``tune`` 
 from __future__ import annotations
 
 import difflib
-import importlib
 import sys
 from importlib.metadata import entry_points
 from pathlib import Path

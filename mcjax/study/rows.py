@@ -103,7 +103,7 @@ def chunk_parts(study: Study, index: int, start: int, stop: int) -> list[str]:
 def part_metadata(study: Study, chunk_size: int) -> dict:
     """The schema metadata of every part: the scenario's declarations (outputs, params, filter
     order), the spec, config, seeds and provenance — everything ``mcjax report`` needs."""
-    from mcjax.base import parquet, provenance
+    from mcjax.base import provenance
 
     meta = study.scenario.metadata(study.config)
     extra = declarations(study.scenario, study.config, study.sensitivity)

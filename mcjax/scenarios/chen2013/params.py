@@ -39,8 +39,8 @@ def _check(cfg) -> None:
 
 
 Config = config_type("Config", dict(
-    **kit.common_settings(filter_kinds=FILTER_KINDS, plugin_filters=True, filters=PAPER_FILTERS, n_agents=3, n_steps=100, min_steps=2,
-                          warmup_steps=0, divergence_threshold=20.0, error_unit="m/s"),
+    **kit.common_settings(filter_kinds=FILTER_KINDS, plugin_filters=True, filters=PAPER_FILTERS, n_agents=3,
+                          n_steps=100, min_steps=2, warmup_steps=0, divergence_threshold=20.0, error_unit="m/s"),
     wind_noise=Setting("uniform", "wind measurement noise: uniform on [-noise_scale, noise_scale] or "
                        "gaussian with std noise_scale (ours)", choices=NOISES),
     weights=Setting("max_degree", "consensus weights of the kcf: max_degree = Chen & Lu 2013 eq. 7",

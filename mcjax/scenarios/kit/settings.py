@@ -16,19 +16,21 @@ DTYPES = ("float64", "float32")
 
 def common_settings(*, filter_kinds: tuple[str, ...], filters: tuple[str, ...] | None = None, n_agents: int,
                     n_steps: int, min_steps: int = 1, warmup_steps: int, divergence_threshold: float,
-                    error_unit: str = "m", plugin_filters: bool = False) -> dict[str, Setting]:
+                    error_unit: str = "m", plugin_filters: bool | str = False) -> dict[str, Setting]:
     """The Config fields every scenario shares, with this scenario's defaults: ``n_agents``,
     ``n_steps`` (≥ ``min_steps``), ``filters`` (from ``filter_kinds``; default all of them),
     ``divergence_threshold`` (in ``error_unit``), ``warmup_steps`` and ``dtype``. Check
     ``warmup_steps < n_steps`` with :func:`check_common`. ``plugin_filters``: the scenario runs any
     filter of the filter contract (:mod:`mcjax.contract.filter`), so ``filters`` may also name an installed
-    plugin (entry-point group ``mcjax.filters``) or a reference ``"file.py:ATTRIBUTE"``."""
+    plugin (entry-point group ``mcjax.filters``) or a reference ``"file.py:ATTRIBUTE"``; a string says in a
+    few words why the scenario takes none (a plugin named is refused with it, in one line)."""
     return dict(
         n_agents=Setting(n_agents, "number of agents", low=1, integer=True),
         n_steps=Setting(n_steps, "simulated steps", "steps", low=min_steps, integer=True),
         filters=Setting(tuple(filters or filter_kinds), "filters run side by side, in display order",
                         choices=tuple(filter_kinds), many=True,
-                        plugins=ENTRY_POINT_GROUP if plugin_filters else None),
+                        plugins=ENTRY_POINT_GROUP if plugin_filters is True else None,
+                        refuses=(ENTRY_POINT_GROUP, plugin_filters) if isinstance(plugin_filters, str) else None),
         divergence_threshold=Setting(divergence_threshold, "a run diverged if an alive agent's error "
                                      "exceeds this after warm-up (or went non-finite)", error_unit,
                                      low=0, low_open=True),

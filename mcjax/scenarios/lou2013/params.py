@@ -46,8 +46,8 @@ def _check(cfg) -> None:
 
 
 Config = config_type("Config", dict(
-    **kit.common_settings(filter_kinds=FILTER_KINDS, plugin_filters=True, filters=PAPER_FILTERS, n_agents=20, n_steps=300, min_steps=2,
-                          warmup_steps=20, divergence_threshold=5.0),
+    **kit.common_settings(filter_kinds=FILTER_KINDS, plugin_filters=True, filters=PAPER_FILTERS, n_agents=20,
+                          n_steps=300, min_steps=2, warmup_steps=20, divergence_threshold=5.0),
     max_substeps=Setting(200, "most sub-steps per step (dopri5: attempts, rejected ones included; rk4: each "
                          "sized from the flock's stiffness and closing speeds) (ours)", low=1, integer=True),
     integrator=Setting("dopri5", "dopri5 = Dormand-Prince 5(4) pair with step-size control at tolerance; rk4 = "

@@ -18,14 +18,17 @@ NAME = "uuv_imm"
 #: Filters: name → the target modes it models (0 = CV, 1 = CT).
 FILTER_MODES = {"imm": (0, 1), "cv": (0,), "ct": (1,)}
 FILTER_KINDS = tuple(FILTER_MODES)
+#: Why a filter of the filter contract (mcjax.contract.filter) does not run here, in a few words.
+_OWN_FILTERS = ("Ren & Lv 2017's filters are UKFs of its motion models - the IMM over CV and CT, and each alone - "
+                "with consensus over the modes, which a filter of the filter contract does not have")
 SCHEDULES = ("fixed", "markov")
 WEIGHT_KINDS = ("metropolis", "max_degree")
 CV, CT = 0, 1
 
 #: Config: everything that fixes shapes or the compiled program (changing it recompiles).
 Config = config_type("Config", dict(
-    **kit.common_settings(filter_kinds=FILTER_KINDS, n_agents=6, n_steps=100, min_steps=2, warmup_steps=5,
-                      divergence_threshold=100.0),
+    **kit.common_settings(filter_kinds=FILTER_KINDS, plugin_filters=_OWN_FILTERS, n_agents=6, n_steps=100,
+                          min_steps=2, warmup_steps=5, divergence_threshold=100.0),
     consensus_steps=Setting(3, "consensus iterations L per step and mode (ours)", low=0, integer=True),
     consensus_weights=Setting("metropolis", "consensus weights (paper: Metropolis)", choices=WEIGHT_KINDS),
     likelihood=Setting("fused", "mode likelihoods: fused by consensus (ours) or local (Li & Jia)",

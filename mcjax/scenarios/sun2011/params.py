@@ -57,8 +57,8 @@ def _check(cfg) -> None:
 
 #: Config: everything that fixes shapes or the compiled program (changing it recompiles).
 Config = config_type("Config", dict(
-    **kit.common_settings(filter_kinds=FILTER_KINDS, plugin_filters=True, filters=PAPER_FILTERS, n_agents=5, n_steps=200, warmup_steps=10,
-                          divergence_threshold=1000.0),
+    **kit.common_settings(filter_kinds=FILTER_KINDS, plugin_filters=True, filters=PAPER_FILTERS, n_agents=5,
+                          n_steps=200, warmup_steps=10, divergence_threshold=1000.0),
     consensus_steps=Setting(1, "consensus iterations L per step (paper: one message per comm interval)",
                             low=0, integer=True),
     consensus_weights=Setting("eq11", "consensus weights (eq11 = Sun et al. 2011 eq. 11)", choices=WEIGHT_KINDS),

@@ -174,3 +174,13 @@ def test_the_docs_filter_runs_in_the_three_scenarios_as_the_local_filter(tmp_pat
         if o.per_filter:
             a = np.asarray(out[name], np.float64)
             np.testing.assert_allclose(a[:, 1], a[:, 0], rtol=1e-7, atol=1e-9, err_msg=name)
+
+
+@pytest.mark.parametrize("scenario, why", [("uuv_imm", "Ren & Lv 2017's filters are UKFs of its motion models"),
+                                           ("urban_bearing", "Chen & Hao 2022 fly one UAV with no comm graph")])
+def test_the_two_scenarios_that_take_no_filter_of_ones_own_say_why_in_one_line(plugin_file, scenario, why):
+    from mcjax import scenarios
+
+    with pytest.raises(ValueError, match="must be among its own") as err:
+        scenarios.get(scenario).Config(filters=(f"{plugin_file}:MINE",))
+    assert why in str(err.value) and "\n" not in str(err.value)
