@@ -86,8 +86,8 @@ def _bar(total: int, progress: bool):
 
 
 def _execute(study, out: str | Path | None, force: bool, progress: bool, spec_file=None) -> SweepRows:
-    from mcjax.base import parquet
     from mcjax.analysis.summary import summarize_dataset
+    from mcjax.base import parquet
     from mcjax.study import part_metadata, run_sweep, run_sweep_folder
 
     configure()

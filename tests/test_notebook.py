@@ -11,9 +11,9 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-import mcjax.notebook as mc
 from mcjax.base import parquet
 from mcjax.cli import main
+import mcjax.notebook as mc
 from mcjax.study import SpecError
 
 pytestmark = pytest.mark.xdist_group("notebook")  # one worker builds the module's fixtures once

@@ -40,12 +40,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcjax import engine
-from mcjax.scenarios.chen2022 import environment as env
-from mcjax.scenarios import chen2022 as ub
-from mcjax.analysis.statistics import t_critical, wilson_interval
-from mcjax.study import load_spec
 from mcjax import configure
+from mcjax import engine
+from mcjax.analysis.statistics import t_critical, wilson_interval
+from mcjax.scenarios import chen2022 as ub
+from mcjax.scenarios.chen2022 import environment as env
+from mcjax.study import load_spec
 
 configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 

@@ -43,9 +43,9 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from mcjax.tracking.models.sensors import azimuth
 from mcjax.scenarios import chen2022 as ub
 from mcjax.scenarios.chen2022 import environment as env
+from mcjax.tracking.models.sensors import azimuth
 from figures import run_records  # the one run set-up of this folder's scripts
 
 

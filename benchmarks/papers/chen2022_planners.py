@@ -31,12 +31,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax import configure, engine
-from mcjax.tracking.filters.imm import combine
-from mcjax.scenarios import kit
-from mcjax.scenarios import chen2022 as ub
-from mcjax.scenarios.chen2022 import score as urban
 from mcjax.analysis.statistics import mean_ci
+from mcjax.scenarios import chen2022 as ub
+from mcjax.scenarios import kit
+from mcjax.scenarios.chen2022 import score as urban
 from mcjax.study.spec import build_spec
+from mcjax.tracking.filters.imm import combine
 
 configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 

@@ -37,8 +37,8 @@ import jax
 import numpy as np
 
 from mcjax import engine
-from mcjax.scenarios.lou2013 import target_state
 from mcjax.analysis.statistics import t_critical, wilson_interval
+from mcjax.scenarios.lou2013 import target_state
 from figures import run_records  # the one run set-up of the papers' figures (this folder)
 from mcjax import configure
 

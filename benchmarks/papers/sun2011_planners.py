@@ -25,11 +25,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcjax.tracking.planning import PlannerOptions, solve
+from mcjax import configure
 from mcjax.scenarios.sun2011.horizon import Dynamics, Problem, horizon_cost, horizon_plan_cost
 from mcjax.scenarios.sun2011.objectives import CostParams
 from mcjax.study import load_config_file
-from mcjax import configure
+from mcjax.tracking.planning import PlannerOptions, solve
 
 configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 

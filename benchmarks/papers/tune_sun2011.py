@@ -119,8 +119,8 @@ def main() -> None:
 
     import jax
 
-    from mcjax.base.validation import read_toml
     from mcjax import engine, tune
+    from mcjax.base.validation import read_toml
     from mcjax.study import build_spec
 
     out = Path(args.out)

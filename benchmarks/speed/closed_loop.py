@@ -64,9 +64,9 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from mcjax import configure
 from mcjax import engine, runtime
 from mcjax.study import load_config_file
-from mcjax import configure
 
 ROOT = Path(__file__).resolve().parents[2]
 #: the fault rates of the "faults drawn" variant (per step; agent loss per UAV)

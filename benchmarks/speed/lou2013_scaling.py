@@ -44,10 +44,10 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from mcjax import configure
 from mcjax import engine
 from mcjax.scenarios.lou2013 import Params as FlockingParams
 from mcjax.study import build_spec
-from mcjax import configure
 
 configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 

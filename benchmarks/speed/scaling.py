@@ -40,9 +40,9 @@ from pathlib import Path
 
 import pandas as pd
 
+from mcjax import configure
 from mcjax import engine, runtime
 from mcjax.study import load_config_file
-from mcjax import configure
 
 configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 

@@ -66,9 +66,9 @@ WORKLOADS = {  # name: (config, Config changes, default runs)
 CORES_CHILD = r"""
 import dataclasses, json, sys, time
 import numpy as np
+from mcjax import configure
 from mcjax import engine, runtime
 from mcjax.study import load_config_file
-from mcjax import configure
 
 configure()  # JAX's 64-bit mode and CPU devices, as the CLI sets them
 

@@ -34,8 +34,8 @@ def main() -> None:
     def rss() -> float:  # peak resident memory of this process so far, GiB (Linux: KiB)
         return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
 
-    from mcjax.base.validation import read_toml
     from mcjax import tune
+    from mcjax.base.validation import read_toml
 
     raw = read_toml(ROOT / "sweeps" / "tune_sun2011.toml", "spec")
     for mode in args.modes:

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from mcjax.base.parquet import read_metadata, read_table
 from mcjax.analysis.statistics import wilson_interval
+from mcjax.base.parquet import read_metadata, read_table
 
 SWEEPS = ("sun2011", "ren2017")
 

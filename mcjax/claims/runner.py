@@ -29,11 +29,11 @@ import pandas as pd
 
 from mcjax.base import provenance
 from mcjax.claims.evaluate import needed_columns, verdict_table
-from mcjax.claims.spec import ClaimsFile, load_claims
 from mcjax.claims.folder import CHECK_FILE, TABLE_FILE, write_table
+from mcjax.claims.spec import ClaimsFile, load_claims
 from mcjax.study.execute import Executor
 from mcjax.study.runner import SweepProgress, run_sweep_folder
-from mcjax.study.store import IDENTITY_FILE, RESULTS_DIR, OutputError, hold_output, start_fresh, write_identity
+from mcjax.study.store import IDENTITY_FILE, OutputError, RESULTS_DIR, hold_output, start_fresh, write_identity
 
 
 

@@ -54,10 +54,10 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from mcjax.study.plan import Study
-from mcjax.study.spec import MAX_SEEDS, build_spec, is_config_file
 from mcjax.base.validation import SpecError, check_keys, key_text, read_toml, show, suggest
 from mcjax.claims.verdicts import STATISTICS
+from mcjax.study.plan import Study
+from mcjax.study.spec import MAX_SEEDS, build_spec, is_config_file
 
 RELATIONS = ("below", "above", "within", "equal", "ordered", "monotone", "consistent")
 DIRECTIONS = ("increasing", "decreasing")

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from mcjax.contract import Scenario
-from mcjax.base.validation import ceiling
 from mcjax.analysis.tables import format_number
+from mcjax.base.validation import ceiling
+from mcjax.contract import Scenario
 
 
 def _rounded(default: float, written: float) -> bool:

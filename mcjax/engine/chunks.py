@@ -13,8 +13,8 @@ import numpy as np
 
 from mcjax import runtime
 from mcjax.contract import Scenario
-from mcjax.engine.keys import run_keys
 from mcjax.engine.compilation import compiled, devices, program_futures, store_label, user_module
+from mcjax.engine.keys import run_keys
 
 
 def stack_points(points: list) -> object:

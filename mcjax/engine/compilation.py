@@ -18,9 +18,9 @@ import jax
 import numpy as np
 
 from mcjax import runtime
-from mcjax.runtime import jaxcompat
 from mcjax.contract import Scenario
 from mcjax.engine.loop import simulate
+from mcjax.runtime import jaxcompat
 
 
 def compiled(scenario: Scenario, cfg, records: bool = False, timeseries: bool = False,

@@ -11,8 +11,8 @@ import jax.numpy as jnp
 
 from mcjax import runtime
 from mcjax.contract import Scenario
-from mcjax.engine.keys import init_key
 from mcjax.contract.relaxation import column
+from mcjax.engine.keys import init_key
 
 
 def time_loop(step: Callable, state, key, n_steps: int, *, block: int | None = None, remat: bool = False):

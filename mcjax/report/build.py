@@ -25,10 +25,10 @@ from typing import Any, Callable, Mapping
 
 import pandas as pd
 
-from mcjax.base import parquet
 from mcjax.analysis import tables
 from mcjax.analysis.summary import Summary, summarize_dataset, summary_for
 from mcjax.analysis.tables import FORMATS
+from mcjax.base import parquet
 
 __all__ = ["FORMATS", "summary_text", "report", "completeness", "datasets_in", "listing", "base_params_from_files"]
 

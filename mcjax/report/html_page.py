@@ -32,10 +32,10 @@ import pandas as pd
 import tomli_w
 
 from mcjax.analysis import findings, tables
-from mcjax.report import glossary
-from mcjax.base.files import atomic_write
 from mcjax.analysis.statistics import CONFIDENCE
 from mcjax.analysis.summary import Summary, summary_for
+from mcjax.base.files import atomic_write
+from mcjax.report import glossary
 
 __all__ = ["PAGE_NAME", "page", "write_page", "spec_toml", "glance", "head", "FOOT", "html_table", "image"]
 

@@ -30,9 +30,9 @@ import numpy as np
 import pandas as pd
 
 from mcjax.analysis import findings, tables
-from mcjax.report import glossary, html_page
-from mcjax.base.files import atomic_write
 from mcjax.analysis.statistics import mean_ci, paired_by_seed, wilson_interval
+from mcjax.base.files import atomic_write
+from mcjax.report import glossary, html_page
 
 __all__ = ["TUNE_FILE", "TRACE_FILE", "TRACE_FIGURE", "ROLE_COLUMN", "is_tune_folder", "roles", "summary_table",
            "paired", "page", "write_page"]

@@ -53,8 +53,8 @@ from pathlib import Path
 import jax
 
 from mcjax.base import envvars
-from mcjax.runtime import jaxcompat
 from mcjax.base.files import atomic_write
+from mcjax.runtime import jaxcompat
 
 OFF = ("off", "none", "0", "")
 #: Guards :func:`configure`, :func:`prepare_loading` and :data:`STATS` (the engine's loading threads).

@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from mcjax.contract import Scenario
 from mcjax.base.validation import SpecError, show
+from mcjax.contract import Scenario
 
 #: Seeds per point when neither the spec nor the config file gives a number.
 DEFAULT_SEEDS = 20

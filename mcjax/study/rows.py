@@ -12,8 +12,8 @@ import numpy as np
 import pandas as pd
 
 from mcjax.contract import Scenario
-from mcjax.study.sensitivity import declarations
 from mcjax.study.plan import Study
+from mcjax.study.sensitivity import declarations
 
 
 def _per_run(value, n: int, filters: int, per_filter: bool, name: str, where: str) -> np.ndarray:

@@ -22,11 +22,11 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
+from mcjax.base.validation import SpecError, check_keys, is_number, show, suggest
 from mcjax.contract import Output, Scenario
 from mcjax.contract.relaxation import column
 from mcjax.contract.relaxation import problem as smooth_problem
 from mcjax.contract.relaxation import relaxation_key
-from mcjax.base.validation import SpecError, check_keys, is_number, show, suggest
 
 SENSITIVITY_KEYS = ("params", "outputs", "relaxation", "smoothing")
 

@@ -16,8 +16,8 @@ from typing import Callable, Iterator
 
 from mcjax.base import parquet
 from mcjax.base.files import atomic_write
-from mcjax.study import lock
 from mcjax.base.validation import is_int, one_line
+from mcjax.study import lock
 from mcjax.study.plan import Study
 from mcjax.study.rows import chunk_parts
 

@@ -11,7 +11,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from mcjax.tune.spec import NONFINITE_ERROR, Loss, TuneSpec, from_unconstrained
+from mcjax.tune.spec import Loss, NONFINITE_ERROR, TuneSpec, from_unconstrained
 
 def params_at(bounds, base, x):
     """The Params ``base`` with the tuned fields (``bounds``) set to ``x`` (P,) (traceable)."""

@@ -15,11 +15,11 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from mcjax import scenarios
+from mcjax.base.validation import check_keys, choice, count, number, read_toml, show
 from mcjax.contract.relaxation import problem as smooth_problem
 from mcjax.contract.relaxation import relaxation_key
 from mcjax.contract.relaxation import smooth_params
 from mcjax.study import MAX_BASE_SEED, MAX_SEEDS, SpecError, Study, build_spec, is_config_file
-from mcjax.base.validation import check_keys, choice, count, number, read_toml, show
 
 #: optax optimisers a spec may name (each is called as ``optax.NAME(learning_rate)``).
 OPTIMIZERS = ("adam", "adamw", "sgd", "rmsprop", "adagrad", "adabelief", "lamb", "lion", "nadam", "radam",

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from mcjax.tracking import metrics
 from mcjax.analysis.statistics import CONSISTENCY, Interval, chi2_band, consistency
+from mcjax.tracking import metrics
 
 RUNS, STEPS, DT, Q, R = 1000, 60, 1.0, 0.5, 2.0
 

@@ -170,8 +170,8 @@ def test_the_page_shows_the_base_configs_params(tmp_path):
     import json
 
     from click.testing import CliRunner
-    from tests.report.test_html_page import parse
     from tests.analysis.test_tables import write_dataset
+    from tests.report.test_html_page import parse
 
     from mcjax.cli import main
 

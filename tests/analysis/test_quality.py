@@ -8,8 +8,8 @@ import pytest
 from scipy import stats
 
 from mcjax.analysis import findings, quality, tables
-from mcjax.report.plots.steps import step_plots
 from mcjax.analysis.statistics import chi2_band, floor_multiple
+from mcjax.report.plots.steps import step_plots
 
 OUTPUTS = {
     "rmse": {"unit": "m", "description": "RMS error", "per_filter": True, "role": "error"},

@@ -17,11 +17,11 @@ import pytest
 from click.testing import CliRunner
 from scipy import stats
 
-from mcjax.cli import main
 from mcjax.claims import evaluate
 from mcjax.claims.folder import read_verdicts
 from mcjax.claims.runner import run_check
 from mcjax.claims.spec import Claim, ClaimsError, Side, load_claims
+from mcjax.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -6,8 +6,8 @@ import pyarrow.dataset as ds
 import pytest
 from click.testing import CliRunner
 
-from mcjax.cli import main
 from mcjax.base.parquet import read_metadata, read_table
+from mcjax.cli import main
 
 BASE = str((__import__("pathlib").Path(__file__).parents[2] / "configs" / "sun2011.toml").resolve())
 

@@ -15,10 +15,10 @@ import pytest
 from click.testing import CliRunner
 
 from mcjax import scenarios
+from mcjax.base.parquet import read_metadata, read_table
 from mcjax.cli import main
 from mcjax.contract import Output, Param, Scenario, Setting, config_type, declare, params_type
-from mcjax.base.parquet import read_metadata, read_table
-from mcjax.scenarios import sun2011, ren2017
+from mcjax.scenarios import ren2017, sun2011
 
 ROOT = Path(__file__).parents[2]
 
@@ -280,9 +280,9 @@ SCENARIO = Scenario(name="single_agent", title="one agent, no graph", Config=Con
 WIND = '''
 """Three agents averaging noisy wind measurements over a ring (error in m/s, with graph statistics)."""
 import jax, jax.numpy as jnp
-from mcjax.tracking import graph
 from mcjax.contract import Output, Param, Scenario, config_type, declare, params_type
 from mcjax.scenarios.kit import check_common, common_settings, error_items, graph_items
+from mcjax.tracking import graph
 
 Config = config_type("Config", common_settings(filter_kinds=("mean", "consensus"), n_agents=3, n_steps=30,
                                                warmup_steps=2, divergence_threshold=50.0, error_unit="m/s"),

@@ -13,8 +13,8 @@ import pytest
 from click.testing import CliRunner
 
 from mcjax.base import parquet
-from mcjax.cli import main
 from mcjax.base.parquet import read_table
+from mcjax.cli import main
 from mcjax.study import check_parts, load_spec
 from tests.study.test_lock import write_probe
 

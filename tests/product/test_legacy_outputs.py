@@ -11,8 +11,8 @@ from pathlib import Path
 import pandas as pd
 from click.testing import CliRunner
 
-from mcjax.cli import main
 from mcjax.base.parquet import read_table
+from mcjax.cli import main
 
 LEGACY = Path(__file__).resolve().parents[1] / "fixtures" / "legacy"
 

@@ -43,8 +43,8 @@ def test_library_md_sentence_on_the_example_sweep_is_what_the_sweep_gives(tmp_pa
     from click.testing import CliRunner
     from scipy import stats
 
-    from mcjax.cli import main
     from mcjax.base.parquet import read_table
+    from mcjax.cli import main
 
     text = (Path(__file__).parents[2] / "docs" / "library.md").read_text()
     section = text.split("## Writing a scenario", 1)[1].split("\n## ", 1)[0]

@@ -12,8 +12,8 @@ from pathlib import Path
 import matplotlib
 import pandas as pd
 import pytest
-from tests.report.test_plots import check_png
 from tests.analysis.test_tables import FILTERS, make_metadata, synthetic_runs, write_dataset
+from tests.report.test_plots import check_png
 
 from mcjax import report as rp
 from mcjax.base import parquet

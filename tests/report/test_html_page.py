@@ -17,8 +17,8 @@ import numpy as np
 import pandas as pd
 import pytest
 from click.testing import CliRunner
-from tests.report.test_plots import check_png
 from tests.analysis.test_tables import make_metadata, synthetic_runs, write_dataset
+from tests.report.test_plots import check_png
 
 from mcjax.base import parquet
 from mcjax.cli import main

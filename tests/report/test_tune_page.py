@@ -15,11 +15,11 @@ from click.testing import CliRunner
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from scipy import stats
-from tests.report.test_html_page import parse
 from tests.analysis.test_tables import make_metadata, synthetic_runs, write_dataset
+from tests.report.test_html_page import parse
 
-from mcjax.report import tune_page
 from mcjax.cli import main
+from mcjax.report import tune_page
 
 DESCRIPTION = "A toy tune — held-out evaluation of mcjax tune: point 0 = initial, point 1 = tuned Params"
 

@@ -24,8 +24,8 @@ import pytest
 from click.testing import CliRunner
 
 from mcjax.base.interrupt import ACK_DASK
-from mcjax.cli import main
 from mcjax.base.parquet import read_table
+from mcjax.cli import main
 from mcjax.study import check_parts, load_spec, prepare_output, run_sweep
 
 #: The tests' probe scenario, copied next to each spec (its flag files: its docstring).
@@ -193,8 +193,8 @@ def test_a_worker_that_raises_names_the_point_and_the_chunk(lab, tmp_path):
 
 
 def test_a_worker_with_other_software_refuses_the_chunk(lab, tmp_path, monkeypatch):
-    from mcjax.study import dask as cluster
     from mcjax.study import ChunkError
+    from mcjax.study import dask as cluster
 
     monkeypatch.setattr(cluster, "software_fingerprint", lambda: "another mcjax")  # as a client of another version
     with pytest.raises(ChunkError, match=r"^chunk \d .* failed on a Dask worker: RuntimeError: this worker runs "

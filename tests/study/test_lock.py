@@ -17,8 +17,8 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from mcjax.cli import main
 from mcjax.base.parquet import read_table
+from mcjax.cli import main
 from mcjax.study import lock
 
 #: The tests' probe scenario (flag files: ``slow`` holds every chunk, ``pace`` slows it), copied next to each spec.

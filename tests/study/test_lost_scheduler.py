@@ -15,8 +15,8 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from mcjax.cli import main
 from mcjax.base.parquet import read_table
+from mcjax.cli import main
 from mcjax.study import check_parts, load_spec
 from tests.study.test_lock import write_probe
 

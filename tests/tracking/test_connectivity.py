@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 
 from mcjax import engine
-from mcjax.tracking import connectivity
 from mcjax.contract import FAST_COMPILE
-from mcjax.tracking.planning import PlannerOptions, solve
 from mcjax.scenarios.sun2011.horizon import Dynamics, Problem, horizon_cost, horizon_plan_cost
-from mcjax.scenarios.sun2011.objectives import TREE_ABOVE, CostParams, resolve_paths
+from mcjax.scenarios.sun2011.objectives import CostParams, TREE_ABOVE, resolve_paths
 from mcjax.study import load_config_file
+from mcjax.tracking import connectivity
+from mcjax.tracking.planning import PlannerOptions, solve
 
 # Every program of this file compiles with the scenarios' XLA options (FAST_COMPILE: XLA's older
 # CPU fusion code generator, much less compile time; the engine compiles the scenarios' programs

@@ -17,7 +17,7 @@ import networkx as nx
 import numpy as np
 import pytest
 
-from mcjax.tracking import graph, connectivity
+from mcjax.tracking import connectivity, graph
 
 jax.config.update("jax_enable_x64", True)
 

@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mcjax.tracking import graph
 from mcjax.contract import FAST_COMPILE
+from mcjax.tracking import graph
 from mcjax.tracking.models.sensors import range_bearing
 from mcjax.tracking.planning import PlanCost, PlannerOptions, solve
 from mcjax.scenarios.sun2011.horizon import (

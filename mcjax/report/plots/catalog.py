@@ -21,12 +21,12 @@ from mcjax.analysis import tables
 from mcjax.report.plots.bars import bar_figure
 from mcjax.report.plots.common import (DPI, MAX_PANELS, PALETTE, PCT, SAME_RTOL, Plot, PlotFile, Skipped, Stat, XAxis,
                                 filter_colors, one_row_per_run, with_unit, x_axis)
+from mcjax.analysis.summary import Summary, summarize_dataset, summary_for
+from mcjax.analysis.tables import Schema, axis_label, display, label, unit
 from mcjax.report.plots.heatmaps import heatmap_figure
 from mcjax.report.plots.lines import connectivity_figure, line_figure
 from mcjax.report.plots.sensitivity import sensitivity_columns, sensitivity_figure
 from mcjax.report.plots.steps import step_plots
-from mcjax.analysis.summary import Summary, summarize_dataset, summary_for
-from mcjax.analysis.tables import Schema, axis_label, display, label, unit
 
 __all__ = ["plots", "figures", "write_plots", "make_plots"]
 

@@ -17,9 +17,9 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from mcjax.report.plots.common import MIN_RUNS, PCT, XAxis, maybe_log_y, new_figure, number_ticks, with_unit
 from mcjax.analysis.statistics import mean_ci
 from mcjax.analysis.tables import Schema, axis_label, label, ordered_filters, unit
+from mcjax.report.plots.common import MIN_RUNS, PCT, XAxis, maybe_log_y, new_figure, number_ticks, with_unit
 
 __all__ = ["sensitivity_columns", "sensitivity_figure"]
 

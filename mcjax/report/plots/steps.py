@@ -20,9 +20,9 @@ import numpy as np
 import pandas as pd
 
 from mcjax.analysis import quality, tables
-from mcjax.report.plots.common import MAX_PANELS, Plot, Skipped, filter_colors, new_figure
 from mcjax.analysis.statistics import chi2_band
 from mcjax.analysis.summary import Summary, summary_for
+from mcjax.report.plots.common import MAX_PANELS, Plot, Skipped, filter_colors, new_figure
 
 __all__ = ["step_plots"]
 

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 
 from mcjax.contract import Param, Setting, config_type, params_type
-from mcjax.tracking.filters.consensus import WEIGHT_KINDS
 from mcjax.scenarios import kit
-from mcjax.scenarios.kit import faults
 from mcjax.scenarios.kit import bound as kit_bound
 from mcjax.scenarios.kit import consistency as kit_consistency
+from mcjax.scenarios.kit import faults
+from mcjax.tracking.filters.consensus import WEIGHT_KINDS
 
 NAME = "wind_formation"
 FILTER_KINDS = ("kcf", "local", "cif", "ci", "hcmci")

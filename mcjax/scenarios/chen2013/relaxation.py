@@ -27,9 +27,9 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from mcjax.tracking.numerics import safe_norm, softmin
-from mcjax.scenarios.kit import faults
 from mcjax.scenarios.chen2013 import guidance
+from mcjax.scenarios.kit import faults
+from mcjax.tracking.numerics import safe_norm, softmin
 
 
 class Temperatures(NamedTuple):

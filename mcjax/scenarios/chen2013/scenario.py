@@ -72,16 +72,16 @@ from functools import cache
 import jax.numpy as jnp
 import numpy as np
 
-from mcjax.tracking import metrics
 from mcjax.contract import FAST_COMPILE, Output, Scenario, declare
+from mcjax.contract.relaxation import Relaxation
 from mcjax.scenarios import kit
-from mcjax.scenarios.kit import faults
-from mcjax.scenarios.kit import bound as pcrb
-from mcjax.scenarios.kit import consistency
-from mcjax.scenarios.chen2013.params import NAME, Config, Params, check_params
+from mcjax.scenarios.chen2013.params import Config, NAME, Params, check_params
 from mcjax.scenarios.chen2013.relaxation import ROUGH, Temperatures, training_errors, training_weights
 from mcjax.scenarios.chen2013.step import Record, init, pairs, reference_distances, step
-from mcjax.contract.relaxation import Relaxation
+from mcjax.scenarios.kit import bound as pcrb
+from mcjax.scenarios.kit import consistency
+from mcjax.scenarios.kit import faults
+from mcjax.tracking import metrics
 
 
 def _first(mask, dtype):

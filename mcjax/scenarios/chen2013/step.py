@@ -33,18 +33,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcjax.tracking import graph, metrics
-from mcjax.tracking.filters.consensus import FilterOptions, Measurements, cif_step
-from mcjax.tracking.filters.steps import centralised, filter_step, per_agent
-from mcjax.tracking.filters.gaussian import Gaussian, first_step_model
-from mcjax.tracking.numerics import spd_inverse, symmetrize
 from mcjax.scenarios import kit
-from mcjax.scenarios.kit import faults
-from mcjax.scenarios.kit import bound as pcrb
-from mcjax.scenarios.kit import consistency
 from mcjax.scenarios.chen2013 import guidance
 from mcjax.scenarios.chen2013.params import CAP_TOL
 from mcjax.scenarios.chen2013.relaxation import Temperatures, smooth_cap, smooth_next_centre, soft_capped
+from mcjax.scenarios.kit import bound as pcrb
+from mcjax.scenarios.kit import consistency
+from mcjax.scenarios.kit import faults
+from mcjax.tracking import graph, metrics
+from mcjax.tracking.filters.consensus import FilterOptions, Measurements, cif_step
+from mcjax.tracking.filters.gaussian import Gaussian, first_step_model
+from mcjax.tracking.filters.steps import centralised, filter_step, per_agent
+from mcjax.tracking.numerics import spd_inverse, symmetrize
 
 
 class State(NamedTuple):

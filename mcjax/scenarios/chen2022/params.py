@@ -7,10 +7,10 @@ import numpy as np
 
 from mcjax.contract import Param, Setting, config_type, params_type
 from mcjax.scenarios import kit
-from mcjax.scenarios.kit import bound as kit_bound
-from mcjax.scenarios.kit import consistency as kit_consistency
 from mcjax.scenarios.chen2022 import environment as env
 from mcjax.scenarios.chen2022 import score as urban
+from mcjax.scenarios.kit import bound as kit_bound
+from mcjax.scenarios.kit import consistency as kit_consistency
 
 NAME = "urban_bearing"
 

@@ -11,10 +11,10 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from mcjax.tracking.models.platforms import FixedWingLimits, command_box, fixed_wing_step
-from mcjax.tracking.planning.solvers import PlanCost, PlannerOptions, solve
 from mcjax.scenarios.chen2022 import environment as env
 from mcjax.scenarios.chen2022 import score as urban
+from mcjax.tracking.models.platforms import FixedWingLimits, command_box, fixed_wing_step
+from mcjax.tracking.planning.solvers import PlanCost, PlannerOptions, solve
 from mcjax.scenarios.chen2022.relaxation import (
     soft_admissible_log, soft_argmax_command, soft_candidate_commands, soft_command_box,
 )

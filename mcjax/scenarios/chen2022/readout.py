@@ -13,10 +13,10 @@ import jax.numpy as jnp
 
 from mcjax.contract import Output, declare
 from mcjax.scenarios import kit
-from mcjax.scenarios.kit import bound as pcrb
-from mcjax.scenarios.kit import consistency
 from mcjax.scenarios.chen2022.params import NLOS_MINUS, NLOS_PLUS
 from mcjax.scenarios.chen2022.step import Record
+from mcjax.scenarios.kit import bound as pcrb
+from mcjax.scenarios.kit import consistency
 
 
 def training_weights(cfg, params):

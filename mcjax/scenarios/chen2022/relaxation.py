@@ -13,9 +13,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from mcjax.scenarios.chen2022 import environment as env
 from mcjax.tracking.models.platforms import FixedWingLimits, braking_climb
 from mcjax.tracking.numerics import softmax_value, softmin
-from mcjax.scenarios.chen2022 import environment as env
 
 
 class Temperatures(NamedTuple):

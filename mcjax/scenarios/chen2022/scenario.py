@@ -21,12 +21,12 @@ listed in ``configs/chen2022.toml``.
 """
 
 from mcjax.contract import FAST_COMPILE, Scenario
+from mcjax.contract.relaxation import Relaxation
 from mcjax.scenarios import kit
-from mcjax.scenarios.chen2022.params import NAME, Config, Params, check_params
+from mcjax.scenarios.chen2022.params import Config, NAME, Params, check_params
 from mcjax.scenarios.chen2022.readout import series, summary, training_weights
 from mcjax.scenarios.chen2022.relaxation import Temperatures
 from mcjax.scenarios.chen2022.step import init, step
-from mcjax.contract.relaxation import Relaxation
 
 
 SCENARIO = Scenario(

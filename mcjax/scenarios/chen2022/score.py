@@ -40,8 +40,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from mcjax.tracking.models.platforms import FixedWingLimits, braking_climb, command_box, fixed_wing_step
 from mcjax.scenarios.chen2022 import environment as env
+from mcjax.tracking.models.platforms import FixedWingLimits, braking_climb, command_box, fixed_wing_step
 from mcjax.scenarios.chen2022.relaxation import (  # noqa: F401 (some used here; all defined here before)
     soft_admissible_log, soft_argmax_command, soft_candidate_commands, soft_command_box, soft_inside_box,
     soft_line_of_sight, soft_measured_bearing, soft_occupied, soft_reflection_region, soft_reflections,

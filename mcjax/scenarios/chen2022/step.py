@@ -36,15 +36,15 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from mcjax.scenarios import kit
+from mcjax.scenarios.chen2022 import environment as env
+from mcjax.scenarios.chen2022 import score as urban
+from mcjax.scenarios.kit import bound as pcrb
 from mcjax.tracking import metrics
 from mcjax.tracking.filters.bounds import measurement_information
 from mcjax.tracking.filters.imm import IMMState, combine
 from mcjax.tracking.models.platforms import fixed_wing_step
 from mcjax.tracking.numerics import spd_inverse, wrap_angle
-from mcjax.scenarios import kit
-from mcjax.scenarios.kit import bound as pcrb
-from mcjax.scenarios.chen2022 import environment as env
-from mcjax.scenarios.chen2022 import score as urban
 from mcjax.scenarios.chen2022.mode_filters import (
     GATE_FLOOR, filter_bank, filter_nis, gated_mode_filter, mode_filter, mode_models,
 )

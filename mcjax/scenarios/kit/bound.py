@@ -14,8 +14,8 @@ import jax
 import jax.numpy as jnp
 
 from mcjax.contract import Output, Setting
-from mcjax.tracking.filters.bounds import measurement_information, pcrb_covariance_step
 from mcjax.scenarios.kit.consistency import run_average, step_average
+from mcjax.tracking.filters.bounds import measurement_information, pcrb_covariance_step
 
 #: The Config switch (off: the program without the bound, bit for bit).
 SETTING = Setting("off", "the posterior Cramér–Rao bound along the run (Tichavský et al. 1998): on adds "

@@ -20,8 +20,8 @@ from functools import cache
 import jax
 import jax.numpy as jnp
 
-from mcjax.tracking import metrics
 from mcjax.contract import Output, Setting
+from mcjax.tracking import metrics
 from mcjax.tracking.filters.gaussian import Gaussian
 from mcjax.tracking.filters.imm import IMMState, combine, mix
 from mcjax.tracking.numerics import spd_inverse, symmetrize, wrap_angle

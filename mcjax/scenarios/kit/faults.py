@@ -45,8 +45,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcjax.tracking import graph
 from mcjax.contract import Output, Param, Setting, declare
+from mcjax.tracking import graph
 from mcjax.tracking.filters.consensus import Late
 from mcjax.tracking.numerics import matvec
 

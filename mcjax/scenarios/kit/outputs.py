@@ -15,9 +15,9 @@ from functools import cache
 
 import jax.numpy as jnp
 
-from mcjax.tracking import metrics
 from mcjax.contract import Output, declare
 from mcjax.scenarios.kit import faults
+from mcjax.tracking import metrics
 
 
 def declarations(items) -> dict[str, Output]:

@@ -9,11 +9,11 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from mcjax.tracking import graph, connectivity
-from mcjax.tracking.filters.steps import centralised, delayed_sender, filter_step
-from mcjax.tracking.models.sensors import measure_range_bearing, range_bearing
 from mcjax.scenarios.kit import faults
 from mcjax.scenarios.kit.settings import per_run
+from mcjax.tracking import connectivity, graph
+from mcjax.tracking.filters.steps import centralised, delayed_sender, filter_step
+from mcjax.tracking.models.sensors import measure_range_bearing, range_bearing
 
 
 def team_measurements(key, target, sensors, sigma_range, sigma_bearing, sensing_radius, alive):

@@ -17,9 +17,9 @@ from mcjax.scenarios.lou2013.params import (
 from mcjax.scenarios.lou2013.scenario import (
     SCENARIO, default_params, outputs, reduce, series, summary, timeseries, timeseries_outputs, training_weights,
 )
+from mcjax.scenarios.kit import training_errors
 from mcjax.scenarios.lou2013.relaxation import ROUGH, Temperatures, soft_hysteresis, soft_link_changes
 from mcjax.scenarios.lou2013.step import Record, State, init, sensing_mask, step, target_state
-from mcjax.scenarios.kit import training_errors
 
 __all__ = ["CONTROL_REFERENCES", "Config", "FILTER_KINDS", "FILTER_NODES", "NAME", "Params", "ROUGH", "Record",
            "SCENARIO", "START_LAYOUTS", "Temperatures", "State", "TARGET_PATHS", "check_params", "default_params", "init",

@@ -8,13 +8,13 @@ import math
 import numpy as np
 
 from mcjax.contract import Param, Setting, config_type, params_type
+from mcjax.scenarios import kit
+from mcjax.scenarios.kit import bound as kit_bound
+from mcjax.scenarios.kit import consistency as kit_consistency
+from mcjax.scenarios.kit import faults
 from mcjax.tracking.filters.consensus import KCF_GAINS
 from mcjax.tracking.filters.registry import get
 from mcjax.tracking.filters.steps import delayed_sender
-from mcjax.scenarios import kit
-from mcjax.scenarios.kit import faults
-from mcjax.scenarios.kit import bound as kit_bound
-from mcjax.scenarios.kit import consistency as kit_consistency
 
 NAME = "flocking"
 FILTER_KINDS = ("kcf", "local", "ci", "hcmci")

@@ -28,8 +28,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from mcjax.tracking import graph
 from mcjax.scenarios.kit import faults
+from mcjax.tracking import graph
 
 
 class Temperatures(NamedTuple):

@@ -71,14 +71,14 @@ from functools import cache
 
 import jax.numpy as jnp
 
-from mcjax.tracking import metrics
 from mcjax.contract import FAST_COMPILE, Output, Scenario, declare
 from mcjax.scenarios import kit
-from mcjax.scenarios.kit import faults
 from mcjax.scenarios.kit import bound as pcrb
 from mcjax.scenarios.kit import consistency
-from mcjax.scenarios.lou2013.params import NAME, Config, Params, check_params
+from mcjax.scenarios.kit import faults
+from mcjax.scenarios.lou2013.params import Config, NAME, Params, check_params
 from mcjax.scenarios.lou2013.relaxation import ROUGH, Temperatures
+from mcjax.tracking import metrics
 from mcjax.scenarios.lou2013.step import Record, init, sensing_mask, step  # sensing_mask: read here by benchmarks
 from mcjax.contract.relaxation import Relaxation
 

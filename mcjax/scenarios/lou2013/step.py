@@ -28,19 +28,19 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from mcjax.scenarios import kit
+from mcjax.scenarios.kit import bound as pcrb
+from mcjax.scenarios.kit import consistency
+from mcjax.scenarios.kit import faults
+from mcjax.scenarios.lou2013 import dynamics as fl
+from mcjax.scenarios.lou2013.params import lattice_sites
+from mcjax.scenarios.lou2013.relaxation import Temperatures, soft_hysteresis, soft_link_changes
 from mcjax.tracking import graph, metrics
 from mcjax.tracking.filters.consensus import FilterOptions, Measurements
 from mcjax.tracking.filters.gaussian import Gaussian, first_step_model
 from mcjax.tracking.models.motion import cv_matrices, cv_process_noise
 from mcjax.tracking.models.sensors import position
 from mcjax.tracking.numerics import spd_inverse, symmetrize
-from mcjax.scenarios import kit
-from mcjax.scenarios.kit import faults
-from mcjax.scenarios.kit import bound as pcrb
-from mcjax.scenarios.kit import consistency
-from mcjax.scenarios.lou2013 import dynamics as fl
-from mcjax.scenarios.lou2013.params import lattice_sites
-from mcjax.scenarios.lou2013.relaxation import Temperatures, soft_hysteresis, soft_link_changes
 
 
 class State(NamedTuple):

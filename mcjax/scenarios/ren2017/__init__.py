@@ -13,8 +13,8 @@ from mcjax.scenarios.ren2017.params import (
 from mcjax.scenarios.ren2017.scenario import (
     SCENARIO, default_params, outputs, reduce, series, summary, timeseries, timeseries_outputs,
 )
-from mcjax.scenarios.ren2017.step import Record, State, init, step
 from mcjax.scenarios.ren2017.relaxation import Temperatures, mode_hits
+from mcjax.scenarios.ren2017.step import Record, State, init, step
 
 __all__ = ["CT", "CV", "Config", "FILTER_KINDS", "FILTER_MODES", "NAME", "Params", "Record", "SCENARIO", "SCHEDULES",
            "Temperatures", "State", "WEIGHT_KINDS", "check_params", "default_params", "default_positions", "init",

@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 
 from mcjax.contract import Param, Setting, config_type, params_type
-from mcjax.tracking.filters.consensus_imm import LIKELIHOODS
-from mcjax.tracking.filters.gaussian import Unscented
 from mcjax.scenarios import kit
-from mcjax.scenarios.kit import faults
 from mcjax.scenarios.kit import bound as kit_bound
 from mcjax.scenarios.kit import consistency as kit_consistency
+from mcjax.scenarios.kit import faults
+from mcjax.tracking.filters.consensus_imm import LIKELIHOODS
+from mcjax.tracking.filters.gaussian import Unscented
 
 NAME = "uuv_imm"
 

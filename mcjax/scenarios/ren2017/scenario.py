@@ -30,16 +30,16 @@ from functools import cache
 
 import jax.numpy as jnp
 
-from mcjax.tracking import metrics
 from mcjax.contract import Output, Scenario, declare
+from mcjax.contract.relaxation import Relaxation
 from mcjax.scenarios import kit
-from mcjax.scenarios.kit import faults
 from mcjax.scenarios.kit import bound as pcrb
 from mcjax.scenarios.kit import consistency
-from mcjax.scenarios.ren2017.params import CT, NAME, Config, Params, check_params
+from mcjax.scenarios.kit import faults
+from mcjax.scenarios.ren2017.params import CT, Config, NAME, Params, check_params
 from mcjax.scenarios.ren2017.relaxation import Temperatures
 from mcjax.scenarios.ren2017.step import Record, init, step
-from mcjax.contract.relaxation import Relaxation
+from mcjax.tracking import metrics
 
 
 def _masked_mean(values, mask):

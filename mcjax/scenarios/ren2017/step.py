@@ -8,6 +8,12 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from mcjax.scenarios import kit
+from mcjax.scenarios.kit import bound as pcrb
+from mcjax.scenarios.kit import consistency
+from mcjax.scenarios.kit import faults
+from mcjax.scenarios.ren2017.params import CT, CV, FILTER_MODES, unscented
+from mcjax.scenarios.ren2017.relaxation import Temperatures, mode_hits
 from mcjax.tracking import graph, metrics
 from mcjax.tracking.filters.consensus_imm import consensus_imm_ukf_step
 from mcjax.tracking.filters.gaussian import first_step_model
@@ -15,12 +21,6 @@ from mcjax.tracking.filters.imm import IMMState, combine
 from mcjax.tracking.models.motion import ct_matrix, cv_matrices, cv_process_noise
 from mcjax.tracking.models.sensors import range_bearing
 from mcjax.tracking.numerics import matvec, spd_inverse
-from mcjax.scenarios import kit
-from mcjax.scenarios.kit import faults
-from mcjax.scenarios.kit import bound as pcrb
-from mcjax.scenarios.kit import consistency
-from mcjax.scenarios.ren2017.params import CT, CV, FILTER_MODES, unscented
-from mcjax.scenarios.ren2017.relaxation import Temperatures, mode_hits
 
 
 class State(NamedTuple):

@@ -12,14 +12,14 @@
 * :mod:`.planner` — the leader's re-planning in the closed loop (§4.2);
 """
 
-from mcjax.tracking.filters.steps import per_agent
-from mcjax.scenarios.sun2011.planner import planner_options
 from mcjax.scenarios.kit import training_errors, training_weights
-from mcjax.scenarios.sun2011.params import NAME, PLANNERS, Config, Params, check_params, filter_options
+from mcjax.scenarios.sun2011.params import Config, NAME, PLANNERS, Params, check_params, filter_options
+from mcjax.scenarios.sun2011.planner import planner_options
+from mcjax.tracking.filters.steps import per_agent
 from mcjax.scenarios.sun2011.scenario import (
     SCENARIO, default_params, outputs, reduce, series, summary, timeseries, timeseries_outputs,
 )
-from mcjax.scenarios.sun2011.step import Record, Temperatures, State, init, step
+from mcjax.scenarios.sun2011.step import Record, State, Temperatures, init, step
 
 __all__ = ["Config", "NAME", "PLANNERS", "Params", "Record", "SCENARIO", "Temperatures", "State", "check_params",
            "default_params", "filter_options", "init", "outputs", "per_agent", "planner_options", "reduce", "series",

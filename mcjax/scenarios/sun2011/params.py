@@ -9,14 +9,14 @@ import numpy as np
 from mcjax.contract import Param, Setting, config_type, params_type
 from mcjax.tracking.filters.consensus import (CONTRIBUTION_KINDS, ICF_VARIANTS, KCF_GAINS, WEIGHT_KINDS,
                                               FilterOptions)
-from mcjax.tracking.filters.registry import FILTER_KINDS, get
-from mcjax.tracking.filters.steps import delayed_sender
 from mcjax.scenarios import kit
-from mcjax.scenarios.kit import faults
 from mcjax.scenarios.kit import bound as kit_bound
 from mcjax.scenarios.kit import consistency as kit_consistency
+from mcjax.scenarios.kit import faults
 from mcjax.scenarios.sun2011.objectives import ROBUSTNESS_PATHS, ROBUSTNESS_PENALTIES
 from mcjax.scenarios.sun2011.planner import planner_options
+from mcjax.tracking.filters.registry import FILTER_KINDS, get
+from mcjax.tracking.filters.steps import delayed_sender
 
 NAME = "leader_follower"
 

@@ -8,12 +8,12 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from mcjax.tracking.filters.steps import per_agent
-from mcjax.tracking.numerics import symmetrize
-from mcjax.tracking.planning.solvers import PlannerOptions, solve
 from mcjax.scenarios import kit
 from mcjax.scenarios.sun2011.horizon import Dynamics, Problem, horizon_plan_cost, rollout, shift_plan
 from mcjax.scenarios.sun2011.objectives import CostParams
+from mcjax.tracking.filters.steps import per_agent
+from mcjax.tracking.numerics import symmetrize
+from mcjax.tracking.planning.solvers import PlannerOptions, solve
 
 
 def planner_options(cfg) -> PlannerOptions:

@@ -20,15 +20,15 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from mcjax.tracking import metrics
 from mcjax.contract import FAST_COMPILE, Output, Scenario, declare
+from mcjax.contract.relaxation import Relaxation
 from mcjax.scenarios import kit
-from mcjax.scenarios.kit import faults
 from mcjax.scenarios.kit import bound as pcrb
 from mcjax.scenarios.kit import consistency
-from mcjax.scenarios.sun2011.params import NAME, Config, Params, check_params
+from mcjax.scenarios.kit import faults
+from mcjax.scenarios.sun2011.params import Config, NAME, Params, check_params
 from mcjax.scenarios.sun2011.step import ROUGH, Record, Temperatures, init, step
-from mcjax.contract.relaxation import Relaxation
+from mcjax.tracking import metrics
 
 
 def summary(cfg, records: Record | None, params) -> dict:

@@ -9,20 +9,20 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from mcjax.tracking import graph, metrics, connectivity
-from mcjax.tracking.filters.consensus import Measurements
-from mcjax.tracking.filters.steps import init_states, per_agent
-from mcjax.tracking.filters.gaussian import first_step_model
-from mcjax.tracking.models.motion import cv_matrices, cv_process_noise, cv_step
-from mcjax.tracking.models.platforms import UnicycleLimits, unicycle_step
-from mcjax.tracking.models.sensors import range_bearing
 from mcjax.scenarios import kit
-from mcjax.scenarios.kit import faults
 from mcjax.scenarios.kit import bound as pcrb
 from mcjax.scenarios.kit import consistency
+from mcjax.scenarios.kit import faults
 from mcjax.scenarios.sun2011.objectives import resolve_paths
 from mcjax.scenarios.sun2011.params import filter_options
 from mcjax.scenarios.sun2011.planner import plan_if_due
+from mcjax.tracking import connectivity, graph, metrics
+from mcjax.tracking.filters.consensus import Measurements
+from mcjax.tracking.filters.gaussian import first_step_model
+from mcjax.tracking.filters.steps import init_states, per_agent
+from mcjax.tracking.models.motion import cv_matrices, cv_process_noise, cv_step
+from mcjax.tracking.models.platforms import UnicycleLimits, unicycle_step
+from mcjax.tracking.models.sensors import range_bearing
 
 
 class State(NamedTuple):

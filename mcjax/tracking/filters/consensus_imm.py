@@ -26,8 +26,8 @@ import jax.numpy as jnp
 from mcjax.tracking import graph
 from mcjax.tracking.filters.gaussian import Unscented, ukf_predict, ukf_pseudo_measurement, ukf_update
 from mcjax.tracking.filters.imm import IMMState, combine, mix, mode_probabilities
-from mcjax.tracking.numerics import weighted_agent_sum
 from mcjax.tracking.numerics import spd_inverse, symmetrize
+from mcjax.tracking.numerics import weighted_agent_sum
 
 LIKELIHOODS = ("fused", "local")
 

@@ -10,9 +10,9 @@ import numpy as np
 
 from mcjax.tracking.filters import batched, native
 from mcjax.tracking.filters.consensus import FilterOptions, Measurements
+from mcjax.tracking.filters.gaussian import first_step_model
 from mcjax.tracking.filters.registry import FILTER_KINDS
 from mcjax.tracking.filters.steps import filter_step, init_states, per_agent
-from mcjax.tracking.filters.gaussian import first_step_model
 from mcjax.tracking.models.sensors import range_bearing
 from mcjax.tracking.numerics import require_x64, x64_enabled
 

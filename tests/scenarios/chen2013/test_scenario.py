@@ -13,8 +13,8 @@ from scipy.optimize import brentq
 
 from mcjax import engine
 from mcjax.cli import main
-from mcjax.scenarios.chen2013 import guidance
 from mcjax.scenarios import chen2013 as S
+from mcjax.scenarios.chen2013 import guidance
 
 CONFIG = str((Path(__file__).parents[3] / "configs" / "chen2013.toml").resolve())
 AMP, SCALE = 2000.0 / 3.0, 1200.0

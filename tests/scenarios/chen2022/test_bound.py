@@ -16,14 +16,14 @@ import pytest
 
 from mcjax.engine.compilation import compiled
 from mcjax.engine.keys import init_key
-from mcjax.tracking.filters.gaussian import Gaussian
-from mcjax.tracking.filters.imm import IMMState
-from mcjax.tracking.models.sensors import azimuth
 from mcjax.scenarios import chen2022 as ub
-from mcjax.scenarios.kit.consistency import predicted_nis
 from mcjax.scenarios.chen2022 import environment as env
 from mcjax.scenarios.chen2022.mode_filters import mixture_nis
 from mcjax.scenarios.chen2022.step import filter_nees
+from mcjax.scenarios.kit.consistency import predicted_nis
+from mcjax.tracking.filters.gaussian import Gaussian
+from mcjax.tracking.filters.imm import IMMState
+from mcjax.tracking.models.sensors import azimuth
 
 pytestmark = pytest.mark.xdist_group("urban_bound")  # one worker builds the module's fixtures once
 

@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 
 from mcjax import tune
-from mcjax.scenarios.chen2022 import score as urban
 from mcjax.scenarios import chen2022 as ub
+from mcjax.scenarios.chen2022 import score as urban
 from tests.tune.test_tune import _assert_central_differences
 
 ROOT = Path(__file__).resolve().parents[3]

@@ -15,12 +15,12 @@ from filterpy.kalman import ExtendedKalmanFilter, IMMEstimator
 from mcjax import engine
 from mcjax.cli import main
 from mcjax.contract import FAST_COMPILE
-from mcjax.tracking.filters.imm import IMMState, imm_step
-from mcjax.scenarios.chen2022 import environment as env
-from mcjax.tracking.models.platforms import braking_climb, fixed_wing_step
-from mcjax.scenarios.chen2022 import score as urban
-from mcjax.scenarios import kit
 from mcjax.scenarios import chen2022 as S
+from mcjax.scenarios import kit
+from mcjax.scenarios.chen2022 import environment as env
+from mcjax.scenarios.chen2022 import score as urban
+from mcjax.tracking.filters.imm import IMMState, imm_step
+from mcjax.tracking.models.platforms import braking_climb, fixed_wing_step
 
 DEG = np.pi / 180.0
 CONFIG = str((Path(__file__).parents[3] / "configs" / "chen2022.toml").resolve())

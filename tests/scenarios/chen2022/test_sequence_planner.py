@@ -20,12 +20,12 @@ import pytest
 
 from mcjax import configure, engine
 from mcjax.contract import FAST_COMPILE
-from mcjax.tracking.filters.imm import combine
-from mcjax.tracking.models.platforms import fixed_wing_step
-from mcjax.scenarios import kit
 from mcjax.scenarios import chen2022 as ub
+from mcjax.scenarios import kit
 from mcjax.scenarios.chen2022 import score as urban
 from mcjax.study.spec import build_spec
+from mcjax.tracking.filters.imm import combine
+from mcjax.tracking.models.platforms import fixed_wing_step
 
 ROOT = Path(__file__).resolve().parents[3]
 TOL = 1e-12

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from mcjax import runtime
-from mcjax.engine import compiled
-from mcjax.scenarios import lou2013 as FL
-from mcjax.scenarios import chen2013 as WF
 from mcjax.analysis.statistics import chi2_band, mean_ci
+from mcjax.engine import compiled
+from mcjax.scenarios import chen2013 as WF
+from mcjax.scenarios import lou2013 as FL
 
 NEW = {"pcrb_rmse", "pcrb_local_rmse", "anees", "anis"}
 NEW_SERIES = {"pcrb_error", "pcrb_local_error", "nees", "nis"}

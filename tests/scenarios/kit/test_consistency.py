@@ -9,13 +9,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from mcjax.analysis.statistics import chi2_band, floor_multiple
 from mcjax.engine import simulate
+from mcjax.scenarios import sun2011 as lf
+from mcjax.scenarios.kit import consistency
 from mcjax.tracking.filters.gaussian import Gaussian
 from mcjax.tracking.models.motion import cv_matrices, cv_process_noise
 from mcjax.tracking.models.sensors import range_bearing
-from mcjax.scenarios import sun2011 as lf
-from mcjax.scenarios.kit import consistency
-from mcjax.analysis.statistics import chi2_band, floor_multiple
 
 pytestmark = pytest.mark.xdist_group("consistency_scenarios")  # one worker builds the module's fixtures once
 

@@ -16,8 +16,8 @@ import pytest
 from click.testing import CliRunner
 
 from mcjax.cli import main
-from mcjax.scenarios import lou2013 as fl
 from mcjax.scenarios import chen2013 as wf
+from mcjax.scenarios import lou2013 as fl
 from mcjax.study import build_spec, run_sweep
 
 ROOT = Path(__file__).resolve().parents[3]

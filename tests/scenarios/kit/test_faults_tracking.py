@@ -14,8 +14,8 @@ from click.testing import CliRunner
 from scipy.stats import binomtest
 
 from mcjax.cli import main
-from mcjax.scenarios import sun2011 as lf
 from mcjax.scenarios import ren2017
+from mcjax.scenarios import sun2011 as lf
 from mcjax.study import build_spec, run_sweep
 
 ROOT = Path(__file__).resolve().parents[3]

@@ -11,10 +11,10 @@ import pytest
 from click.testing import CliRunner
 
 from mcjax.cli import main
-from mcjax.tracking.filters.consensus import FilterOptions, Measurements, kcf_step
-from mcjax.tracking.filters.gaussian import Gaussian
 from mcjax.scenarios.kit import faults
 from mcjax.study import build_spec, run_sweep
+from mcjax.tracking.filters.consensus import FilterOptions, Measurements, kcf_step
+from mcjax.tracking.filters.gaussian import Gaussian
 
 ROOT = Path(__file__).resolve().parents[3]
 DT, EPS, K, STEPS = 1.0, 0.3, 2, 12

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from mcjax import engine, tune
-from mcjax.tracking import graph
 from mcjax.scenarios import lou2013 as fl
 from mcjax.scenarios.lou2013 import dynamics as dyn
+from mcjax.tracking import graph
 from mcjax.tune.spec import Bound, Loss
 
 jax.config.update("jax_enable_x64", True)

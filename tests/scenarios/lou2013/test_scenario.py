@@ -24,13 +24,13 @@ from scipy.integrate import solve_ivp
 from scipy.linalg import block_diag
 
 from mcjax import engine
-from mcjax.tracking import graph
 from mcjax.cli import main
+from mcjax.scenarios import lou2013 as S
+from mcjax.scenarios.lou2013 import dynamics as fl
+from mcjax.tracking import graph
 from mcjax.tracking.filters.consensus import FilterOptions, Measurements, kcf_step, local_step
 from mcjax.tracking.filters.gaussian import Gaussian
-from mcjax.scenarios.lou2013 import dynamics as fl
 from mcjax.tracking.models.motion import cv_matrices, cv_process_noise
-from mcjax.scenarios import lou2013 as S
 
 CONFIG = str((Path(__file__).parents[3] / "configs" / "lou2013.toml").resolve())
 

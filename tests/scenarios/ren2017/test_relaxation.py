@@ -8,13 +8,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax import engine
+from mcjax.contract.relaxation import smooth_params
+from mcjax.scenarios.ren2017 import Config, SCENARIO, Temperatures, mode_hits
 from mcjax.tracking import graph
 from mcjax.tracking.filters.consensus_imm import consensus_imm_ukf_step
 from mcjax.tracking.filters.gaussian import Unscented
 from mcjax.tracking.filters.imm import IMMState
 from mcjax.tracking.models.sensors import range_bearing
-from mcjax.scenarios.ren2017 import SCENARIO, Config, Temperatures, mode_hits
-from mcjax.contract.relaxation import smooth_params
 from mcjax.tune import Loss, run_loss
 
 #: Both switches in play: the sonar's range (450 m) cuts some UUVs in and out as the target

@@ -14,10 +14,10 @@ from filterpy.kalman import IMMEstimator, MerweScaledSigmaPoints, UnscentedKalma
 
 from mcjax import engine
 from mcjax.cli import main
-from mcjax.tracking.filters.imm import combine
-from mcjax.tracking.models.motion import ct_matrix, cv_matrices, cv_process_noise
 from mcjax.scenarios import ren2017 as S
 from mcjax.study import load_config_file
+from mcjax.tracking.filters.imm import combine
+from mcjax.tracking.models.motion import ct_matrix, cv_matrices, cv_process_noise
 
 CONFIG = str((Path(__file__).parents[3] / "configs" / "ren2017.toml").resolve())
 #: The Config of the tests that drive init/step by hand: one compiled step for all of them (the

@@ -13,8 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mcjax.tracking.filters.bounds import measurement_information, pcrb, pcrb_covariance_step, pcrb_step
 from mcjax.analysis.statistics import mean_ci
+from mcjax.tracking.filters.bounds import measurement_information, pcrb, pcrb_covariance_step, pcrb_step
 from mcjax.tracking.models.motion import cv_matrices, cv_process_noise
 from mcjax.tracking.models.sensors import range_bearing
 

@@ -12,13 +12,13 @@ import networkx as nx
 import numpy as np
 import pytest
 
+from benchmarks.peers import numpy_peer
+from mcjax.scenarios import sun2011 as lf
 from mcjax.tracking.filters import exchange
 from mcjax.tracking.filters.consensus import FilterOptions, Late, Measurements, prior_consensus_kcf_step
 from mcjax.tracking.filters.registry import FILTER_KINDS
 from mcjax.tracking.filters.steps import filter_step, init_states
 from mcjax.tracking.models.sensors import range_bearing
-from benchmarks.peers import numpy_peer
-from mcjax.scenarios import sun2011 as lf
 
 N, T = 8, 4
 ANGLE = jnp.array([False, True])

@@ -10,13 +10,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from mcjax.analysis.statistics import chi2_band
 from mcjax.tracking.filters.consensus import FilterOptions, Measurements
+from mcjax.tracking.filters.gaussian import first_step_model
 from mcjax.tracking.filters.registry import FILTER_KINDS
 from mcjax.tracking.filters.steps import filter_step, init_states
-from mcjax.tracking.filters.gaussian import first_step_model
 from mcjax.tracking.metrics import nees
 from mcjax.tracking.models.sensors import position, range_bearing
-from mcjax.analysis.statistics import chi2_band
 
 N_AGENTS = 6
 DT = 1.0
