@@ -149,8 +149,13 @@ def ceiling(name: str, setting) -> int | None:
 def setting_allowed(s) -> str:
     """What a :class:`~mcjax.contract.Setting` allows, in words."""
     if s.many:
-        more = (f", a name installed under {getattr(s, 'plugins')} or 'file.py:ATTRIBUTE'"
-                if getattr(s, "plugins", None) else "")
+        more = ""
+        if getattr(s, "plugins", None):
+            from importlib.metadata import entry_points
+
+            installed = sorted({ep.name for ep in entry_points(group=s.plugins)} - set(s.choices))
+            more = (f", an installed one ({', '.join(installed)})" if installed
+                    else f", a name installed under {s.plugins}") + " or 'file.py:ATTRIBUTE'"
         return "a non-empty list of distinct values from " + ", ".join(map(str, s.choices)) + more
     if s.choices is not None:
         return "one of " + ", ".join(map(str, s.choices))

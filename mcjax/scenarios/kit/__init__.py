@@ -5,7 +5,7 @@
   :func:`agents`, :func:`param_value`), :func:`per_run`;
 * :mod:`~mcjax.scenarios.kit.sensing` — every agent's range–bearing measurement
   (:func:`team_measurements`, :func:`soft_team_measurements`), measuring and linking with faults
-  and temperatures in one call (:func:`sense_and_link`), the comm graph and the links that carried a
+  and relaxation in one call (:func:`sense_and_link`), the comm graph and the links that carried a
   message (:func:`link`), the fault-aware filter update
   (:func:`shield_filters`, :func:`hold_filters`, :func:`filter_update`), the KCF's late messages before step 0 (:func:`kcf_mailbox`);
 * :mod:`~mcjax.scenarios.kit.outputs` — the per-filter error summary, graph statistics and error

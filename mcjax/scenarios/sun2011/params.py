@@ -70,7 +70,7 @@ Config = config_type("Config", dict(
                                "matrices (cost ~ n^2); sparse = over neighbour lists of consensus_neighbours slots "
                                "(cost ~ links, ours; the same numbers to round-off; a UAV with more links than slots "
                                "makes its filters NaN, the run's nonfinite output); auto = dense up to 20 UAVs, "
-                               "sparse above (not faster in our measurements: docs/benchmarks.md); the temperatures "
+                               "sparse above (not faster in our measurements: docs/benchmarks.md); the relaxation "
                                "switch's soft links join every pair: always dense",
                                choices=EXCHANGES),
     consensus_neighbours=Setting(24, "slots of a UAV's neighbour list in the sparse exchange: the most links a UAV "

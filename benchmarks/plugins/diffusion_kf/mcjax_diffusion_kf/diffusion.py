@@ -12,8 +12,8 @@ every node k, with N_k its neighbourhood *including k itself*:
 
 2. diffusion update (combine): ``x̂_k = Σ_{l∈N_k} c_{l,k} ψ_l`` with ``c_{l,k} ≥ 0``, ``Σ_l c_{l,k} = 1``;
    the covariance kept is ``P_k`` of step 1, as in the paper's algorithm;
-3. time update: ``x̄ ← F x̂``, ``P̄ ← F P Fᵀ + Q`` (done at the start of the next call of :func:`step`, the
-   contract's timing: ``F = I, Q = 0`` at the first measurement time).
+3. time update: ``x̄ ← F x̂``, ``P̄ ← F P Fᵀ + Q`` (done at the start of the next call of :func:`step`,
+   the contract's timing: ``F = I, Q = 0`` at the first measurement time).
 
 Choices (the paper's model is linear; ours may not be):
 
@@ -62,10 +62,7 @@ def neighbour_contributions(h, z, sensors, x_lin, R_inv, angle_mask):
 def incremental_update(model, post: Gaussian, meas) -> Gaussian:
     """Predict, then step 1 (adapt) of the ATC diffusion KF: each node's intermediate estimate
     ``(ψ_k, P_k, P_k⁻¹)`` from its prediction and the measurements of its neighbourhood (module docstring)."""
-    _, _, y_bar, Y_bar = predict_information(post.x, post.P, model.F, model.Q)
-    x_bar = post.x if model.F is None else None  # (kept for readability; x̄ is recovered below)
-    del x_bar
-    x_bar = jnp.einsum("nab,nb->na", model.F, post.x) if model.F.ndim == 3 else post.x @ model.F.T
+    x_bar, _, y_bar, Y_bar = predict_information(post.x, post.P, model.F, model.Q)
     i, I = neighbour_contributions(model.h, meas.z, meas.sensors, x_bar, meas.R_inv, model.angle_mask)
     A = meas.adjacency
     links = A + jnp.eye(A.shape[0], dtype=A.dtype)  # N_k: the carried links and the node itself
