@@ -29,17 +29,17 @@ def _parse_set(values: tuple[str, ...]) -> dict:
     for item in values:
         key, eq, raw = item.partition("=")
         if not eq or not key.strip():
-            _fail(f"--set {item!r}: must be KEY=VALUE, e.g. --set params.sensing_radius=100e3")
+            fail(f"--set {item!r}: must be KEY=VALUE, e.g. --set params.sensing_radius=100e3")
         out[key.strip()] = set_value(raw.strip())
     return out
 
 
-def _fail(message: str) -> None:
+def fail(message: str) -> None:
     click.echo("error: " + " ".join(str(message).split()), err=True)  # always one line
     sys.exit(2)
 
 
-def _chunk_failed(message: str) -> None:
+def chunk_failed(message: str) -> None:
     """A chunk failed (computing or writing): one line, exit 1 (at once in the command's own process)."""
     click.echo(f"error: {message}", err=True)
     if own_process():
@@ -52,7 +52,7 @@ def _check_environment() -> None:
     try:
         envvars.check()
     except ValueError as exc:
-        _fail(str(exc))
+        fail(str(exc))
 
 
 def _read_kind(path: Path) -> dict | None:
@@ -148,7 +148,7 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
         s = study.load_sweep(spec, out_dir=out_dir, seeds=seeds, chunk_size=chunk_size,
                              overrides=overrides or None, resume=resume and not dry_run)
     except (study.OutputError, study.SpecError) as exc:
-        _fail(str(exc))
+        fail(str(exc))
     if dry_run:
         from mcjax.analysis.tables import format_table
 
@@ -180,11 +180,11 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
                                             warn=lambda line: click.echo(line, err=True), progress=progress,
                                             should_stop=stop.is_set)
         except study.OutputError as exc:
-            _fail(str(exc))
+            fail(str(exc))
         except study.ChunkError as exc:
             failure = exc
     if failure is not None:
-        _chunk_failed(f"{failure}; {state['done']} of {state['plan']} chunk(s) written to {out_dir} (they stay)")
+        chunk_failed(f"{failure}; {state['done']} of {state['plan']} chunk(s) written to {out_dir} (they stay)")
     if result.stopped:
         click.echo(hint(), err=True)
         exit_now(130)
@@ -192,88 +192,6 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
                f"({result.runs_run / max(result.seconds, 1e-9):.1f} runs/s incl. compilation)")
     _print_summary(result.rows, s)
     finish(stop)
-
-
-@main.command(short_help="Check a claims file: its sweeps, then a verdict per claim.")
-@click.argument("claims", type=click.Path(path_type=Path))
-@click.option("--seeds", type=click.IntRange(min=1), default=None,
-              help="Runs per point of every sweep [default: the claims file's `seeds`, else each sweep's].")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Output folder [default: results/check_<claims file name>].")
-@click.option("--resume", is_flag=True, help="Finish an interrupted check in --out (the same file and --seeds).")
-@click.option("--force", is_flag=True, help="Replace an existing output folder that holds a previous check.")
-@click.option("--strict", is_flag=True, help="Exit 1 when any claim fails (default: exit 0 whatever the verdicts).")
-@click.option("--format", "fmt", type=click.Choice(["text", "markdown", "csv"]), default="text", show_default=True,
-              help="Format of the printed verdict table (markdown: for docs).")
-@click.option("--markdown", is_flag=True, help="The same as --format markdown.")
-@click.option("--executor", type=click.Choice(["local", "dask"]), default="local", show_default=True,
-              help="Where the chunks are computed: this process, or a Dask cluster (pip install -e \".[dask]\").")
-@click.option("--scheduler", default=None, metavar="ADDRESS", help="With --executor dask: a running cluster.")
-@click.option("--workers", default=None, type=int, metavar="N",
-              help="With --executor dask: start a cluster of N worker processes on this machine.")
-def check(claims, seeds, out_dir, resume, force, strict, fmt, markdown, executor, scheduler, workers):
-    """Check the claims file CLAIMS (benchmarks/claims/*.toml): run the sweeps it names through
-    the study pipeline into OUT/<sweep>/ (resume, locks, Dask and the program store as for
-    `mcjax sweep`; claims that share a sweep share its runs), then give every claim a verdict
-    from 95 % intervals — holds (the interval lies on the claimed side), fails (on the other),
-    undecided (it straddles; with roughly the runs that would decide it) — written to
-    OUT/claims.parquet and printed beside the paper's figures. `mcjax report OUT` shows it again
-    with each sweep's figures.
-
-    A malformed claims file exits 2 with one line naming the claim and the field, before
-    anything runs. The first Ctrl-C stops after the chunk in flight (exit 130) and prints the
-    command that resumes.
-    """
-    state = {"out": out_dir, "started": False, "words": ""}
-    fmt = "markdown" if markdown else fmt
-
-    def hint() -> str:
-        if not state["started"]:
-            return "interrupted before the check started; nothing was written"
-        return (f"interrupted: the chunks written stay in {state['out']}; finish with: mcjax check "
-                f"{shlex.quote(str(claims))} --out {shlex.quote(str(state['out']))} --resume"
-                + (f" --seeds {seeds}" if seeds else "") + state["words"])
-
-    with ctrl_c(hint, ACK_DASK if executor == "dask" else ACK) as stop:
-        remote = executor_options(executor, scheduler, workers)
-        state["words"] = remote.words
-        from mcjax.claims import runner
-        from mcjax.claims.report import verdict_text
-        from mcjax.claims.spec import ClaimsError, load_claims
-        from mcjax.study import ChunkError, OutputError
-
-        try:
-            checked = load_claims(claims, seeds=seeds)  # the whole file checked before any folder is touched
-        except ClaimsError as exc:
-            _fail(str(exc))
-        state["out"] = out_dir = out_dir or runner.default_out_dir(claims)
-        bars = Bars(**{name: "chunk" for name in checked.sweeps})
-
-        def progress(name, at) -> None:
-            state["started"] = True
-            bars.show(name, at.chunks_done, at.chunks)
-
-        with open_executor(remote) as ex, bars:
-            try:
-                result = runner.run_check(checked, out_dir=out_dir, resume=resume, force=force,
-                                          executor=ex, message=bars.echo, warn=lambda line: click.echo(line, err=True),
-                                          progress=progress, should_stop=stop.is_set)
-            except (OutputError, ClaimsError) as exc:
-                _fail(str(exc))
-            except ChunkError as exc:
-                _chunk_failed(f"{exc}; the chunks written stay in {out_dir} (finish with --resume)")
-        if result.stopped:
-            click.echo(hint(), err=True)
-            exit_now(130)
-        meta = {"paper": result.claims.paper, "claims_file": str(claims),
-                "seeds": {k: s.seeds for k, s in result.claims.sweeps.items()}}
-        click.echo(verdict_text(result.table, meta, fmt))
-        click.echo(f"verdicts: {out_dir / runner.TABLE_FILE}")
-        failed = strict and bool((result.table["verdict"] == "fails").any())
-        if own_process():  # leave now, so no Ctrl-C can land in the teardown (mcjax.base.interrupt.finish)
-            exit_now(130 if stop.is_set() else int(failed))
-        if failed:
-            sys.exit(1)
 
 
 @main.command(short_help="Run one point of a config (configs/*.toml); print a summary.")
@@ -292,18 +210,18 @@ def run(config, seeds, sets):
         overrides = _parse_set(sets)
         data = _read_kind(config)
         if data is not None and "base" in data:
-            _fail(f"{config} is a sweep spec (it names a base config), not a config file: run it with "
+            fail(f"{config} is a sweep spec (it names a base config), not a config file: run it with "
                   f"`mcjax sweep {shlex.quote(str(config))}`")
         from mcjax import engine, scenarios, study
 
         if not config.is_file():
-            _fail(f"config file not found: {config}" if not config.exists() else f"{config} is a folder, not a file")
+            fail(f"config file not found: {config}" if not config.exists() else f"{config} is a folder, not a file")
         try:
             # chunks of one batch per device: a Ctrl-C waits for little (the numbers do not depend on it)
             s = study.build_spec({"base": str(config.resolve())}, Path.cwd(), seeds=seeds, overrides=overrides,
                            chunk_size=engine.BATCH_SIZE * len(engine.devices()))
         except study.SpecError as exc:
-            _fail(str(exc))
+            fail(str(exc))
         configure()
         click.echo(f"scenario {scenarios.describe(s.scenario)}: {s.n_points} point(s) x {s.seeds} seed(s) = "
                    f"{s.n_runs} runs, filters {', '.join(s.config.filters)}")
@@ -342,7 +260,7 @@ def report(out_dir, fmt, markdown, no_plots):
     try:
         table, plots = make_report(out_dir, fmt, plots=not no_plots, warn=warn)
     except ValueError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     except KeyboardInterrupt:
         click.echo("interrupted", err=True)
         sys.exit(130)
@@ -394,7 +312,7 @@ def _tune(spec_path, out_dir, resume, force, state, stop, hint):
         try:
             spec = tuning.load_tune_spec(spec_path)
         except study.SpecError as exc:
-            _fail(str(exc))
+            fail(str(exc))
 
         def progress(at) -> None:
             loss = {} if at.row is None else {"loss": f"{at.row['loss']:.4g}", "grad": f"{at.row['grad_norm']:.3g}"}
@@ -405,7 +323,7 @@ def _tune(spec_path, out_dir, resume, force, state, stop, hint):
                                      message=bars.echo, progress=progress, started=lambda: state.update(started=True),
                                      should_stop=stop.is_set)
         except (study.SpecError, study.OutputError) as exc:
-            _fail(str(exc))
+            fail(str(exc))
         bars.close()
         if result.stopped:
             click.echo(hint(), err=True)
@@ -445,7 +363,7 @@ def list_scenarios(scenario, config_file):
         try:
             click.echo(filters_text())
         except (ValueError, ImportError) as exc:
-            _fail(str(exc))
+            fail(str(exc))
         return
     file = None
     if config_file is not None:
@@ -454,14 +372,14 @@ def list_scenarios(scenario, config_file):
         try:
             file = read_config_file(config_file)
         except SpecError as exc:
-            _fail(str(exc))
+            fail(str(exc))
     from mcjax.cli.listing import scenario_text
 
     try:
         sc = scenarios.get(scenario, base_dir=Path.cwd()) if scenario is not None else file.scenario
     except (ValueError, ImportError) as exc:
-        _fail(str(exc))  # an unknown name's message suggests the nearest known one
+        fail(str(exc))  # an unknown name's message suggests the nearest known one
     if file is not None and file.scenario.name != sc.name:
-        _fail(f"{config_file} is a config of scenario {file.scenario.name!r}, not {sc.name!r}: "
+        fail(f"{config_file} is a config of scenario {file.scenario.name!r}, not {sc.name!r}: "
               f"`mcjax list {file.scenario.name} --config {shlex.quote(str(config_file))}`")
     click.echo(scenario_text(sc, file, config_file))

@@ -173,7 +173,12 @@ def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
         raise TypeError(f"out_dir must be a non-empty str or os.PathLike, got {out_dir!r}")
     out = Path(out_dir)
     from mcjax.claims.folder import is_check_folder
+    from mcjax.league.folder import is_league_folder
 
+    if is_league_folder(out):  # the league table and its page
+        from mcjax.report.league_page import report_league
+
+        return report_league(out, fmt, plots=plots)
     if is_check_folder(out):  # the verdict table first, then each sweep's report and figures
         from mcjax.claims.report import report_check
 

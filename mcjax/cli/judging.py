@@ -1,0 +1,157 @@
+"""The commands that judge: ``mcjax check`` (a paper's claims file -> a verdict per claim) and ``mcjax league``
+(filters ranked across scenarios and fault points). They register on :func:`mcjax.cli.commands.main`."""
+
+from __future__ import annotations
+
+import shlex
+import sys
+from pathlib import Path
+
+import click
+
+from mcjax.base.interrupt import ACK, ACK_DASK, ctrl_c, exit_now, finish, own_process
+from mcjax.cli.commands import chunk_failed, fail, main
+from mcjax.cli.executor import executor_options, open_executor
+from mcjax.cli.progress import Bars
+
+
+@main.command(short_help="Check a claims file: its sweeps, then a verdict per claim.")
+@click.argument("claims", type=click.Path(path_type=Path))
+@click.option("--seeds", type=click.IntRange(min=1), default=None,
+              help="Runs per point of every sweep [default: the claims file's `seeds`, else each sweep's].")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Output folder [default: results/check_<claims file name>].")
+@click.option("--resume", is_flag=True, help="Finish an interrupted check in --out (the same file and --seeds).")
+@click.option("--force", is_flag=True, help="Replace an existing output folder that holds a previous check.")
+@click.option("--strict", is_flag=True, help="Exit 1 when any claim fails (default: exit 0 whatever the verdicts).")
+@click.option("--format", "fmt", type=click.Choice(["text", "markdown", "csv"]), default="text", show_default=True,
+              help="Format of the printed verdict table (markdown: for docs).")
+@click.option("--markdown", is_flag=True, help="The same as --format markdown.")
+@click.option("--executor", type=click.Choice(["local", "dask"]), default="local", show_default=True,
+              help="Where the chunks are computed: this process, or a Dask cluster (pip install -e \".[dask]\").")
+@click.option("--scheduler", default=None, metavar="ADDRESS", help="With --executor dask: a running cluster.")
+@click.option("--workers", default=None, type=int, metavar="N",
+              help="With --executor dask: start a cluster of N worker processes on this machine.")
+def check(claims, seeds, out_dir, resume, force, strict, fmt, markdown, executor, scheduler, workers):
+    """Check the claims file CLAIMS (benchmarks/claims/*.toml): run the sweeps it names through
+    the study pipeline into OUT/<sweep>/ (resume, locks, Dask and the program store as for
+    `mcjax sweep`; claims that share a sweep share its runs), then give every claim a verdict
+    from 95 % intervals — holds (the interval lies on the claimed side), fails (on the other),
+    undecided (it straddles; with roughly the runs that would decide it) — written to
+    OUT/claims.parquet and printed beside the paper's figures. `mcjax report OUT` shows it again
+    with each sweep's figures.
+
+    A malformed claims file exits 2 with one line naming the claim and the field, before
+    anything runs. The first Ctrl-C stops after the chunk in flight (exit 130) and prints the
+    command that resumes.
+    """
+    state = {"out": out_dir, "started": False, "words": ""}
+    fmt = "markdown" if markdown else fmt
+
+    def hint() -> str:
+        if not state["started"]:
+            return "interrupted before the check started; nothing was written"
+        return (f"interrupted: the chunks written stay in {state['out']}; finish with: mcjax check "
+                f"{shlex.quote(str(claims))} --out {shlex.quote(str(state['out']))} --resume"
+                + (f" --seeds {seeds}" if seeds else "") + state["words"])
+
+    with ctrl_c(hint, ACK_DASK if executor == "dask" else ACK) as stop:
+        remote = executor_options(executor, scheduler, workers)
+        state["words"] = remote.words
+        from mcjax.claims import runner
+        from mcjax.claims.report import verdict_text
+        from mcjax.claims.spec import ClaimsError, load_claims
+        from mcjax.study import ChunkError, OutputError
+
+        try:
+            checked = load_claims(claims, seeds=seeds)  # the whole file checked before any folder is touched
+        except ClaimsError as exc:
+            fail(str(exc))
+        state["out"] = out_dir = out_dir or runner.default_out_dir(claims)
+        bars = Bars(**{name: "chunk" for name in checked.sweeps})
+
+        def progress(name, at) -> None:
+            state["started"] = True
+            bars.show(name, at.chunks_done, at.chunks)
+
+        with open_executor(remote) as ex, bars:
+            try:
+                result = runner.run_check(checked, out_dir=out_dir, resume=resume, force=force,
+                                          executor=ex, message=bars.echo, warn=lambda line: click.echo(line, err=True),
+                                          progress=progress, should_stop=stop.is_set)
+            except (OutputError, ClaimsError) as exc:
+                fail(str(exc))
+            except ChunkError as exc:
+                chunk_failed(f"{exc}; the chunks written stay in {out_dir} (finish with --resume)")
+        if result.stopped:
+            click.echo(hint(), err=True)
+            exit_now(130)
+        meta = {"paper": result.claims.paper, "claims_file": str(claims),
+                "seeds": {k: s.seeds for k, s in result.claims.sweeps.items()}}
+        click.echo(verdict_text(result.table, meta, fmt))
+        click.echo(f"verdicts: {out_dir / runner.TABLE_FILE}")
+        failed = strict and bool((result.table["verdict"] == "fails").any())
+        if own_process():  # leave now, so no Ctrl-C can land in the teardown (mcjax.base.interrupt.finish)
+            exit_now(130 if stop.is_set() else int(failed))
+        if failed:
+            sys.exit(1)
+
+
+@main.command(short_help="Rank filters across scenarios and fault points (a league file).")
+@click.argument("league_file", metavar="LEAGUE", type=click.Path(path_type=Path))
+@click.option("--seeds", type=click.IntRange(min=1), default=None,
+              help="Runs per scenario x point [default: the league file's `seeds`].")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Output folder [default: results/league_<league file name>].")
+@click.option("--resume", is_flag=True, help="Finish an interrupted league in --out (the same file and --seeds).")
+@click.option("--force", is_flag=True, help="Replace an existing output folder that holds a previous league.")
+@click.option("--format", "fmt", type=click.Choice(["text", "markdown", "csv"]), default="text", show_default=True,
+              help="Format of the printed league table (markdown: for docs).")
+@click.option("--markdown", is_flag=True, help="The same as --format markdown.")
+@click.option("--executor", type=click.Choice(["local", "dask"]), default="local", show_default=True,
+              help="Where the chunks are computed: this process, or a Dask cluster (pip install -e \".[dask]\").")
+@click.option("--scheduler", default=None, metavar="ADDRESS", help="With --executor dask: a running cluster.")
+@click.option("--workers", default=None, type=int, metavar="N",
+              help="With --executor dask: start a cluster of N worker processes on this machine.")
+def league(league_file, seeds, out_dir, resume, force, fmt, markdown, executor, scheduler, workers):
+    """Rank the filters of LEAGUE (benchmarks/league/*.toml) across its scenarios and fault points: each
+    scenario x point is a sweep in OUT/<scenario>/<point>/ (resume, locks, Dask and the program store as for
+    `mcjax sweep`; every filter of a scenario runs on the same seeds), then one row per scenario x point x
+    filter — the error with its interval and its rank (filters whose paired interval against the best
+    overlaps zero share its rank), the error as a multiple of the floor, the divergence rate, the ANEES
+    against its band, the cost per run measured on this machine — written to OUT/league.parquet and
+    printed (docs/claims.md, "The league").
+
+    A bad league file exits 2 with one line naming the key, before anything runs. The first Ctrl-C
+    stops after the chunk in flight (exit 130) and prints the command that resumes.
+    """
+    from mcjax.league import runner as lr
+    from mcjax.league import table
+
+    fmt = "markdown" if markdown else fmt
+
+    def hint() -> str:
+        return lr.resume_hint(league_file, out_dir, seeds)
+
+    with ctrl_c(hint, ACK_DASK if executor == "dask" else ACK) as stop:
+        try:
+            checked = lr.load_league(league_file, seeds=seeds)  # the whole file, before any folder is touched
+        except lr.LeagueError as exc:
+            fail(str(exc))
+        out_dir = out_dir or lr.default_out_dir(league_file)
+        bars = Bars(**{k: "chunk" for k in lr.cells(checked)})
+        with open_executor(executor_options(executor, scheduler, workers)) as ex, bars:
+            try:
+                result = lr.run_league(checked, out_dir=out_dir, resume=resume, force=force, executor=ex,
+                                       message=bars.echo, warn=lambda line: click.echo(line, err=True),
+                                       progress=lambda k, at: bars.show(k, at.chunks_done, at.chunks),
+                                       should_stop=stop.is_set)
+            except (lr.OutputError, lr.LeagueError) as exc:
+                fail(str(exc))
+            except lr.ChunkError as exc:
+                chunk_failed(f"{exc}; the chunks written stay in {out_dir} (finish with --resume)")
+        if result.stopped:
+            click.echo(hint(), err=True)
+            exit_now(130)
+        click.echo(table.league_text(result.table, result.meta, fmt))
+        finish(stop)

@@ -1,0 +1,163 @@
+"""``mcjax league`` without the CLI: every scenario × point of a league file run through the study
+pipeline into one output folder, the timing pass, and the league table written beside them.
+
+The folder holds ``league.json`` (the league file as read and the seeds: what ``--resume``
+compares), one sweep folder per scenario and point (``OUT/<scenario>/<point>/``, each what ``mcjax
+sweep`` writes: its lock, ``sweep.json``, Parquet parts — so resuming, locks, Dask and the program
+store work as for a sweep), ``timing.json`` (the timing pass, kept when resumed) and, once every
+sweep is whole, ``league.parquet``: the league table (:data:`mcjax.league.table.COLUMNS`), written
+atomically. A league stopped and resumed computes the chunks still missing and gives the same
+table (the cost columns are the timing pass's, measured once per folder).
+
+Reports through callbacks (``message``, ``warn``, ``progress``, ``should_stop``) and raises the
+pipeline's exceptions (:class:`~mcjax.league.spec.LeagueError` before anything runs,
+:class:`~mcjax.study.store.OutputError`, :class:`~mcjax.study.execute.ChunkError`)::
+
+    from mcjax.league.runner import run_league
+    result = run_league("benchmarks/league/consensus.toml", seeds=20, out_dir="results/league_consensus")
+    result.table[["scenario", "point", "filter", "rank", "rmse"]]
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import re
+import shlex
+from pathlib import Path
+from typing import Callable, NamedTuple
+
+import pandas as pd
+
+from mcjax.base import provenance
+from mcjax.league import table as league_table
+from mcjax.league.folder import LEAGUE_FILE, TABLE_FILE, read_timing, write_table, write_timing
+from mcjax.league.spec import League, LeagueError, describe, identity, load_league
+from mcjax.league.timing import timing_pass
+from mcjax.study.execute import ChunkError, Executor
+from mcjax.study.runner import SweepProgress, run_sweep_folder
+from mcjax.study.store import IDENTITY_FILE, RESULTS_DIR, OutputError, hold_output, start_fresh, write_identity
+
+
+class LeagueResult(NamedTuple):
+    """What :func:`run_league` did: the checked ``league``, its ``out_dir``, the league ``table``
+    (None when stopped) and whether ``should_stop()`` stopped it."""
+
+    league: League
+    out_dir: Path
+    table: pd.DataFrame | None
+    stopped: bool
+
+    @property
+    def meta(self) -> dict:
+        """What the league table's header says: title, runs per cell, the timing pass's machine."""
+        machine = "" if self.table is None else next(iter(self.table["machine"]), "")
+        return {"title": self.league.title, "seeds": self.league.seeds, "machine": machine}
+
+
+__all__ = ["ChunkError", "LeagueError", "LeagueResult", "OutputError", "build_table", "cells", "default_out_dir",
+           "load_league", "resume_hint", "run_league"]
+
+
+def default_out_dir(league_file: str | Path) -> Path:
+    """``results/league_<name>``, the name from the league file's stem."""
+    name = re.sub(r"[^A-Za-z0-9._-]+", "_", Path(league_file).stem).strip("._-") or "league"
+    return RESULTS_DIR / f"league_{name}"
+
+
+def cells(league: League) -> list[str]:
+    """``"<scenario>/<point>"`` of every cell, in the order they run (the progress callback's names)."""
+    return [f"{key}/{point}" for key, point in league.studies]
+
+
+def resume_hint(league_file: str | Path, out_dir: str | Path | None, seeds: int | None) -> str:
+    """What a stopped league prints: the command that finishes it."""
+    return (f"interrupted: the chunks written stay in {out_dir}; finish with: mcjax league "
+            f"{shlex.quote(str(league_file))} --out {shlex.quote(str(out_dir))} --resume"
+            + (f" --seeds {seeds}" if seeds else ""))
+
+
+def _columns(study) -> list[str]:
+    role = league_table.roles(study.scenario.outputs(study.config))
+    return ["point_id", "seed_index", "filter", *(role[r] for r in ("error", "divergence", "floor", "nees")
+                                                 if r in role)]
+
+
+def run_league(league_file: str | Path | League, *, out_dir: str | Path | None = None, seeds: int | None = None,
+               resume: bool = False, force: bool = False, executor: Executor | None = None,
+               message: Callable[[str], None] | None = None, warn: Callable[[str], None] | None = None,
+               progress: Callable[[str, SweepProgress], None] | None = None,
+               should_stop: Callable[[], bool] | None = None) -> LeagueResult:
+    """Run ``league_file`` (module docstring): read and check it whole
+    (:func:`mcjax.league.spec.load_league`, ``seeds`` runs per cell; or a :class:`League` already
+    read), make ``out_dir`` ready (default ``results/league_<name>``; a fresh league needs it empty
+    or missing, ``force`` replaces a previous league, ``resume`` needs the same file and seeds), run
+    every scenario × point (``progress("<scenario>/<point>", SweepProgress)``), the timing pass,
+    then write ``league.parquet``."""
+    say, stop = message or (lambda _: None), should_stop or (lambda: False)
+    league = league_file if isinstance(league_file, League) else load_league(league_file, seeds=seeds)
+    out = Path(default_out_dir(league.path) if out_dir is None else out_dir)
+    ident = {**identity(league), "league_file": str(league.path.resolve())}
+    if resume and force:
+        raise OutputError("--resume and --force exclude each other")
+    rows: dict[tuple, pd.DataFrame] = {}
+    with contextlib.ExitStack() as held:
+        held.enter_context(hold_output(out, warn))
+        if resume:
+            try:
+                saved = json.loads((out / LEAGUE_FILE).read_text(encoding="utf-8"))
+            except (OSError, ValueError):
+                raise OutputError(f"nothing to resume in {out}: no readable {LEAGUE_FILE} (start the league "
+                                  f"without --resume)") from None
+            if {k: saved.get(k) for k in ("league", "seeds")} != {k: ident[k] for k in ("league", "seeds")}:
+                raise OutputError(f"{out} holds another league file or seed count; --resume needs the same file "
+                                  f"and --seeds (or start again with --force)")
+        else:
+            try:
+                start_fresh(out, force=force, keep=[league.path.resolve()], identity_file=LEAGUE_FILE, kind="league")
+            except OSError as exc:
+                raise OutputError(f"output folder {out}: {exc.strerror or exc}") from None
+            write_identity(out, LEAGUE_FILE, ident)
+        say(describe(league))
+        for (key, point), study in league.studies.items():
+            folder = out / key / point
+            name = f"{key}/{point}"
+            again = resume and (folder / IDENTITY_FILE).is_file()
+            say(f"{name}:")
+            result = run_sweep_folder(study, out_dir=folder, resume=again, executor=executor,
+                                      columns=_columns(study), message=say, warn=warn,
+                                      progress=(lambda at, name=name: progress(name, at)) if progress else None,
+                                      should_stop=stop)
+            if result.stopped:
+                return LeagueResult(league, out, None, True)
+            if result.runs_run:
+                say(f"{name}: {result.runs_run} runs in {result.seconds:.1f} s (compilation included)")
+            rows[key, point] = result.rows
+        timing: dict = {}
+        if league.timing_runs:
+            timing, stopped = timing_pass(league, read_timing(out), save=lambda t: write_timing(out, t),
+                                          message=say, should_stop=stop)
+            if stopped:
+                return LeagueResult(league, out, None, True)
+        table = build_table(league, rows, timing)
+        write_table(out / TABLE_FILE, table, {"title": league.title, "league_file": str(league.path.resolve()),
+                                              "seeds": league.seeds, "points": league.points,
+                                              "machine": timing.get("machine", ""),
+                                              "timing_runs": league.timing_runs,
+                                              **provenance.environment_metadata()})
+    return LeagueResult(league, out, table, False)
+
+
+def build_table(league: League, rows: dict, timing: dict) -> pd.DataFrame:
+    """The league table of every cell's runs (``rows``: (scenario, point) → the sweep's rows) and
+    the timing pass's costs."""
+    out = []
+    for (key, point), study in league.studies.items():
+        entry = league.scenarios[key]
+        r = rows[key, point].copy()
+        r["filter"] = [league.filter_name(str(f)) for f in r["filter"]]
+        costs = {f: tuple(c) for f, c in (timing.get("costs") or {}).get(key, {}).items()}
+        out += league_table.cell_rows(key, entry.scenario, point, r,
+                                      league_table.roles(study.scenario.outputs(study.config)), entry.filters,
+                                      league.filters, entry.notes, costs, timing.get("machine", ""))
+    return league_table.frame(out)
