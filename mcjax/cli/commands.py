@@ -71,7 +71,20 @@ def _print_summary(df, spec) -> None:
     click.echo(summary_text(df, {**spec.scenario.metadata(spec.config), "spec": spec.source}))
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+class Commands(click.Group):
+    """The command group: a filter that breaks the filter contract, found when its step is first traced
+    (:class:`mcjax.contract.filter.FilterError`), ends any command with its one line and exit 2."""
+
+    def invoke(self, ctx):
+        from mcjax.contract.filter import FilterError  # here, not at import: the contract loads numpy
+
+        try:
+            return super().invoke(ctx)
+        except FilterError as exc:
+            fail(str(exc))
+
+
+@click.group(cls=Commands, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(package_name="mcjax")
 def main() -> None:
     """mcjax — batched Monte-Carlo simulation of distributed cooperative target tracking.

@@ -82,6 +82,11 @@ class Model(NamedTuple):
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
+class FilterError(ValueError):
+    """A filter whose step does not keep the contract (what it returns): one line naming the filter and the
+    field, raised when the step is first traced (:func:`mcjax.tracking.filters.steps.checked`)."""
+
+
 @dataclass(frozen=True, eq=False)
 class Filter:
     """One filter (module docstring); hashed by identity. Checked when it is built: a one-line

@@ -6,7 +6,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from mcjax.contract.filter import Model
+from mcjax.contract.filter import FilterError, Model
 from mcjax.tracking.filters.consensus import FilterOptions, Measurements
 from mcjax.tracking.filters.gaussian import Gaussian
 from mcjax.tracking.filters.registry import get
@@ -20,7 +20,22 @@ def filter_step(kinds, opts: FilterOptions, h, angle_mask, states, meas: Measure
     states (same structure as ``states``). ``formation``: eq. 12's formation term of Chen & Lu 2013's
     consensus Kalman filter, if any."""
     model = Model(h, angle_mask, F, Q, opts, kcf_epsilon, formation)
-    return tuple(get(kind).step(model, post, meas) for kind, post in zip(kinds, states))
+    return tuple(checked(kind, get(kind).step(model, post, meas), post) for kind, post in zip(kinds, states))
+
+
+def checked(kind, new, post):
+    """``new``, a filter's step's result, when it has the structure, shapes and dtypes of the posterior it was
+    given; else a one-line :class:`FilterError` naming the filter and the field (at the first trace, before
+    anything runs)."""
+    if not isinstance(new, Gaussian):
+        raise FilterError(f"filter {kind!r}: its step returned a {type(new).__name__}, not a Gaussian(x, P, Y) like "
+                         f"the posterior it was given")
+    for field, a, b in zip(Gaussian._fields, new, post):
+        if jnp.shape(a) != jnp.shape(b) or jnp.result_type(a) != jnp.result_type(b):
+            raise FilterError(f"filter {kind!r}: its step returned {field} of shape {tuple(jnp.shape(a))} and dtype "
+                             f"{jnp.result_type(a)}; the posterior's {field} is {tuple(jnp.shape(b))} "
+                             f"{jnp.result_type(b)}")
+    return new
 
 
 def _with_agents(state: Gaussian, n_agents: int) -> Gaussian:

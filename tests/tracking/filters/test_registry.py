@@ -184,3 +184,48 @@ def test_the_two_scenarios_that_take_no_filter_of_ones_own_say_why_in_one_line(p
     with pytest.raises(ValueError, match="must be among its own") as err:
         scenarios.get(scenario).Config(filters=(f"{plugin_file}:MINE",))
     assert why in str(err.value) and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("returns, message", [
+    ("post.x", "its step returned a ArrayImpl, not a Gaussian|its step returned a DynamicJaxprTracer"),
+    ("post._replace(x=post.x[:, :2])", r"returned x of shape \(3, 2\) and dtype float64; the posterior's x is \(3, 4\)"),
+    ("post._replace(P=post.P.astype('float32'))", "returned P of shape .* and dtype float32"),
+])
+def test_a_step_returning_the_wrong_structure_is_refused_in_one_line_naming_the_field(tmp_path, returns, message):
+    import jax.numpy as jnp
+
+    from mcjax import configure
+    from mcjax.tracking.filters.consensus import FilterOptions, Measurements
+
+    configure()
+    (tmp_path / "bad_filter.py").write_text(
+        "from mcjax.contract.filter import Filter\n"
+        f"BAD = Filter('bad', 'bad', 'ours', lambda m, post, meas: {returns})\n")
+    ref = f"{tmp_path / 'bad_filter.py'}:BAD"
+    n = 3
+    states = steps.init_states((ref,), jnp.zeros(4), jnp.eye(4), n)
+    meas = Measurements(jnp.full((n, 2), jnp.nan), jnp.zeros((n, 2)), jnp.zeros((n, n)),
+                        jnp.broadcast_to(jnp.eye(2), (n, 2, 2)))
+    with pytest.raises(ValueError, match=message) as err:
+        steps.filter_step((ref,), FilterOptions(), lambda x, s: x[:2], jnp.zeros(2), states, meas, jnp.eye(4),
+                          jnp.zeros((4, 4)), 0.1)
+    assert f"filter {ref!r}" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_through_the_command_line_a_broken_step_is_one_line_and_exit_2(tmp_path):
+    from pathlib import Path
+
+    from click.testing import CliRunner
+
+    from mcjax.cli import main
+
+    (tmp_path / "bad_filter.py").write_text("from mcjax.contract.filter import Filter\n"
+                                            "BAD = Filter('bad', 'bad', 'ours', lambda m, post, meas: post.x)\n")
+    config = Path(__file__).resolve().parents[3] / "configs" / "sun2011.toml"
+    r = CliRunner().invoke(main, ["run", str(config), "--seeds", "2", "--set",
+                                  f'config.filters=["local", "{tmp_path / "bad_filter.py"}:BAD"]',
+                                  "--set", "config.planner=none", "--set", "config.n_steps=12"])
+    assert r.exit_code == 2, r.output
+    errors = [line for line in r.output.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "its step returned" in errors[0] and "not a Gaussian" in errors[0], r.output
+    assert "Traceback" not in r.output
