@@ -15,6 +15,18 @@ from mcjax.cli.executor import executor_options, open_executor
 from mcjax.cli.progress import Bars
 
 
+def dask_options(command):
+    """``--executor``, ``--scheduler`` and ``--workers``, the same on both commands (checked together by
+    :func:`mcjax.cli.executor.executor_options`)."""
+    command = click.option("--workers", default=None, type=int, metavar="N",
+                           help="With --executor dask: start a cluster of N worker processes on this machine.")(command)
+    command = click.option("--scheduler", default=None, metavar="ADDRESS",
+                           help="With --executor dask: a running cluster.")(command)
+    return click.option("--executor", type=click.Choice(["local", "dask"]), default="local", show_default=True,
+                        help="Where the chunks are computed: this process, or a Dask cluster "
+                             "(pip install -e \".[dask]\").")(command)
+
+
 @main.command(short_help="Check a claims file: its sweeps, then a verdict per claim.")
 @click.argument("claims", type=click.Path(path_type=Path))
 @click.option("--seeds", type=click.IntRange(min=1), default=None,
@@ -27,11 +39,7 @@ from mcjax.cli.progress import Bars
 @click.option("--format", "fmt", type=click.Choice(["text", "markdown", "csv"]), default="text", show_default=True,
               help="Format of the printed verdict table (markdown: for docs).")
 @click.option("--markdown", is_flag=True, help="The same as --format markdown.")
-@click.option("--executor", type=click.Choice(["local", "dask"]), default="local", show_default=True,
-              help="Where the chunks are computed: this process, or a Dask cluster (pip install -e \".[dask]\").")
-@click.option("--scheduler", default=None, metavar="ADDRESS", help="With --executor dask: a running cluster.")
-@click.option("--workers", default=None, type=int, metavar="N",
-              help="With --executor dask: start a cluster of N worker processes on this machine.")
+@dask_options
 def check(claims, seeds, out_dir, resume, force, strict, fmt, markdown, executor, scheduler, workers):
     """Check the claims file CLAIMS (benchmarks/claims/*.toml): run the sweeps it names through
     the study pipeline into OUT/<sweep>/ (resume, locks, Dask and the program store as for
@@ -108,11 +116,7 @@ def check(claims, seeds, out_dir, resume, force, strict, fmt, markdown, executor
 @click.option("--format", "fmt", type=click.Choice(["text", "markdown", "csv"]), default="text", show_default=True,
               help="Format of the printed league table (markdown: for docs).")
 @click.option("--markdown", is_flag=True, help="The same as --format markdown.")
-@click.option("--executor", type=click.Choice(["local", "dask"]), default="local", show_default=True,
-              help="Where the chunks are computed: this process, or a Dask cluster (pip install -e \".[dask]\").")
-@click.option("--scheduler", default=None, metavar="ADDRESS", help="With --executor dask: a running cluster.")
-@click.option("--workers", default=None, type=int, metavar="N",
-              help="With --executor dask: start a cluster of N worker processes on this machine.")
+@dask_options
 def league(league_file, seeds, out_dir, resume, force, fmt, markdown, executor, scheduler, workers):
     """Rank the filters of LEAGUE (benchmarks/league/*.toml) across its scenarios and fault points: each
     scenario x point is a sweep in OUT/<scenario>/<point>/ (resume, locks, Dask and the program store as for
