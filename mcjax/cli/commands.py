@@ -55,6 +55,16 @@ def _check_environment() -> None:
         fail(str(exc))
 
 
+def refuse_clashing_filters() -> None:
+    """An installed filter plugin that takes a built-in filter's name (:func:`mcjax.tracking.filters.registry.clashes`)
+    stops a command that runs filters before anything runs: one line, exit 2."""
+    from mcjax.tracking.filters import registry
+
+    found = registry.clashes()
+    if found:
+        fail(found[0])
+
+
 def _read_kind(path: Path) -> dict | None:
     """The TOML of ``path`` if it reads (for telling a spec from a config), else None."""
     try:
@@ -137,6 +147,7 @@ def sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, execut
     on a worker stops the sweep with a one-line error naming the chunk and its points (exit
     code 1); the chunks written stay, for --resume.
     """
+    refuse_clashing_filters()
     state = {"done": 0, "plan": None, "out": out_dir, "words": ""}
 
     def hint() -> str:
@@ -219,6 +230,7 @@ def run(config, seeds, sets):
     """Run one parameter point of CONFIG (configs/*.toml) and print a summary table
     (nothing is written to disk). The first Ctrl-C stops after the chunk in flight, a second
     one at once (exit code 130)."""
+    refuse_clashing_filters()
     with ctrl_c(lambda: "nothing was written") as stop:
         overrides = _parse_set(sets)
         data = _read_kind(config)
@@ -304,6 +316,7 @@ def tune(spec, out_dir, resume, force):
     which) and summarised, the initial row first. The first Ctrl-C stops after the step in flight, a second one at once
     (exit code 130); both print the command that resumes. See docs/tune.md.
     """
+    refuse_clashing_filters()
     state = {"out": out_dir, "started": False}
 
     def hint() -> str:

@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from mcjax.base.interrupt import ACK, ACK_DASK, ctrl_c, exit_now, finish, own_process
-from mcjax.cli.commands import chunk_failed, fail, main
+from mcjax.cli.commands import chunk_failed, fail, main, refuse_clashing_filters
 from mcjax.cli.executor import executor_options, open_executor
 from mcjax.cli.progress import Bars
 
@@ -53,6 +53,7 @@ def check(claims, seeds, out_dir, resume, force, strict, fmt, markdown, executor
     anything runs. The first Ctrl-C stops after the chunk in flight (exit 130) and prints the
     command that resumes.
     """
+    refuse_clashing_filters()
     state = {"out": out_dir, "started": False, "words": ""}
     fmt = "markdown" if markdown else fmt
 
@@ -129,6 +130,7 @@ def league(league_file, seeds, out_dir, resume, force, fmt, markdown, executor, 
     A bad league file exits 2 with one line naming the key, before anything runs. The first Ctrl-C
     stops after the chunk in flight (exit 130) and prints the command that resumes.
     """
+    refuse_clashing_filters()
     from mcjax.league import runner as lr
     from mcjax.league import table
 

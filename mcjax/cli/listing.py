@@ -108,7 +108,7 @@ def filters_text() -> str:
     """``mcjax list filters``: every filter (built-in, then installed plugins) with its title, reference,
     traits and the scenarios that can run it (a scenario lists a built-in filter among its ``filters``
     choices; a plugin runs in every scenario whose ``filters`` take plugins). A plugin that cannot be
-    loaded is listed with its one-line reason, not hidden."""
+    loaded, or that takes a built-in filter's name, is listed with its one-line reason, not hidden."""
     from mcjax import scenarios
     from mcjax.tracking.filters import registry
 
@@ -133,6 +133,8 @@ def filters_text() -> str:
         where = "" if builtin else f"  [plugin: {registry.origin(name)}]"
         lines += [f"{name:14s} {f.title}{where}", f"    reference: {f.reference}",
                   f"    traits: {f.traits.words()}", f"    scenarios: {', '.join(runs) or 'none'}"]
+    for clash in registry.clashes():  # a plugin that takes a built-in's name: listed, never resolved
+        lines += [clash.split(":")[0].removeprefix("filter ").strip("'"), f"    cannot be loaded: {clash}"]
     lines.append("a filter of your own: docs/library.md, 'Writing a filter' (entry-point group mcjax.filters, "
                  "or \"file.py:ATTRIBUTE\" in a config's filters)")
     return "\n".join(lines)

@@ -53,7 +53,9 @@ def _checked(obj, ref: str) -> Filter:
 def get(name: str, base_dir: str | Path | None = None) -> Filter:
     """The filter called ``name`` (module docstring); a one-line ValueError otherwise (an unknown name with
     the known ones and a did-you-mean, a plugin that fails to import, an object that is not a Filter, a
-    name that clashes with a built-in). Plugins and references are imported once per process."""
+    reference to a record named like a built-in). A built-in name is always the built-in: an installed plugin
+    whose entry point takes one is refused by :func:`clashes`, not resolved. Plugins and
+    references are imported once per process."""
     if name in BUILTIN:
         return BUILTIN[name]
     if name in _FOUND:
@@ -76,6 +78,20 @@ def get(name: str, base_dir: str | Path | None = None) -> Filter:
         raise ValueError(f"filter must be one of {', '.join(known())} (or 'file.py:ATTRIBUTE'); got {name!r}{hint}")
     _FOUND[name] = found
     return found[0]
+
+
+def clashes() -> list[str]:
+    """One line per installed plugin whose entry point takes a built-in filter's name (it would be shadowed,
+    or shadow the built-in, in silence): the commands that run filters refuse to start on any (exit 2), and
+    ``mcjax list filters`` shows them."""
+    return [f"filter {name!r}: the installed plugin {point.value}{_distribution(point)} declares the name of a "
+            f"built-in filter (entry-point group {ENTRY_POINT_GROUP}); rename its entry point or uninstall it"
+            for name, point in _plugin_points().items() if name in BUILTIN]
+
+
+def _distribution(point) -> str:
+    dist = getattr(point, "dist", None)
+    return f" in the distribution {dist.name}" if dist is not None and getattr(dist, "name", None) else ""
 
 
 def origin(name: str) -> str | None:
