@@ -203,7 +203,7 @@ def main(argv=None) -> None:
             ns_c = median_time(lambda: [np.ascontiguousarray(v) for v in run_filter(kind, **batch, x0=x0, **common)],
                                args.repeats) / (B * per_run) * 1e9
             ns_one = ns_general = ns_jax = math.nan
-            if kind in recorded.BATCHED_KINDS:  # the pure-JAX kernels (always; the default without a compiler)
+            if recorded.batched_kernel(kind):  # the pure-JAX kernels (always; the default without a compiler)
                 saved = recorded.USE_NATIVE
                 try:
                     recorded.USE_NATIVE = False
@@ -212,8 +212,8 @@ def main(argv=None) -> None:
                                          args.repeats) / (B * per_run) * 1e9
                 finally:
                     recorded.USE_NATIVE = saved
-            if not args.no_variants and kind in recorded.BATCHED_KINDS:
-                saved = recorded.SPLIT_OVER_DEVICES, recorded.BATCHED_KINDS, recorded.USE_NATIVE
+            if not args.no_variants and recorded.batched_kernel(kind):
+                saved = recorded.SPLIT_OVER_DEVICES, recorded.BATCHED_KERNELS, recorded.USE_NATIVE
                 recorded.USE_NATIVE = False  # the variants are of the pure-JAX path
                 try:
                     recorded.SPLIT_OVER_DEVICES = not saved[0]  # the other device choice
@@ -221,13 +221,13 @@ def main(argv=None) -> None:
                     ns_one = median_time(lambda: run_filter(kind, **batch, x0=x0, **common),
                                          args.repeats) / (B * per_run) * 1e9
                     recorded.SPLIT_OVER_DEVICES = saved[0]
-                    recorded.BATCHED_KINDS = ()  # the general path (vmap of steps.filter_step)
+                    recorded.BATCHED_KERNELS = {}  # the general path (vmap of steps.filter_step)
                     if B <= args.general_max_batch:
                         run_filter(kind, **batch, x0=x0, **common)
                         ns_general = median_time(lambda: run_filter(kind, **batch, x0=x0, **common),
                                                  args.repeats) / (B * per_run) * 1e9
                 finally:
-                    recorded.SPLIT_OVER_DEVICES, recorded.BATCHED_KINDS, recorded.USE_NATIVE = saved
+                    recorded.SPLIT_OVER_DEVICES, recorded.BATCHED_KERNELS, recorded.USE_NATIVE = saved
             ns_numba = math.nan
             if numba_peer is not None and kind in NUMBA_FILTERS:
                 numba_peer.run_filter_numba(kind, *(v[:2] for v in batch.values()), x0, **common)
@@ -243,7 +243,7 @@ def main(argv=None) -> None:
             print(f"| {kind} | {B:,} | {fmt(ns_mcjax)} | {fmt(ns_c)} | {fmt(ns_jax)} | {fmt(ns_one)} | {fmt(ns_general)} | {fmt(ns_fp)} | {fmt(ns_numpy)} | {fmt(ns_numba)} | "
                   f"{ratio_fp} | {ratio_nb} | {ratio_jax} | {f_peer} / {f_mcjax} | {gflops} | {gflops_nb} | {os.getloadavg()[0]:.1f} |", flush=True)
             print(f"#   {kind} B={B}: first mcjax call (compilation included) {compile_s:.1f} s", flush=True)
-            if args.baseline is not None and kind in recorded.BATCHED_KINDS and numba_peer is not None:
+            if args.baseline is not None and recorded.batched_kernel(kind) and numba_peer is not None:
                 saved = recorded.USE_NATIVE, recorded.batched
                 try:
                     recorded.USE_NATIVE = False

@@ -9,9 +9,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax.tracking.filters import batched, native
-from mcjax.tracking.filters.consensus import FilterOptions, Measurements
+from mcjax.tracking.filters.consensus import LOCAL, MODIFIED_ICF, FilterOptions, Measurements
 from mcjax.tracking.filters.gaussian import first_step_model
-from mcjax.tracking.filters.registry import FILTER_KINDS
+from mcjax.tracking.filters.registry import get
 from mcjax.tracking.filters.steps import filter_step, init_states, per_agent
 from mcjax.tracking.models.sensors import range_bearing
 from mcjax.tracking.numerics import require_x64, x64_enabled
@@ -90,8 +90,15 @@ def _run_one(kind, opts, z, sensors, adjacency, x0, P0, F, Q, R, kcf_epsilon):
     return xs, Ps
 
 
-#: Filters run by the structure-of-arrays kernels of :mod:`mcjax.tracking.filters.batched`.
-BATCHED_KINDS = ("local", "modified_icf")
+#: The filters that also have hand-written batched kernels — the same equations as their records' steps, in
+#: structure-of-arrays form (:mod:`mcjax.tracking.filters.batched`, :mod:`mcjax.tracking.filters.native`) —
+#: by record (not by name), with the kernel's key. Any other filter runs its record's step under ``vmap``.
+BATCHED_KERNELS = {LOCAL: "local", MODIFIED_ICF: "modified_icf"}
+
+
+def batched_kernel(kind: str) -> str | None:
+    """The key of the hand-written batched kernel of the filter ``kind`` (:data:`BATCHED_KERNELS`), or None."""
+    return BATCHED_KERNELS.get(get(kind))
 #: Split a batch over the CPU devices (one contiguous chunk each, then one copy into the result).
 #: Off: on the shared 2-core VM the copy of the halves cost more than the second core gave
 #: (docs/filter_speed.md, 2026-12-01: 1.5x slower at B = 10,000).
@@ -165,7 +172,8 @@ def run_filter(
 
     Parameters
     ----------
-    kind : one of ``"cif", "icf", "modified_icf", "kcf", "local"`` (docs/equations.md).
+    kind : a filter's name (``"cif", "icf", "modified_icf", "kcf", "local", "ci", "hcmci"``, docs/equations.md),
+        an installed plugin's, or a reference ``"file.py:ATTRIBUTE"`` (:func:`mcjax.tracking.filters.registry.get`).
     measurements : (T, n, 2) ``[range m, bearing rad]``, NaN where agent i has no
         measurement at step t. A leading run axis (B, T, n, 2) runs B runs in one batch.
     sensor_positions : (T, n, 2) sensor positions in metres (same leading axes).
@@ -186,8 +194,10 @@ def run_filter(
     of batch-last buffers (``numpy.ascontiguousarray`` makes a C-ordered copy). Every bad
     argument raises ValueError naming it.
     """
-    if kind not in FILTER_KINDS:
-        raise ValueError(f"kind must be one of {', '.join(map(repr, FILTER_KINDS))}; got {kind!r}")
+    try:
+        kernel = batched_kernel(kind)
+    except ValueError as exc:
+        raise ValueError(f"kind: {exc}") from None
     if dtype not in ("float64", "float32"):
         raise ValueError(f"dtype must be 'float64' or 'float32'; got {dtype!r}")
     if dtype == "float64":
@@ -235,8 +245,8 @@ def run_filter(
         raise ValueError(f"kcf_epsilon must be a finite number >= 0; got {kcf_epsilon!r}")
 
     dt = jnp.float64 if dtype == "float64" else jnp.float32
-    if kind in BATCHED_KINDS:
-        return _run_batched(kind, opts, z, s, a, (x0a, P0a, Fa, Qa, Ra), dtype)
+    if kernel is not None:
+        return _run_batched(kernel, opts, z, s, a, (x0a, P0a, Fa, Qa, Ra), dtype)
     args = [jnp.asarray(v, dt) for v in (z, s, a)]
     consts = [jnp.asarray(v, dt) for v in (x0a, P0a, Fa, Qa, Ra, kcf_epsilon)]
     fn = partial(_run_one, kind, opts)

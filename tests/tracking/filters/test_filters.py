@@ -130,7 +130,7 @@ def test_batched_kernel_matches_the_general_path(kind, monkeypatch):
     x, P = run_filter(kind, **batch, **rest, consensus_steps=2)
     assert x.shape == (3, 25, 5, 4) and P.shape == (3, 25, 5, 4, 4)
     assert not x.flags.writeable and not P.flags.writeable
-    monkeypatch.setattr(recorded, "BATCHED_KINDS", ())
+    monkeypatch.setattr(recorded, "BATCHED_KERNELS", {})
     xg, Pg = run_filter(kind, **batch, **rest, consensus_steps=2)
     # round-off of two algebras over 25 steps: measured 4.5e-10 … 1.19e-9 (x) and 1.1e-11 … 5.8e-11
     # (P) under XLA's defaults, its older CPU emitters, the suite's flags and both together (the
@@ -140,6 +140,27 @@ def test_batched_kernel_matches_the_general_path(kind, monkeypatch):
     d = np.sqrt(np.diagonal(Pg, axis1=-2, axis2=-1).reshape(-1, 4).max(axis=0))
     assert np.max(np.abs(P - Pg) / np.outer(d, d)) < 1e-9
     np.testing.assert_array_equal(P, np.swapaxes(P, -1, -2))
+
+
+def test_a_filter_of_ones_own_runs_on_recorded_data_through_its_record(tmp_path):
+    """run_filter takes any filter the registry resolves: a file's copy of the local EKF (a record of the public
+    contract, not the built-in, so it runs its step under vmap) gives the built-in's results, which come from
+    the hand-written batched kernels — chosen by the record, not by a name."""
+    path = tmp_path / "my_local.py"
+    path.write_text("from mcjax.contract.filter import Filter, Traits\n"
+                    "from mcjax.tracking.filters.consensus import local_step\n"
+                    "MINE = Filter('my_local', 'my local EKF', 'ours', lambda m, post, meas: local_step(\n"
+                    "    m.h, m.angle_mask, post, meas, m.F, m.Q), Traits(late_messages=True, messages=False))\n")
+    from mcjax.tracking.filters import recorded
+
+    batch, rest = _sparse_batch()
+    assert recorded.batched_kernel("local") == "local" and recorded.batched_kernel(f"{path}:MINE") is None
+    x, P = run_filter("local", **batch, **rest)
+    xm, Pm = run_filter(f"{path}:MINE", **batch, **rest)
+    scale = np.abs(x).reshape(-1, 4).max(axis=0)
+    assert np.max(np.abs(xm - x) / scale) < 5e-9  # two algebras: the bound of the test above
+    d = np.sqrt(np.diagonal(P, axis1=-2, axis2=-1).reshape(-1, 4).max(axis=0))
+    assert np.max(np.abs(Pm - P) / np.outer(d, d)) < 1e-9
 
 
 def _sparse_batch(T=25):
@@ -221,7 +242,7 @@ def test_float32_tracks_float64():
 
 
 @pytest.mark.parametrize("change, match", [
-    (dict(kind="ukf"), "kind must be one of"),
+    (dict(kind="ukf"), "kind: filter must be one of .*; got 'ukf'"),
     (dict(measurements=np.zeros((5, 3, 3))), "measurements must have shape"),
     (dict(sensor_positions=np.zeros((5, 3, 3))), r"sensor_positions must have shape \(5, 3, 2\)"),
     (dict(adjacency=np.zeros((5, 3, 2))), r"adjacency must have shape \(5, 3, 3\)"),
