@@ -130,7 +130,7 @@ def filters_text() -> str:
             continue
         builtin = name in registry.BUILTIN
         runs = [s for s, (choices, plugins) in takers.items() if (name in choices if builtin else plugins)]
-        where = "" if builtin else f"  [plugin: {registry.origin(name)}]"
+        where = "" if builtin else f"  [plugin: {registry.origin(name).removeprefix('plugin ')}]"
         lines += [f"{name:14s} {f.title}{where}", f"    reference: {f.reference}",
                   f"    traits: {f.traits.words()}", f"    scenarios: {', '.join(runs) or 'none'}"]
     for clash in registry.clashes():  # a plugin that takes a built-in's name: listed, never resolved

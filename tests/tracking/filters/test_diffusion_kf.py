@@ -1,18 +1,27 @@
-"""The ATC diffusion Kalman filter of Cattivelli & Sayed 2010 (IEEE TAC 55(9)), the plugin package in
-benchmarks/plugins/diffusion_kf/: against a numpy reference written from the paper's equations, on a complete
-graph (one estimate for all, the centralised filter's), with no links (the local EKF), and installed for real
-as a package that the three scenarios taking any filter run."""
+"""The ATC diffusion Kalman filter of Cattivelli & Sayed 2010 (IEEE TAC 55(9)), the complete example of
+docs/library.md's "Writing a filter", shipped as the plugin package in benchmarks/plugins/diffusion_kf/: the docs'
+files are the shipped ones byte for byte, written only through mcjax's public names; the filter against a numpy
+reference written from the paper's equations, on a complete graph (one estimate for all, the centralised
+filter's), with no links (the local EKF); and, built from the docs' blocks alone and installed for real as a
+package, listed and run in a league of the three scenarios that take any filter, its rows carrying every output
+the built-ins' rows carry."""
 
+import ast
+import difflib
+import importlib
 import importlib.util
 import json
 import os
-import shutil
+import re
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
+import tomli_w
 
 import mcjax
 
@@ -26,7 +35,9 @@ from mcjax.tracking.filters.consensus import CIF, LOCAL, FilterOptions, Measurem
 from mcjax.tracking.filters.gaussian import Gaussian
 from mcjax.tracking.models.sensors import range_bearing
 
-PLUGIN = Path(__file__).resolve().parents[3] / "benchmarks" / "plugins" / "diffusion_kf"
+ROOT = Path(__file__).resolve().parents[3]
+PLUGIN = ROOT / "benchmarks" / "plugins" / "diffusion_kf"
+DOCS = ROOT / "docs" / "library.md"
 sys.path.insert(0, str(PLUGIN))
 from mcjax_diffusion_kf import DIFFUSION_KF
 
@@ -223,34 +234,100 @@ def test_the_record_and_its_traits():
                                                                                           False)
 
 
-#: Run in a subprocess with only the installed plugin on the path: each scenario that takes any filter, with
-#: faults, its small config of tests/tracking/filters/test_registry.py.
-SCRIPT = r'''
-import json, sys
-import jax, numpy as np
-from mcjax import configure, engine, scenarios
-from mcjax.tracking.filters import registry
 
-configure()
-report = {"origin": registry.origin("diffusion_kf") if registry.get("diffusion_kf") else None}
-for name, extra in [("leader_follower", dict(planner="none", faults="on")),
-                    ("flocking", dict(n_agents=6, faults="on")),
-                    ("wind_formation", dict(faults="on"))]:
-    sc = scenarios.get(name)
-    cfg = sc.Config(filters=("local", "diffusion_kf"), n_steps=10, warmup_steps=2, **extra)
-    params = engine.stack_points([sc.default_params(cfg, link_loss=0.2, sensor_dropout=0.1)])
-    out = engine.simulate(sc, cfg, jax.tree.map(lambda a: np.repeat(a, 3, axis=0), params),
-                          jax.random.split(jax.random.key(2), 3))
-    declared = sc.outputs(cfg)
-    rows = {}
-    for key, o in declared.items():
-        if key in out and o.per_filter:
-            a = np.asarray(out[key], np.float64).reshape(3, 2, -1)
-            rows[key] = [np.isfinite(a[:, f]).all(axis=-1).tolist() for f in (0, 1)]
-    report[name] = dict(missing=sorted(set(declared) - set(out)), extra=sorted(set(out) - set(declared)),
-                        links_lost=float(np.asarray(out["links_lost"]).sum()), finite=rows)
-print("REPORT " + json.dumps(report))
-'''
+# --------------------------------------------------------------------------- the docs' example is the plugin
+
+#: The package's files, as docs/library.md's "Writing a filter" shows them (paths inside the package's folder).
+PACKAGE_FILES = ("pyproject.toml", "mcjax_diffusion_kf/__init__.py", "mcjax_diffusion_kf/diffusion.py")
+
+
+def _docs_section() -> str:
+    text = DOCS.read_text(encoding="utf-8")
+    return text.split("\n## Writing a filter\n", 1)[1].split("\n## ", 1)[0]
+
+
+def docs_package() -> dict[str, str]:
+    """The diffusion KF package of docs/library.md's "Writing a filter": each block preceded by its path line
+    ```diffusion_kf/PATH`:``, as ``{PATH: the block's text}``."""
+    found = re.findall(r"^`diffusion_kf/([^`\n]+)`:\n```\w+\n(.*?)^```$", _docs_section(), re.M | re.S)
+    files = dict(found)
+    assert len(files) == len(found), [p for p, _ in found]
+    return files
+
+
+def docs_league() -> str:
+    """The league file ``diffusion_league.toml`` of docs/library.md's "Writing a filter"."""
+    m = re.search(r"^`diffusion_league\.toml`:\n```toml\n(.*?)^```$", _docs_section(), re.M | re.S)
+    assert m, "docs/library.md shows diffusion_league.toml"
+    return m.group(1)
+
+
+def _shipped_sources() -> set[str]:
+    """The plugin folder's source files (.py, .toml), build output and caches left out."""
+    out = set()
+    for p in PLUGIN.rglob("*"):
+        parts = p.relative_to(PLUGIN).parts
+        if p.is_file() and p.suffix in (".py", ".toml") and not any(
+                part in ("build", "__pycache__") or part.endswith(".egg-info") for part in parts):
+            out.add("/".join(parts))
+    return out
+
+
+def test_the_docs_complete_example_is_the_shipped_plugin_byte_for_byte():
+    """Every file of the package the docs show is the shipped plugin's file, byte for byte, and the plugin has
+    no source file the docs do not show: the shipped plugin is the docs' example."""
+    files = docs_package()
+    assert tuple(files) == PACKAGE_FILES, list(files)
+    assert _shipped_sources() == set(PACKAGE_FILES), _shipped_sources()
+    for path, body in files.items():
+        shipped = (PLUGIN / path).read_bytes()
+        if shipped != body.encode("utf-8"):
+            diff = "\n".join(difflib.unified_diff(shipped.decode("utf-8").splitlines(), body.splitlines(),
+                                                  f"benchmarks/plugins/diffusion_kf/{path}", "docs/library.md",
+                                                  lineterm=""))
+            pytest.fail(f"docs/library.md's diffusion_kf/{path} differs from the shipped file:\n{diff}")
+
+
+def test_the_docs_module_uses_only_mcjax_public_names_and_jax():
+    """The docs' package imports mcjax's filter contract, other public mcjax names (no module or name with a
+    leading underscore) and JAX, and its own modules — nothing else; it reaches into no private attribute. Each
+    mcjax name it imports exists. Its pyproject.toml registers the record under the group ``mcjax.filters``."""
+    files = docs_package()
+    own = {Path(p).stem for p in files if p.startswith("mcjax_diffusion_kf/")}
+    contract = set()
+    for path, body in files.items():
+        if not path.endswith(".py"):
+            continue
+        for node in ast.walk(ast.parse(body, path)):
+            if isinstance(node, ast.Attribute):
+                assert not (node.attr.startswith("_") and not node.attr.endswith("__")), (path, node.attr)
+            if isinstance(node, ast.ImportFrom) and node.level:
+                assert node.level == 1 and (node.module or "").split(".")[0] in own, (path, ast.unparse(node))
+                continue
+            if isinstance(node, ast.ImportFrom):
+                modules, names = [node.module], [a.name for a in node.names]
+            elif isinstance(node, ast.Import):
+                modules, names = [a.name for a in node.names], []
+            else:
+                continue
+            for module in modules:
+                top = module.split(".")[0]
+                assert top in ("__future__", "jax", "mcjax"), (path, ast.unparse(node))
+                if top != "mcjax":
+                    continue
+                assert not any(part.startswith("_") for part in module.split(".")), (path, module)
+                assert names and not any(n.startswith("_") or n == "*" for n in names), (path, ast.unparse(node))
+                loaded = importlib.import_module(module)
+                assert all(hasattr(loaded, n) for n in names), (path, ast.unparse(node))
+                if module.startswith("mcjax.contract"):
+                    contract |= set(names)
+    assert {"Filter", "Traits"} <= contract, contract
+    pyproject = tomllib.loads(files["pyproject.toml"])
+    assert pyproject["project"]["entry-points"]["mcjax.filters"] == {"diffusion_kf": "mcjax_diffusion_kf:DIFFUSION_KF"}
+    assert "mcjax" in pyproject["project"]["dependencies"]
+
+
+# --------------------------------------------------------------------------- built from the docs, installed
 
 
 def _offline_build_missing() -> str:
@@ -267,12 +344,59 @@ def _offline_build_missing() -> str:
     return ""
 
 
-def test_installed_as_a_package_it_is_listed_and_runs_in_the_three_scenarios(tmp_path):
+SCENARIOS = ("leader_follower", "flocking", "wind_formation")
+BUILT_INS = ("kcf", "local")
+SEEDS = 3
+
+
+def _tiny_league(folder: Path) -> Path:
+    """docs/library.md's league file made tiny (10 steps, a flock of 6, no timing pass), its configs the
+    repository's: everything else — filters, scenarios, fault points, outputs switched on — as the docs say."""
+    league = tomllib.loads(docs_league())
+    assert league["filters"] == [*BUILT_INS, "diffusion_kf"] and tuple(league["scenarios"]) == SCENARIOS, league
+    league["timing_runs"] = 0
+    for entry in league["scenarios"].values():
+        entry["base"] = str(ROOT / entry["base"])
+        entry.setdefault("config", {}).update(n_steps=10, warmup_steps=2)
+    league["scenarios"]["flocking"]["config"]["n_agents"] = 6
+    league["scenarios"]["flocking"].setdefault("params", {})["n_sensing"] = 3
+    path = folder / "diffusion_league.toml"
+    path.write_text(tomli_w.dumps(league), encoding="utf-8")
+    return path
+
+
+#: Run in one subprocess with only the installed plugin (and mcjax) on the path: the commands, as a user types
+#: them, through the command line's entry point; what each printed and its exit code.
+DRIVER = r'''
+import json, sys
+from click.testing import CliRunner
+from mcjax.cli import main
+done = {}
+for args in json.loads(sys.argv[1]):
+    r = CliRunner().invoke(main, args)
+    done[args[0]] = {"exit_code": r.exit_code, "output": r.output, "exception": repr(r.exception)}
+print("REPORT " + json.dumps(done))
+'''
+
+
+def _carried(rows: pd.DataFrame) -> set:
+    """The columns every one of ``rows`` has a value in."""
+    return {c for c in rows.columns if rows[c].notna().all()}
+
+
+def test_built_from_the_docs_alone_it_installs_is_listed_and_runs_in_a_league_of_the_three_scenarios(tmp_path):
+    """The package written from docs/library.md's blocks alone (not the repository's folder), pip-installed
+    into a folder of its own: ``mcjax list filters`` shows it as a plugin from there, and the docs' league (made
+    tiny) runs it beside kcf and local in the three scenarios, without faults and under link loss. In every
+    scenario x point — a sweep, written as ``mcjax sweep`` writes one — its rows carry every output the
+    built-ins' rows carry, with finite errors; in the league table its rows carry every column theirs do."""
     reason = _offline_build_missing()
     if reason:
         pytest.skip(f"pip cannot build the plugin offline (--no-build-isolation): {reason}")
-    source = tmp_path / "src"  # a copy, so that the build leaves nothing in the repository
-    shutil.copytree(PLUGIN, source, ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))
+    source = tmp_path / "diffusion_kf"
+    for path, body in docs_package().items():
+        (source / path).parent.mkdir(parents=True, exist_ok=True)
+        (source / path).write_text(body, encoding="utf-8")
     target = tmp_path / "site"
     env = {**os.environ, "PIP_NO_INDEX": "1", "PIP_DISABLE_PIP_VERSION_CHECK": "1"}
     pip = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-build-isolation", "--quiet",
@@ -280,21 +404,47 @@ def test_installed_as_a_package_it_is_listed_and_runs_in_the_three_scenarios(tmp
                          env=env, timeout=300)
     assert pip.returncode == 0, pip.stderr
     env["PYTHONPATH"] = os.pathsep.join([str(target), *[p for p in sys.path if p]])
-    listed = subprocess.run([sys.executable, "-m", "mcjax", "list", "filters"], check=False, capture_output=True,
-                            text=True, env=env, cwd=tmp_path, timeout=300)
-    assert listed.returncode == 0, listed.stderr
-    line = next((x for x in listed.stdout.splitlines() if x.startswith("diffusion_kf ")), "")
-    assert "[plugin:" in line, listed.stdout
-    assert "Cattivelli & Sayed 2010" in listed.stdout
-    run = subprocess.run([sys.executable, "-c", SCRIPT], check=False, capture_output=True, text=True, env=env,
-                         cwd=tmp_path, timeout=600)
-    assert run.returncode == 0, run.stderr[-3000:]
-    report = json.loads(run.stdout.split("REPORT ", 1)[1])
-    assert str(target) in report["origin"]  # the installed copy, not the repository's
-    for name in ("leader_follower", "flocking", "wind_formation"):
-        r = report[name]
-        assert r["missing"] == [] and r["extra"] == [], (name, r)
-        assert r["links_lost"] > 0, name  # the faults were drawn
-        assert r["finite"], name
-        for key, (local, ours) in r["finite"].items():
-            assert sum(ours) >= 2 and sum(ours) >= sum(local) - 1, (name, key, local, ours)
+    league, out = _tiny_league(tmp_path), tmp_path / "league"
+    commands = [["list", "filters"], ["league", str(league), "--seeds", str(SEEDS), "--out", str(out)]]
+    run = subprocess.run([sys.executable, "-c", DRIVER, json.dumps(commands)], check=False, capture_output=True,
+                         text=True, env=env, cwd=tmp_path, timeout=900)
+    assert run.returncode == 0 and "REPORT " in run.stdout, run.stderr[-3000:]
+    done = json.loads(run.stdout.split("REPORT ", 1)[1])
+
+    listed = done["list"]
+    assert listed["exit_code"] == 0, listed
+    lines = listed["output"].splitlines()
+    at = next((i for i, x in enumerate(lines) if x.startswith("diffusion_kf ")), None)
+    assert at is not None, listed["output"]
+    assert "[plugin:" in lines[at] and str(target) in lines[at], lines[at]  # the installed copy, not the repository's
+    assert lines[at + 1].strip() == "reference: Cattivelli & Sayed 2010, IEEE TAC 55(9), ATC diffusion KF"
+    assert lines[at + 3].strip() == f"scenarios: {', '.join(SCENARIOS)}", lines[at:at + 4]
+
+    ran = done["league"]
+    assert ran["exit_code"] == 0, ran["output"][-3000:] + ran["exception"]
+    table = pd.read_parquet(out / "league.parquet")
+    points = sorted(set(table["point"]))
+    assert sorted(set(table["scenario"])) == sorted(SCENARIOS) and len(points) == 2, table[["scenario", "point"]]
+    for (scenario, point), cell in table.groupby(["scenario", "point"]):
+        where = f"{scenario}/{point}"
+        ours = cell[cell["filter"] == "diffusion_kf"]
+        assert len(ours) == 1 and ours["status"].item() == "run" and ours["runs"].item() == SEEDS, (where, cell)
+        assert np.isfinite(ours["rmse"].item()) and pd.notna(ours["rank"].item()), (where, ours.T)
+        for name in BUILT_INS:
+            theirs = cell[cell["filter"] == name]
+            assert len(theirs) == 1 and theirs["status"].item() == "run", (where, name)
+            assert _carried(theirs) <= _carried(ours), (where, name, sorted(_carried(theirs) - _carried(ours)))
+
+        rows = pd.read_parquet(out / scenario / point / "runs")  # the cell's sweep, every output of every run
+        assert set(rows["filter"]) == {*BUILT_INS, "diffusion_kf"}, (where, set(rows["filter"]))
+        ours = rows[rows["filter"] == "diffusion_kf"]
+        assert len(ours) == SEEDS, where
+        for name in BUILT_INS:
+            theirs = rows[rows["filter"] == name]
+            assert _carried(theirs) <= _carried(ours), (where, name, sorted(_carried(theirs) - _carried(ours)))
+        assert np.isfinite(ours["rmse"].to_numpy(float)).all() and not ours["nonfinite"].any(), (where, ours.T)
+        assert {"anees", "anis"} <= _carried(ours), where  # the consistency outputs the docs' league switches on
+        if scenario != "wind_formation":
+            assert "pcrb_rmse" in _carried(ours), where  # the error floor (bound = "on")
+        if point != "none":
+            assert rows["links_lost"].sum() > 0, where  # the faults were drawn
