@@ -19,7 +19,6 @@ pipeline's exceptions (:class:`~mcjax.claims.spec.ClaimsError` before anything r
 
 from __future__ import annotations
 
-import contextlib
 import json
 import re
 from pathlib import Path
@@ -33,7 +32,7 @@ from mcjax.claims.folder import CHECK_FILE, TABLE_FILE, write_table
 from mcjax.claims.spec import ClaimsFile, load_claims
 from mcjax.study.execute import Executor
 from mcjax.study.runner import SweepProgress, run_sweep_folder
-from mcjax.study.store import IDENTITY_FILE, OutputError, RESULTS_DIR, hold_output, start_fresh, write_identity
+from mcjax.study.store import IDENTITY_FILE, RESULTS_DIR, hold_run_folder
 
 
 
@@ -80,26 +79,10 @@ def run_check(claims_file: str | Path | ClaimsFile, *, out_dir: str | Path | Non
     claims = claims_file if isinstance(claims_file, ClaimsFile) else load_claims(claims_file, seeds=seeds)
     out = Path(default_out_dir(claims.path) if out_dir is None else out_dir)
     ident = {**_identity(claims), "claims_file": str(claims.path.resolve())}
-    if resume and force:
-        raise OutputError("--resume and --force exclude each other")
     rows: dict[str, pd.DataFrame] = {}
-    with contextlib.ExitStack() as held:
-        held.enter_context(hold_output(out, warn))
-        if resume:
-            try:
-                saved = json.loads((out / CHECK_FILE).read_text(encoding="utf-8"))
-            except (OSError, ValueError):
-                raise OutputError(f"nothing to resume in {out}: no readable {CHECK_FILE} (start the check without "
-                                  f"--resume)") from None
-            if {k: saved.get(k) for k in ("claims", "seeds")} != {k: ident[k] for k in ("claims", "seeds")}:
-                raise OutputError(f"{out} holds the check of another claims file or seed count; --resume needs the "
-                                  f"same file and --seeds (or start again with --force)")
-        else:
-            try:
-                start_fresh(out, force=force, keep=_keep(claims), identity_file=CHECK_FILE, kind="check")
-            except OSError as exc:
-                raise OutputError(f"output folder {out}: {exc.strerror or exc}") from None
-            write_identity(out, CHECK_FILE, ident)
+    with hold_run_folder(out, ident, identity_file=CHECK_FILE, kind="check", compare=("claims", "seeds"),
+                         other="the check of another claims file", resume=resume, force=force, keep=_keep(claims),
+                         warn=warn):
         say(f"{claims.paper}: {len(claims.claims)} claim(s) on {len(claims.sweeps)} sweep(s) "
             f"({', '.join(f'{k}: {s.n_points} point(s) x {s.seeds} seed(s)' for k, s in claims.sweeps.items())})")
         columns = needed_columns(claims)

@@ -58,6 +58,7 @@ from mcjax.base.validation import SpecError, check_keys, key_text, read_toml, sh
 from mcjax.claims.verdicts import STATISTICS
 from mcjax.study.plan import Study
 from mcjax.study.spec import MAX_SEEDS, build_spec, is_config_file
+from mcjax.study.sweep_tables import load_checked, named_tables
 
 RELATIONS = ("below", "above", "within", "equal", "ordered", "monotone", "consistent")
 DIRECTIONS = ("increasing", "decreasing")
@@ -144,18 +145,12 @@ def _number(where: str, value) -> float:
 
 
 def _sweeps(path: Path, data: dict, seeds: int | None) -> tuple[dict, dict]:
-    raw = data.get("sweeps")
-    if not isinstance(raw, dict) or not raw:
-        raise _err(f"{path.name}: sweeps", "must name at least one sweep ([sweeps.NAME] with spec = FILE, or a "
-                   "sweep spec's keys)" + ("" if raw is None else f"; got {show(raw)}"))
     studies, files = {}, {}
-    for name, table in raw.items():
-        where = f"{path.name}: sweeps.{key_text(name)}"
-        if not ID.match(str(name)):
-            raise _err(where, "a sweep's name must be letters, digits, '_', '-' or '.' (it names its output folder)")
-        if not isinstance(table, dict):
-            raise _err(where, f"must be a table (spec = FILE, or a sweep spec's keys); got {show(table)}")
-        check_keys(f"{where}.", table, SPEC_TABLE_KEYS)
+    for name, where, table in named_tables(
+            f"{path.name}: sweeps", data.get("sweeps"), SPEC_TABLE_KEYS, ClaimsError,
+            missing="must name at least one sweep ([sweeps.NAME] with spec = FILE, or a sweep spec's keys)",
+            bad_name="a sweep's name must be letters, digits, '_', '-' or '.' (it names its output folder)",
+            table="a table (spec = FILE, or a sweep spec's keys)"):
         try:
             if "spec" in table:
                 if set(table) - {"spec"}:
@@ -386,13 +381,7 @@ def load_claims(path: str | Path, *, seeds: int | None = None) -> ClaimsFile:
     """Read and check the claims file ``path`` (module docstring) with every sweep it names
     (``seeds``: runs per point of each, over the file's ``seeds`` and the sweeps' own).
     Raises :class:`ClaimsError` (one line naming the claim and the field)."""
-    path = Path(path)
-    try:
-        return _load(path, seeds)
-    except ClaimsError:
-        raise
-    except SpecError as exc:  # the shared validation's messages (unknown keys, reading the TOML)
-        raise ClaimsError(str(exc)) from None
+    return load_checked(_load, path, seeds, ClaimsError)
 
 
 def _load(path: Path, seeds: int | None) -> ClaimsFile:

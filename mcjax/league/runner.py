@@ -20,8 +20,6 @@ pipeline's exceptions (:class:`~mcjax.league.spec.LeagueError` before anything r
 
 from __future__ import annotations
 
-import contextlib
-import json
 import re
 import shlex
 from pathlib import Path
@@ -36,7 +34,7 @@ from mcjax.league.spec import League, LeagueError, describe, identity, load_leag
 from mcjax.league.timing import timing_pass
 from mcjax.study.execute import ChunkError, Executor
 from mcjax.study.runner import SweepProgress, run_sweep_folder
-from mcjax.study.store import IDENTITY_FILE, RESULTS_DIR, OutputError, hold_output, start_fresh, write_identity
+from mcjax.study.store import IDENTITY_FILE, RESULTS_DIR, OutputError, hold_run_folder
 
 
 class LeagueResult(NamedTuple):
@@ -98,26 +96,10 @@ def run_league(league_file: str | Path | League, *, out_dir: str | Path | None =
     league = league_file if isinstance(league_file, League) else load_league(league_file, seeds=seeds)
     out = Path(default_out_dir(league.path) if out_dir is None else out_dir)
     ident = {**identity(league), "league_file": str(league.path.resolve())}
-    if resume and force:
-        raise OutputError("--resume and --force exclude each other")
     rows: dict[tuple, pd.DataFrame] = {}
-    with contextlib.ExitStack() as held:
-        held.enter_context(hold_output(out, warn))
-        if resume:
-            try:
-                saved = json.loads((out / LEAGUE_FILE).read_text(encoding="utf-8"))
-            except (OSError, ValueError):
-                raise OutputError(f"nothing to resume in {out}: no readable {LEAGUE_FILE} (start the league "
-                                  f"without --resume)") from None
-            if {k: saved.get(k) for k in ("league", "seeds")} != {k: ident[k] for k in ("league", "seeds")}:
-                raise OutputError(f"{out} holds another league file or seed count; --resume needs the same file "
-                                  f"and --seeds (or start again with --force)")
-        else:
-            try:
-                start_fresh(out, force=force, keep=[league.path.resolve()], identity_file=LEAGUE_FILE, kind="league")
-            except OSError as exc:
-                raise OutputError(f"output folder {out}: {exc.strerror or exc}") from None
-            write_identity(out, LEAGUE_FILE, ident)
+    with hold_run_folder(out, ident, identity_file=LEAGUE_FILE, kind="league", compare=("league", "seeds"),
+                         other="another league file", resume=resume, force=force, keep=[league.path.resolve()],
+                         warn=warn):
         say(describe(league))
         for (key, point), study in league.studies.items():
             folder = out / key / point

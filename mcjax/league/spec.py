@@ -35,7 +35,6 @@ No JAX at import; checking a file imports the scenarios and filters (and so JAX)
 from __future__ import annotations
 
 import json
-import re
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -45,7 +44,6 @@ FILE_KEYS = ("title", "description", "seeds", "base_seed", "chunk_size", "timing
              "points")
 SCENARIO_KEYS = ("base", "description", "filters", "config", "params")
 POINT_KEYS = ("description", "config", "params")
-ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 #: Runs per cell when neither the league file nor --seeds gives a number.
 DEFAULT_SEEDS = 100
 #: Runs of each filter in the timing pass when the league file gives none.
@@ -131,17 +129,13 @@ def _filters(path: Path, data: dict) -> tuple[tuple, dict]:
 
 
 def _tables(where: str, data: dict, key: str, keys: tuple) -> dict:
+    from mcjax.study.sweep_tables import named_tables
+
     raw = data.get(key)
-    if not isinstance(raw, dict) or not raw:
-        raise _err(f"{where}{key}", f"must name at least one ([{key}.NAME] tables)" + ("" if raw is None else
-                                                                                      f"; got {show(raw)}"))
-    for name, table in raw.items():
-        at = f"{where}{key}.{key_text(name)}"
-        if not ID.match(str(name)):
-            raise _err(at, "a name must be letters, digits, '_', '-' or '.' (it names an output folder)")
-        if not isinstance(table, dict):
-            raise _err(at, f"must be a table; got {show(table)}")
-        check_keys(f"{at}.", table, keys)
+    for name, at, table in named_tables(f"{where}{key}", raw, keys, LeagueError,
+                                        missing=f"must name at least one ([{key}.NAME] tables)",
+                                        bad_name="a name must be letters, digits, '_', '-' or '.' (it names an "
+                                                 "output folder)"):
         for sub in ("config", "params"):
             subtable(f"{at}.", table, sub)
         if "description" in table and not isinstance(table["description"], str):
@@ -164,13 +158,9 @@ def cell_spec(table: dict, point: dict, filters: list, data: dict) -> dict:
 def load_league(path: str | Path, *, seeds: int | None = None) -> League:
     """Read and check the league file ``path`` (module docstring); ``seeds``: runs per cell over the
     file's. Raises :class:`LeagueError` (one line naming the key path) before anything runs."""
-    path = Path(path)
-    try:
-        return _load(path, seeds)
-    except LeagueError:
-        raise
-    except SpecError as exc:  # the shared validation's messages (unknown keys, reading the TOML)
-        raise LeagueError(str(exc)) from None
+    from mcjax.study.sweep_tables import load_checked
+
+    return load_checked(_load, path, seeds, LeagueError)
 
 
 def _load(path: Path, seeds: int | None) -> League:

@@ -1,8 +1,9 @@
 """A study's output folder: its identity file, the part files on disk, ``--resume`` and
-``--force`` (for sweeps, tunes and a tune's held-out evaluation alike). Every file is written
-atomically (:func:`mcjax.base.files.atomic_write`); the Parquet parts themselves are written by
-:func:`mcjax.base.parquet.write_part`. One command writes a folder at a time (:func:`hold_output`,
-the lock of :mod:`mcjax.study.lock`). No JAX.
+``--force`` (for sweeps, tunes and a tune's held-out evaluation alike, and for the folders of
+``mcjax check`` and ``mcjax league`` that hold several sweeps: :func:`hold_run_folder`). Every
+file is written atomically (:func:`mcjax.base.files.atomic_write`); the Parquet parts themselves
+are written by :func:`mcjax.base.parquet.write_part`. One command writes a folder at a time
+(:func:`hold_output`, the lock of :mod:`mcjax.study.lock`). No JAX.
 """
 
 from __future__ import annotations
@@ -148,6 +149,38 @@ def start_fresh(out_dir: str | Path, *, force: bool, keep: list[Path] = (), iden
             shutil.rmtree(item) if item.is_dir() and not item.is_symlink() else item.unlink()
     out_dir.mkdir(parents=True, exist_ok=True)
     return out_dir
+
+
+@contextlib.contextmanager
+def hold_run_folder(out_dir: Path, ident: dict, *, identity_file: str, kind: str, compare: tuple, other: str,
+                    resume: bool = False, force: bool = False, keep: list[Path] = (),
+                    warn: Callable[[str], None] | None = None) -> Iterator[None]:
+    """Hold ``out_dir``'s lock (:func:`hold_output`) for the ``with`` block of a run that holds
+    several sweeps (a ``kind`` of run: ``mcjax check``, ``mcjax league``), the folder made ready
+    first: ``resume`` needs its ``identity_file`` readable and the same values of ``ident`` under
+    ``compare`` (else :class:`OutputError`: the folder holds ``other`` — "another league file" —
+    or seed count); a fresh run needs it empty or missing, ``force`` replaces a previous run of that
+    kind (:func:`start_fresh`, ``keep``: files it must not hold), and writes ``ident`` as its
+    identity file. ``--resume`` with ``--force``: :class:`OutputError`, before the lock is taken."""
+    if resume and force:
+        raise OutputError("--resume and --force exclude each other")
+    with hold_output(out_dir, warn):
+        if resume:
+            try:
+                saved = json.loads((out_dir / identity_file).read_text(encoding="utf-8"))
+            except (OSError, ValueError):
+                raise OutputError(f"nothing to resume in {out_dir}: no readable {identity_file} (start the {kind} "
+                                  f"without --resume)") from None
+            if {k: saved.get(k) for k in compare} != {k: ident[k] for k in compare}:
+                raise OutputError(f"{out_dir} holds {other} or seed count; --resume needs the same file and --seeds "
+                                  f"(or start again with --force)")
+        else:
+            try:
+                start_fresh(out_dir, force=force, keep=keep, identity_file=identity_file, kind=kind)
+            except OSError as exc:
+                raise OutputError(f"output folder {out_dir}: {exc.strerror or exc}") from None
+            write_identity(out_dir, identity_file, ident)
+        yield
 
 
 def _spec_file(spec_file) -> str | None:
