@@ -17,10 +17,16 @@ from pathlib import Path
 import click
 
 from mcjax import configure
-from mcjax.base import envvars
-from mcjax.base.interrupt import ACK, ACK_DASK, ctrl_c, exit_now, finish, own_process
+from mcjax.base.interrupt import ACK, ACK_DASK, ctrl_c, exit_now, finish
 from mcjax.cli.executor import Remote, executor_options, open_executor
+from mcjax.cli.guards import (
+    check_environment,
+    chunk_failed,
+    fail,
+    refuse_clashing_filters,
+)
 from mcjax.cli.progress import Bars
+
 
 def _parse_set(values: tuple[str, ...]) -> dict:
     """``--set key=value`` pairs (see :func:`mcjax.base.validation.set_value`)."""
@@ -32,37 +38,6 @@ def _parse_set(values: tuple[str, ...]) -> dict:
             fail(f"--set {item!r}: must be KEY=VALUE, e.g. --set params.sensing_radius=100e3")
         out[key.strip()] = set_value(raw.strip())
     return out
-
-
-def fail(message: str) -> None:
-    click.echo("error: " + " ".join(str(message).split()), err=True)  # always one line
-    sys.exit(2)
-
-
-def chunk_failed(message: str) -> None:
-    """A chunk failed (computing or writing): one line, exit 1 (at once in the command's own process)."""
-    click.echo(f"error: {message}", err=True)
-    if own_process():
-        exit_now(1)
-    sys.exit(1)
-
-
-def _check_environment() -> None:
-    """The environment variables mcjax reads, checked before JAX starts (one line, exit 2)."""
-    try:
-        envvars.check()
-    except ValueError as exc:
-        fail(str(exc))
-
-
-def refuse_clashing_filters() -> None:
-    """An installed filter plugin that takes a built-in filter's name (:func:`mcjax.tracking.filters.registry.clashes`)
-    stops a command that runs filters before anything runs: one line, exit 2."""
-    from mcjax.tracking.filters import registry
-
-    found = registry.clashes()
-    if found:
-        fail(found[0])
 
 
 def _read_kind(path: Path) -> dict | None:
@@ -86,7 +61,9 @@ class Commands(click.Group):
     (:class:`mcjax.contract.filter.FilterError`), ends any command with its one line and exit 2."""
 
     def invoke(self, ctx):
-        from mcjax.contract.filter import FilterError  # here, not at import: the contract loads numpy
+        from mcjax.contract.filter import (
+            FilterError,  # here, not at import: the contract loads numpy
+        )
 
         try:
             return super().invoke(ctx)
@@ -104,7 +81,7 @@ def main() -> None:
     results/default` for its tables, plots and results/default/report/index.html.
     `mcjax COMMAND --help` tells more; docs/cli.md has every option.
     """
-    _check_environment()
+    check_environment()
 
 
 @main.command(short_help="Run a sweep spec (sweeps/*.toml) into Parquet; print a summary.")
@@ -330,7 +307,8 @@ def tune(spec, out_dir, resume, force):
 
 
 def _tune(spec_path, out_dir, resume, force, state, stop, hint):
-    from mcjax import study, tune as tuning
+    from mcjax import study
+    from mcjax import tune as tuning
 
     state["out"] = out_dir = out_dir or study.default_out_dir(spec_path)
     with tuning.write_failures_end_the_command(out_dir), Bars(tune="step", evaluate="run") as bars:

@@ -10,8 +10,9 @@ from pathlib import Path
 import click
 
 from mcjax.base.interrupt import ACK, ACK_DASK, ctrl_c, exit_now, finish, own_process
-from mcjax.cli.commands import chunk_failed, fail, main, refuse_clashing_filters
+from mcjax.cli.commands import main
 from mcjax.cli.executor import executor_options, open_executor
+from mcjax.cli.guards import chunk_failed, fail, refuse_clashing_filters
 from mcjax.cli.progress import Bars
 
 

@@ -56,6 +56,8 @@ def get(name: str, base_dir: str | Path | None = None) -> Filter:
     reference to a record named like a built-in). A built-in name is always the built-in: an installed plugin
     whose entry point takes one is refused by :func:`clashes`, not resolved. Plugins and
     references are imported once per process."""
+    if not isinstance(name, str):
+        raise ValueError(f"filter must be a name, one of {', '.join(known())} (or 'file.py:ATTRIBUTE'); got {name!r}")
     if name in BUILTIN:
         return BUILTIN[name]
     if name in _FOUND:
@@ -69,11 +71,11 @@ def get(name: str, base_dir: str | Path | None = None) -> Filter:
             raise ValueError(f"filter {name!r}: the plugin {point.value} failed to import: "
                              f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}") from None
         found = (_checked(obj, name), f"plugin {point.value}{module_file(sys.modules.get(point.module))}")
-    elif isinstance(name, str) and ":" in name:
+    elif ":" in name:
         obj, source = import_reference(name, None if base_dir is None else Path(base_dir), "filter")
         found = (_checked(obj, name), source)
     else:
-        close = difflib.get_close_matches(name, known(), n=1, cutoff=0.75) if isinstance(name, str) else []
+        close = difflib.get_close_matches(name, known(), n=1, cutoff=0.75)
         hint = f"; did you mean {close[0]!r}?" if close else ""
         raise ValueError(f"filter must be one of {', '.join(known())} (or 'file.py:ATTRIBUTE'); got {name!r}{hint}")
     _FOUND[name] = found
