@@ -13,6 +13,18 @@ from pathlib import Path
 from typing import Any
 
 
+def absolute_reference(ref, base_dir: str | Path):
+    """``ref`` with a relative ``FILE.py`` made absolute against ``base_dir`` (the folder of the file that
+    wrote it, or the current folder for the command line), so that it names the same file from any folder
+    and on any worker; anything else (a name, a ``module:ATTR``, an absolute path, not a string) unchanged."""
+    if not isinstance(ref, str):
+        return ref
+    where, sep, attr = ref.rpartition(":")
+    if sep and where.endswith(".py") and not Path(where).is_absolute():
+        return f"{(Path(base_dir) / where).resolve()}:{attr}"
+    return ref
+
+
 def module_file(module) -> str:
     """`` (FILE)`` of an imported module, or ``""`` for one without a file."""
     where = getattr(module, "__file__", None)

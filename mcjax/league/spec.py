@@ -38,6 +38,7 @@ import json
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from mcjax.base.plugins import absolute_reference
 from mcjax.base.validation import SpecError, check_keys, count, key_text, read_toml, show, subtable, suggest
 
 FILE_KEYS = ("title", "description", "seeds", "base_seed", "chunk_size", "timing_runs", "filters", "scenarios",
@@ -106,14 +107,6 @@ def _names(where: str, value, allowed: tuple | None = None) -> tuple:
     return tuple(value)
 
 
-def _config_name(name: str, base_dir: Path) -> str:
-    """A filter's name for a Config: a ``file.py:ATTRIBUTE`` reference made absolute (relative to the league)."""
-    where, sep, attr = name.rpartition(":")
-    if sep and where.endswith(".py") and not Path(where).is_absolute():
-        return f"{(base_dir / where).resolve()}:{attr}"
-    return name
-
-
 def _filters(path: Path, data: dict) -> tuple[tuple, dict]:
     from mcjax.tracking.filters import registry
 
@@ -124,7 +117,7 @@ def _filters(path: Path, data: dict) -> tuple[tuple, dict]:
             registry.get(name, path.parent)
         except ValueError as exc:
             raise _err(f"{path.name}: filters[{i}]", " ".join(str(exc).split())) from None
-        config_names[name] = _config_name(name, path.parent)
+        config_names[name] = absolute_reference(name, path.parent)  # the same file from any folder or worker
     return names, config_names
 
 

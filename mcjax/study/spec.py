@@ -38,6 +38,7 @@ import numpy as np
 
 from mcjax import scenarios
 from mcjax.contract import Scenario
+from mcjax.base.plugins import absolute_reference
 from mcjax.base.validation import (SpecError, check_keys, check_text, count, is_int, is_number, key_text, one_line, read_toml,
                               setting_problem, show, subtable)
 from mcjax.study.plan import DEFAULT_SEEDS, Study, check_memory
@@ -84,6 +85,18 @@ def _build_config(scenario: Scenario, table: dict, where: str):
         if field in scenario.settings and rest:
             raise SpecError(f"{where}{field}: {rest}") from None
         raise SpecError(f"{where.rstrip('.')}: {text}") from None
+
+
+def _absolute_filters(table: dict, base_dir: str | Path) -> dict:
+    """``table`` (a ``[config]`` table) with each ``"file.py:ATTRIBUTE"`` of its ``filters`` made absolute against
+    ``base_dir``, the folder of the file that wrote it (:func:`mcjax.base.plugins.absolute_reference`): a
+    filter file sits beside its config or spec, as a scenario file does, and names the same file on a worker."""
+    filters = table.get("filters") if isinstance(table, dict) else None
+    if isinstance(filters, (list, tuple)):
+        return {**table, "filters": [absolute_reference(f, base_dir) for f in filters]}
+    if isinstance(filters, str):  # --set config.filters=NAME: a one-item list, made so later
+        return {**table, "filters": absolute_reference(filters, base_dir)}
+    return table
 
 
 def _check_params(scenario: Scenario, cfg, table: dict, where: str) -> None:
@@ -197,7 +210,7 @@ def read_config_file(path: str | Path, what: str = "config file") -> ConfigFile:
         scenario = scenarios.get(data["scenario"], base_dir=path.parent)
     except (ValueError, ImportError) as exc:  # unknown name, missing file or module; a bug inside a
         raise SpecError(f"{where}scenario: {one_line(exc)}") from None  # scenario keeps its traceback
-    cfg = _build_config(scenario, subtable(where, data, "config"), f"{where}config.")
+    cfg = _build_config(scenario, _absolute_filters(subtable(where, data, "config"), path.parent), f"{where}config.")
     params = dict(subtable(where, data, "params"))
     _check_params(scenario, cfg, params, f"{where}params.")
     return ConfigFile(scenario, cfg, params, seeds, path)
@@ -243,6 +256,10 @@ def build_spec(data: dict, base_dir: str | Path, *, seeds: int | None = None, ch
     given for a list Config field (``config.filters = "NAME"``) is a one-item list."""
     overrides = dict(overrides or {})
     data = json.loads(json.dumps(data))  # a deep copy: the overrides never touch the caller's dict
+    if isinstance(data.get("config"), dict):  # the spec's filter files beside the spec, the command line's here
+        data["config"] = _absolute_filters(data["config"], base_dir)
+    if "config.filters" in overrides:
+        overrides["config.filters"] = _absolute_filters({"filters": overrides["config.filters"]}, Path.cwd())["filters"]
     _apply_overrides(data, overrides)
     check_keys("", data, SPEC_KEYS)
     for key in ("description", "scenario"):

@@ -15,6 +15,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from mcjax import scenarios
+from mcjax.base.plugins import absolute_reference
 from mcjax.base.validation import check_keys, choice, count, number, read_toml, show
 from mcjax.contract.relaxation import problem as smooth_problem
 from mcjax.contract.relaxation import relaxation_key
@@ -210,7 +211,7 @@ def build_tune_spec(data: dict, base_dir: str | Path) -> TuneSpec:
     bounds = tuple(_bound(scenario, cfg, spec.base_params, k, v) for k, v in params_table.items())
     lt = _tune_table("tune.", tune, "loss")
     check_keys("tune.loss.", lt, LOSS_KEYS)
-    filt = lt.get("filter", cfg.filters[0])
+    filt = absolute_reference(lt.get("filter", cfg.filters[0]), base_dir)  # a filter file as the config names it
     if filt not in cfg.filters:
         raise SpecError(f"tune.loss.filter: must be one of the config's filters ({', '.join(cfg.filters)}); "
                         f"got {show(filt)}")

@@ -51,3 +51,30 @@ def test_a_spec_is_told_from_a_config_file():
     config = tomllib.loads((ROOT / "configs" / "sun2011.toml").read_text())
     assert is_sweep_spec(spec) and not is_config_file(spec)
     assert is_config_file(config) and not is_sweep_spec(config)
+
+
+def test_a_filter_file_is_read_beside_the_file_that_names_it_and_the_command_lines_here(tmp_path, monkeypatch):
+    """A relative ``"file.py:ATTRIBUTE"`` in a config's or a spec's ``filters`` is the file beside that config or
+    spec (as a scenario file is), whatever the current folder; on the command line (``--set``), the current
+    folder's. Each becomes an absolute reference, so a worker in another folder finds the same file."""
+    from mcjax.tracking.filters import registry
+
+    record = ("from mcjax.contract.filter import Filter, Traits\nfrom mcjax.tracking.filters.consensus import KCF\n"
+              "MINE = Filter('{name}', 'a copy', 'ours', KCF.step, KCF.traits)\n")
+    base = ROOT / "configs" / "chen2013.toml"
+    for folder in ("configs", "specs", "here"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "mine.py").write_text(record.format(name=f"mine_{folder}"))
+    (tmp_path / "configs" / "c.toml").write_text(
+        base.read_text(encoding="utf-8").replace('filters = ["kcf", "local", "cif"]', 'filters = ["kcf", "mine.py:MINE"]'))
+    (tmp_path / "specs" / "s.toml").write_text('base = "../configs/c.toml"\nseeds = 2\n')
+    (tmp_path / "specs" / "t.toml").write_text('base = "../configs/c.toml"\nseeds = 2\n[config]\nfilters = ["mine.py:MINE"]\n')
+    monkeypatch.chdir(tmp_path / "here")
+    in_config = load_spec(tmp_path / "specs" / "s.toml").config.filters
+    in_spec = load_spec(tmp_path / "specs" / "t.toml").config.filters
+    on_line = load_spec(tmp_path / "specs" / "t.toml", overrides={"config.filters": ["kcf", "mine.py:MINE"]}).config.filters
+    for filters, folder in ((in_config, "configs"), (in_spec, "specs"), (on_line, "here")):
+        ref = filters[-1]
+        assert ref == f"{(tmp_path / folder / 'mine.py').resolve()}:MINE", filters
+        assert registry.get(ref).name == f"mine_{folder}"
+    assert in_config[0] == on_line[0] == "kcf"  # a name stays a name

@@ -7,7 +7,10 @@ Three ways to name a filter in a config's ``filters`` list:
 * a built-in name (:data:`FILTER_KINDS`);
 * the name a plugin registers: another installed package declares, in its ``pyproject.toml``,
   ``[project.entry-points."mcjax.filters"] my_filter = "my_pkg.module:FILTER"``;
-* a reference ``"path/to/file.py:FILTER"`` (relative to the current folder) or ``"some.module:FILTER"``.
+* a reference ``"path/to/file.py:FILTER"`` or ``"some.module:FILTER"``. A config or spec file's relative file
+  path is read against that file's folder, a command line's against the current folder (both made absolute
+  when the file is read: :func:`mcjax.base.plugins.absolute_reference`); here, against ``base_dir`` or the
+  current folder.
 """
 
 from __future__ import annotations
