@@ -15,8 +15,11 @@ with their summary and metadata back, nothing written unless asked::
 A spec may also be a dict (the TOML's tables; ``base`` relative to ``base_dir``). ``out="DIR"``
 writes the dataset as ``mcjax sweep --out DIR`` would (then ``mcjax report DIR`` works on it);
 ``progress=True`` draws a bar (tqdm's notebook form in Jupyter, a text bar in a terminal).
-Errors are the pipeline's: :class:`mcjax.study.SpecError` names the key path and the allowed
-values.
+Errors are the pipeline's: :class:`SpecError` (``mc.SpecError``, the class of :mod:`mcjax.study`,
+defined in :mod:`mcjax.base.validation`) names the key path and the allowed values, one line per
+mistake, and the keyword arguments as written here (``seeds``, ``chunk_size``, ``set['params.x']``).
+``res.rows`` has the dataset's column order (``point_id``, the folder name, last), whether or not
+it was written.
 """
 
 from __future__ import annotations
@@ -29,11 +32,12 @@ from typing import TYPE_CHECKING, Any, Mapping
 import pandas as pd
 
 from mcjax import configure
+from mcjax.base.validation import SpecError
 
 if TYPE_CHECKING:
     from mcjax.analysis.summary import Summary
 
-__all__ = ["SweepRows", "sweep", "run"]
+__all__ = ["SpecError", "SweepRows", "sweep", "run"]
 
 
 @dataclass(frozen=True, eq=False)  # frames inside: compared by identity
@@ -103,8 +107,18 @@ def _execute(study, out: str | Path | None, force: bool, progress: bool, spec_fi
     finally:
         if bar is not None:
             bar.close()
+    rows = _dataset_order(rows)
     one = summarize_dataset(rows, metadata)  # the one summary its table, findings and figures read
     return SweepRows(rows, metadata, one.table, one.axes, None if out is None else Path(out), one)
+
+
+def _dataset_order(rows: pd.DataFrame) -> pd.DataFrame:
+    """``rows`` with the columns in the dataset's order, as pandas, DuckDB and polars read ``OUT/runs``:
+    the part files' columns, then ``point_id`` (the folder name, ``runs/point_id=P/``). The rows in
+    memory have it second, :func:`mcjax.base.parquet.read_table` first."""
+    if "point_id" not in rows.columns:
+        return rows
+    return rows[[c for c in rows.columns if c != "point_id"] + ["point_id"]]
 
 
 def sweep(spec: str | Path | Mapping[str, Any], *, seeds: int | None = None, set: Mapping[str, Any] | None = None,
@@ -116,12 +130,14 @@ def sweep(spec: str | Path | Mapping[str, Any], *, seeds: int | None = None, set
     empty or missing folder; ``force`` replaces a previous sweep), as ``mcjax sweep --out``.
     The rows are the ones ``mcjax sweep`` writes for the same spec and overrides, bit for bit."""
     from mcjax.study import build_spec, load_spec
+    from mcjax.study.spec import KEYWORDS
 
     if isinstance(spec, Mapping):
         study = build_spec(dict(spec), Path(base_dir), seeds=seeds, chunk_size=chunk_size, overrides=dict(set or {}),
-                           out_dir=out)
+                           out_dir=out, given_as=KEYWORDS)
     else:
-        study = load_spec(spec, seeds=seeds, chunk_size=chunk_size, overrides=dict(set or {}), out_dir=out)
+        study = load_spec(spec, seeds=seeds, chunk_size=chunk_size, overrides=dict(set or {}), out_dir=out,
+                          given_as=KEYWORDS)
     return _execute(study, out, force, progress, None if isinstance(spec, Mapping) else spec)
 
 
@@ -131,6 +147,8 @@ def run(config: str | Path, *, seeds: int | None = None, set: Mapping[str, Any] 
     (the paper's run count) unless given, ``set`` overrides — and return its :class:`SweepRows`
     (nothing written)."""
     from mcjax.study import build_spec
+    from mcjax.study.spec import KEYWORDS
 
-    study = build_spec({"base": str(Path(config).resolve())}, Path.cwd(), seeds=seeds, overrides=dict(set or {}))
+    study = build_spec({"base": str(Path(config).resolve())}, Path.cwd(), seeds=seeds, overrides=dict(set or {}),
+                       given_as=KEYWORDS)
     return _execute(study, None, False, progress)

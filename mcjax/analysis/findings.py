@@ -61,12 +61,15 @@ def percent(rate: float, low: float, high: float) -> str:
     return f"{100 * rate:.1f} % [{100 * low:.1f}, {100 * high:.1f}]"
 
 
-def quote(mean: float, low: float, high: float, unit: str = "") -> str:
-    """A mean with its interval in the tables' number format: ``"11.09 m [10.96, 11.22]"``."""
+def quote(mean: float, low: float, high: float, unit: str = "", every: str = "every run") -> str:
+    """A mean with its interval in the tables' number format: ``"11.09 m [10.96, 11.22]"``; an interval of
+    zero width (every value the same: ``every`` names them) says so: ``"every run: 17 steps"``."""
     u = f" {unit}" if unit else ""
     m = tables.format_number(mean, tables.STAT_DIGITS)
     if not (math.isfinite(low) and math.isfinite(high)):
         return f"{m}{u} (no interval)"
+    if low == high:
+        return f"{every}: {m}{u}"
     return f"{m}{u} [{tables.format_number(low, tables.STAT_DIGITS)}, {tables.format_number(high, tables.STAT_DIGITS)}]"
 
 
@@ -283,8 +286,9 @@ def _graph(df: pd.DataFrame, ax: _Axis, sch: tables.Schema, pooled: str) -> Find
 
     def at(v):
         k, n, ci, m = stats[v]
-        return (f"at {ax.text(v)} in {percent(k / n, ci.low, ci.high)} of runs "
-                f"({ds}: mean {quote(m.mean, m.low, m.high, u)} per run)")
+        steps = f"{ds}, {quote(m.mean, m.low, m.high, u)}" if m.low == m.high else \
+            f"{ds}: mean {quote(m.mean, m.low, m.high, u)} per run"
+        return f"at {ax.text(v)} in {percent(k / n, ci.low, ci.high)} of runs ({steps})"
 
     if not some:
         return Finding(ax.name, f"{pooled}The comm graph stays connected in every run at every {ax.name} "

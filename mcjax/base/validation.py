@@ -4,8 +4,10 @@ contract's declarations (:class:`~mcjax.contract.Setting`, :class:`~mcjax.contra
 the sweep and config-file reader (:mod:`mcjax.study.spec`) and by the tune spec
 (:mod:`mcjax.tune.spec`); also reading a spec's TOML.
 
-Every message has one form: ``"must be …; got …"`` (:func:`bad`) for a value, and
-:class:`SpecError` ``"<key path>: …"`` for a spec, the key path written as TOML writes it.
+Every message has one form: ``"must be …; got …"`` (:func:`bad`) for a value, what it got
+named by its kind when that is what is wrong (:func:`got`: ``the string '100e3'``), and
+:class:`SpecError` ``"<key path>: …"`` for a spec, the key path written as TOML writes it, one
+line per mistake.
 
 Kinds are exact, as TOML has them: a boolean is no number, a float no integer, a string or a
 table no list (numpy scalars count as their Python kinds).
@@ -15,6 +17,7 @@ This module is a leaf: it imports nothing from mcjax and no JAX.
 
 from __future__ import annotations
 
+import contextlib
 import difflib
 import json
 import math
@@ -26,7 +29,8 @@ import numpy as np
 
 
 class SpecError(ValueError):
-    """A sweep spec or config file is invalid; the message names the key path."""
+    """A sweep spec or config file is invalid; the message names the key path, one line per mistake
+    (several lines when a spec has several independent mistakes: :func:`mcjax.study.build_spec`)."""
 
 
 # ------------------------------------------------------------------ text of messages
@@ -50,15 +54,36 @@ def one_line(text) -> str:
     return " ".join(str(text).split())
 
 
+def got(value) -> str:
+    """What a message says it got: the value on one line (:func:`show`), named by its kind where
+    the kind is easy to miss in a spec — ``the string '100e3'`` (quoted in the TOML), ``the boolean
+    true``, ``the table {...}``; a string that reads as a number says how to write one."""
+    if isinstance(value, str):
+        text, number = value.strip(), None
+        if text and len(text) <= 40 and "\n" not in text and "=" not in text:
+            try:
+                number = tomllib.loads(f"v = {text}")["v"]
+            except tomllib.TOMLDecodeError:
+                pass
+        hint = f" (a number is written without quotes: {text})" if is_number(number) else ""
+        return f"the string {show(value)}{hint}"
+    if is_bool(value):
+        return f"the boolean {'true' if value else 'false'}"
+    if isinstance(value, dict):
+        return f"the table {show(value)}"
+    return show(value)
+
+
 def suggest(key, allowed) -> str:
     """`` (did you mean 'X'?)`` for the allowed key closest to ``key``, else ``""``."""
     close = difflib.get_close_matches(str(key), allowed, n=1)
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
-def bad(allowed: str, value) -> str:
-    """The one-line message of a value that is not allowed: ``"must be …; got …"``."""
-    return f"must be {allowed}; got {show(value)}"
+def bad(allowed: str, value, kind_ok: bool = False) -> str:
+    """The one-line message of a value that is not allowed: ``"must be …; got …"``, the value named by its
+    kind (:func:`got`) unless ``kind_ok`` (a string where a string is wanted, but not one of the choices)."""
+    return f"must be {allowed}; got {show(value) if kind_ok else got(value)}"
 
 
 def number_text(v) -> str:
@@ -190,7 +215,8 @@ def setting_value_problem(s, value) -> str | None:
             return bad(setting_allowed(s), value) + f" (unknown: {', '.join(map(show, unknown))})"
         return bad(setting_allowed(s), value) if len(value) == 0 or len(set(value)) != len(value) else None
     if s.choices is not None:
-        return None if any(same(value, c) for c in s.choices) else bad(setting_allowed(s), value)
+        strings = isinstance(value, str) and all(isinstance(c, str) for c in s.choices)
+        return None if any(same(value, c) for c in s.choices) else bad(setting_allowed(s), value, kind_ok=strings)
     unit = f" {s.unit}" if s.unit else ""
     if not is_number(value) or (s.integer and not is_int(value)):
         return bad(setting_allowed(s) + ("" if s.integer else unit), value)
@@ -272,17 +298,56 @@ def param_problem(p, value, n_agents: int | None = None, *, exact: bool = False,
 
 # ------------------------------------------------------------------ spec tables (SpecError naming the key path)
 
-def check_keys(where: str, table, allowed) -> None:
-    """SpecError naming the first key of ``table`` that is not ``allowed`` (``where`` + key)."""
-    for key in table:
-        if key not in allowed:
-            raise SpecError(f"{where}{key_text(key)}: unknown key{suggest(key, allowed)}; allowed: {', '.join(allowed)}")
+#: An unknown key's message lists every allowed key while they fit in this many characters; past it, the
+#: closest ones and where to see them all (``see``).
+ALLOWED_TEXT = 100
+
+
+def unknown_key(where: str, key, allowed, see: str | None = None) -> str:
+    """The line of a key that is not ``allowed``: the did-you-mean hint, then every allowed key when
+    they are few (:data:`ALLOWED_TEXT`), else the three closest and where to see all (``see``,
+    e.g. ``mcjax list leader_follower``)."""
+    allowed = list(allowed)
+    every = ", ".join(allowed)
+    if see is None or len(every) <= ALLOWED_TEXT:
+        return f"{where}{key_text(key)}: unknown key{suggest(key, allowed)}; allowed: {every}"
+    hint = suggest(key, allowed)
+    close = [k for k in difflib.get_close_matches(str(key), allowed, n=4, cutoff=0.5) if f"{k!r}?" not in hint][:2]
+    closest = f"; {'also close' if hint else 'the closest'}: {', '.join(close)}" if close else ""
+    return f"{where}{key_text(key)}: unknown key{hint}{closest}; all {len(allowed)} listed by {see}"
+
+
+def check_keys(where: str, table, allowed, see: str | None = None) -> None:
+    """SpecError naming each key of ``table`` that is not ``allowed`` (``where`` + key), one line
+    each (:func:`unknown_key`; ``see``: where the allowed keys are all listed)."""
+    lines = [unknown_key(where, key, allowed, see) for key in table if key not in allowed]
+    if lines:
+        raise SpecError("\n".join(lines))
+
+
+class Mistakes:
+    """The mistakes of a spec found so far, each check made on its own: ``with m.check(): …`` keeps the
+    lines of a :class:`SpecError` and goes on; :meth:`stop` raises them all in one, one line each."""
+
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+
+    @contextlib.contextmanager
+    def check(self):
+        try:
+            yield
+        except SpecError as exc:
+            self.lines += [line for line in str(exc).splitlines() if line not in self.lines]
+
+    def stop(self) -> None:
+        if self.lines:
+            raise SpecError("\n".join(self.lines))
 
 
 def count(where: str, value, low: int, high: int) -> int:
     """An integer count in [low, high] (a boolean or a float is no count)."""
     if not is_int(value) or not low <= value <= high:
-        raise SpecError(f"{where}: must be an integer in [{low}, {high}]; got {show(value)}")
+        raise SpecError(f"{where}: must be an integer in [{low}, {high}]; got {got(value)}")
     return value
 
 
@@ -290,7 +355,7 @@ def number(where: str, value, *, positive: bool = False, nonneg: bool = False) -
     """A finite number (> 0 with ``positive``, >= 0 with ``nonneg``), as a float."""
     if not is_number(value) or not math.isfinite(value) or (positive and value <= 0) or (nonneg and value < 0):
         what = "a number > 0" if positive else "a number >= 0" if nonneg else "a finite number"
-        raise SpecError(f"{where}: must be {what}; got {show(value)}")
+        raise SpecError(f"{where}: must be {what}; got {got(value)}")
     return float(value)
 
 
@@ -298,7 +363,8 @@ def choice(where: str, value, allowed, *, hint: bool = False):
     """``value`` if it is one of ``allowed`` (with ``hint``: a string gets the did-you-mean hint)."""
     if value not in allowed:
         tip = suggest(value, allowed) if hint and isinstance(value, str) else ""
-        raise SpecError(f"{where}: must be one of {', '.join(allowed)}; got {show(value)}{tip}")
+        strings = isinstance(value, str) and all(isinstance(a, str) for a in allowed)
+        raise SpecError(f"{where}: must be one of {', '.join(allowed)}; got {show(value) if strings else got(value)}{tip}")
     return value
 
 
@@ -306,14 +372,14 @@ def subtable(where: str, data: dict, key: str) -> dict:
     """``data[key]``, which must be a table (``{}`` when missing)."""
     value = data.get(key, {})
     if not isinstance(value, dict):
-        raise SpecError(f"{where}{key}: must be a table ([{key}] with one key = value per line); got {show(value)}")
+        raise SpecError(f"{where}{key}: must be a table ([{key}] with one key = value per line); got {got(value)}")
     return value
 
 
 def check_text(where: str, data: dict, key: str) -> None:
     """SpecError unless ``data[key]``, when given, is a string."""
     if key in data and not isinstance(data[key], str):
-        raise SpecError(f"{where}{key}: must be a string; got {show(data[key])}")
+        raise SpecError(f"{where}{key}: must be a string; got {got(data[key])}")
 
 
 # ------------------------------------------------------------------ reading TOML

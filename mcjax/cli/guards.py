@@ -1,6 +1,6 @@
-"""How a command refuses and fails: one line on stderr and exit 2 (bad input, found before anything runs) or
-exit 1 (a chunk that failed), and the checks made before a command starts — the environment variables, and the
-installed filter plugins' names for the commands that run filters. No JAX until a filter is looked up."""
+"""How a command refuses and fails: one line on stderr per mistake and exit 2 (bad input, found before anything
+runs) or exit 1 (a chunk that failed), and the checks made before a command starts — the environment variables,
+and the installed filter plugins' names for the commands that run filters. No JAX until a filter is looked up."""
 
 from __future__ import annotations
 
@@ -13,7 +13,10 @@ from mcjax.base.interrupt import exit_now, own_process
 
 
 def fail(message: str) -> None:
-    click.echo("error: " + " ".join(str(message).split()), err=True)  # always one line
+    """``error: …`` on stderr, one line per line of ``message`` (a spec with several mistakes: one each, as
+    :class:`mcjax.base.validation.SpecError` holds them), white space folded within each; exit 2."""
+    lines = [" ".join(line.split()) for line in str(message).splitlines()]
+    click.echo("\n".join(f"error: {line}" for line in lines if line) or "error:", err=True)
     sys.exit(2)
 
 

@@ -124,7 +124,7 @@ def _scaled(value: Any, factor: float) -> Any:
 def glance(summary: pd.DataFrame, sch: tables.Schema, axes: Sequence[str]) -> pd.DataFrame:
     """The summary's headline columns as text: per point (its axes in their display units)
     and filter, the runs, the mean error
-    ``mean [low, high]`` and, with a divergence flag, the mean over non-divergent runs and
+    ``mean [low, high]`` (``mean (every run)`` when every run gave it) and, with a divergence flag, the mean over non-divergent runs and
     the divergence rate in percent ("2.0 % [0.6, 7.0]"), with their intervals (numbers by :func:`mcjax.analysis.tables.format_number`)."""
     e = sch.error
 
@@ -133,6 +133,8 @@ def glance(summary: pd.DataFrame, sch: tables.Schema, axes: Sequence[str]) -> pd
         lo, hi = row[low], row[high]
         if isinstance(lo, float) and math.isnan(lo):
             return m
+        if lo == hi:  # an interval of zero width: every run gave the same number
+            return f"{m} (every run)"
         return (f"{m} [{tables.format_number(lo, tables.STAT_DIGITS)}, "
                 f"{tables.format_number(hi, tables.STAT_DIGITS)}]")
 

@@ -165,7 +165,7 @@ def _difference(r: Mapping[str, Any], flag: bool, unit: str) -> str:
         lo, hi = r["ci_low"], r["ci_high"]
         inner = f" [{100 * lo:+.1f}, {100 * hi:+.1f}]" if math.isfinite(lo) and math.isfinite(hi) else ""
         return f"{100 * r['paired_difference']:+.1f} percentage points{inner}"
-    return findings.quote(r["paired_difference"], r["ci_low"], r["ci_high"], unit)
+    return findings.quote(r["paired_difference"], r["ci_low"], r["ci_high"], unit, every="every seed")
 
 
 def _sentences(pairs: pd.DataFrame, sch: tables.Schema, n: int) -> list[str]:

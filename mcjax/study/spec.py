@@ -23,7 +23,8 @@ spec (``sweeps/*.toml``) names a base config file and adds overrides and axes::
 
 Every check derives from the scenario's declarations (:mod:`mcjax.contract`) and is made by
 :mod:`mcjax.base.validation`; a bad spec stops with one :class:`SpecError` naming the key path, before
-anything compiles or is written.
+anything compiles or is written. A spec with several mistakes gets one line for each mistake that is
+found on its own (:func:`build_spec`).
 """
 
 from __future__ import annotations
@@ -39,8 +40,8 @@ import numpy as np
 from mcjax import scenarios
 from mcjax.contract import Scenario
 from mcjax.base.plugins import absolute_reference
-from mcjax.base.validation import (SpecError, check_keys, check_text, count, is_int, is_number, key_text, one_line, read_toml,
-                              setting_problem, show, subtable)
+from mcjax.base.validation import (Mistakes, SpecError, check_keys, check_text, count, got, is_int, is_number, key_text,
+                                   one_line, read_toml, setting_problem, show, subtable, unknown_key)
 from mcjax.study.plan import DEFAULT_SEEDS, Study, check_memory
 from mcjax.study.sensitivity import read_sensitivity
 
@@ -62,20 +63,50 @@ MAX_CHUNK_SIZE = 1_000_000
 #: base_seed is a 32-bit unsigned integer (the engine's keys are made of 32-bit words).
 MAX_BASE_SEED = 2**32 - 1
 
+#: How a message names the values given beside a spec: the command line's options (``mcjax sweep --seeds 0``:
+#: ``--seeds: …``), the default, or the keyword arguments of :mod:`mcjax.notebook` (``mc.sweep(…, seeds=0)``:
+#: ``seeds: …``). Keys: ``seeds``, ``chunk_size``, ``set``.
+COMMAND_LINE = {"seeds": "--seeds", "chunk_size": "--chunk-size", "set": "--set"}
+KEYWORDS = {"seeds": "seeds", "chunk_size": "chunk_size", "set": "set"}
 
-def _build_config(scenario: Scenario, table: dict, where: str):
+
+def _set_text(path, given_as: Mapping[str, str], value=None, example: bool = False, quote: bool = True) -> str:
+    """An override as its giver wrote it: ``--set params.x`` (``quote``: a key TOML would quote, quoted; as an
+    example, ``--set 'grid.x=[...]'``) on the command line, ``set['params.x']`` (``set={'grid.x': [...]}``)
+    from Python."""
+    if given_as["set"].startswith("--"):
+        if example:
+            return f"{given_as['set']} '{path}={value}'"
+        return f"{given_as['set']} {key_text(path) if quote else path}"
+    return f"{given_as['set']}={{{str(path)!r}: {value}}}" if example else f"{given_as['set']}[{str(path)!r}]"
+
+
+def _see_all(scenario: Scenario, config_path: Path | None = None) -> str:
+    """Where a scenario's every Config and Params key is listed: ``mcjax list NAME`` (a built-in or installed
+    scenario), else ``mcjax list --config FILE`` (a scenario of a file, named by its config file)."""
+    if scenario.name in scenarios.BUILTIN or config_path is None or scenario.name in scenarios.known():
+        return f"`mcjax list {scenario.name}`"
+    return f"`mcjax list --config {config_path}`"
+
+
+def _build_config(scenario: Scenario, table: dict, where: str, see: str | None = None):
     """The Config from a table of values: every field against its Setting first (exact kinds,
-    declared ranges and ceilings; ``where`` + field named), then the scenario's checks across
-    fields."""
-    check_keys(where, table, list(scenario.settings))
+    declared ranges and ceilings; ``where`` + field named; every unknown key and bad field, one
+    line each), then the scenario's checks across fields (the first that fails). ``see``: where
+    every key is listed."""
+    lines = [unknown_key(where, k, list(scenario.settings), see) for k in table if k not in scenario.settings]
     values = {}
     for k, v in table.items():
-        s = scenario.settings[k]
+        s = scenario.settings.get(k)
+        if s is None:
+            continue
         v = tuple(v) if s.many and isinstance(v, list) else v
         msg = setting_problem(k, s, v)
         if msg:
-            raise SpecError(f"{where}{k}: {msg}")
+            lines.append(f"{where}{k}: {msg}")
         values[k] = v
+    if lines:
+        raise SpecError("\n".join(lines))
     try:
         return scenario.Config(**values)
     except (TypeError, ValueError) as exc:
@@ -99,13 +130,20 @@ def _absolute_filters(table: dict, base_dir: str | Path) -> dict:
     return table
 
 
-def _check_params(scenario: Scenario, cfg, table: dict, where: str) -> None:
-    """Every value against its declaration, read exactly (kinds, range, shape for ``cfg``)."""
-    check_keys(where, table, list(scenario.params_table))
+def _check_params(scenario: Scenario, cfg, table: dict, where: str, see: str | None = None) -> None:
+    """Every value against its declaration, read exactly (kinds, range, shape for ``cfg``; without
+    ``cfg``, a Config that has mistakes of its own, no shape): every unknown key and bad value, one line
+    each. ``see``: where every key is listed."""
+    lines = []
     for k, v in table.items():
-        msg = scenario.params_table[k].problem(v, exact=True, cfg=cfg)
-        if msg:
-            raise SpecError(f"{where}{k}: {msg}")
+        p = scenario.params_table.get(k)
+        msg = p.problem(v, exact=True, cfg=cfg) if p is not None else None
+        if p is None:
+            lines.append(unknown_key(where, k, list(scenario.params_table), see))
+        elif msg:
+            lines.append(f"{where}{k}: {msg}")
+    if lines:
+        raise SpecError("\n".join(lines))
 
 
 def _axis_values(where: str, v, integral: bool) -> list:
@@ -210,9 +248,17 @@ def read_config_file(path: str | Path, what: str = "config file") -> ConfigFile:
         scenario = scenarios.get(data["scenario"], base_dir=path.parent)
     except (ValueError, ImportError) as exc:  # unknown name, missing file or module; a bug inside a
         raise SpecError(f"{where}scenario: {one_line(exc)}") from None  # scenario keeps its traceback
-    cfg = _build_config(scenario, _absolute_filters(subtable(where, data, "config"), path.parent), f"{where}config.")
-    params = dict(subtable(where, data, "params"))
-    _check_params(scenario, cfg, params, f"{where}params.")
+    see = _see_all(scenario, path)
+    mistakes = Mistakes()
+    cfg = None
+    with mistakes.check():
+        cfg = _build_config(scenario, _absolute_filters(subtable(where, data, "config"), path.parent), f"{where}config.",
+                            see)
+    params = {}
+    with mistakes.check():
+        params = dict(subtable(where, data, "params"))
+        _check_params(scenario, cfg, params, f"{where}params.", see)
+    mistakes.stop()
     return ConfigFile(scenario, cfg, params, seeds, path)
 
 
@@ -223,65 +269,92 @@ def load_config_file(path: str | Path):
 
 
 def load_spec(path: str | Path, *, seeds: int | None = None, chunk_size: int | None = None,
-              overrides: dict[str, Any] | None = None, out_dir: str | Path | None = None) -> Study:
+              overrides: dict[str, Any] | None = None, out_dir: str | Path | None = None,
+              given_as: Mapping[str, str] = COMMAND_LINE) -> Study:
     """Read and validate a sweep spec file; raises :class:`SpecError` naming the key path.
-    ``base`` is relative to the spec's folder; ``out_dir``: the study's output folder."""
+    ``base`` is relative to the spec's folder; ``out_dir``: the study's output folder; ``given_as``:
+    how messages name ``seeds``, ``chunk_size`` and the overrides (:data:`COMMAND_LINE`, :data:`KEYWORDS`)."""
     path = Path(path)
     data = read_toml(path, "sweep spec")
     if is_config_file(data):
         raise SpecError(f"{path} is a config file (it names a scenario), not a sweep spec: run one point with "
                         f"`mcjax run {path}`, or name it as `base` in a sweep spec")
-    return build_spec(data, path.parent, seeds=seeds, chunk_size=chunk_size, overrides=overrides, out_dir=out_dir)
+    return build_spec(data, path.parent, seeds=seeds, chunk_size=chunk_size, overrides=overrides, out_dir=out_dir,
+                      given_as=given_as)
 
 
-def _apply_overrides(data: dict, overrides: Mapping[str, Any]) -> None:
+def _apply_overrides(data: dict, overrides: Mapping[str, Any], given_as: Mapping[str, str] = COMMAND_LINE) -> None:
     """Set each ``"table.key"`` path of ``overrides`` in ``data`` (tables created as needed)."""
     for path, value in overrides.items():
         parts = str(path).split(".")
         if not all(parts):
-            raise SpecError(f"--set {key_text(path)}: must be a key path such as params.comm_radius")
+            raise SpecError(f"{_set_text(path, given_as)}: must be a key path such as params.comm_radius")
         target = data
         for i, part in enumerate(parts[:-1]):
             target = target.setdefault(part, {})
             if not isinstance(target, dict):
                 where = ".".join(parts[:i + 1])
-                raise SpecError(f"--set {path}: {where} is not a table; got {show(target)}")
+                raise SpecError(f"{_set_text(path, given_as, quote=False)}: {where} is not a table; got {got(target)}")
         target[parts[-1]] = value
 
 
 def build_spec(data: dict, base_dir: str | Path, *, seeds: int | None = None, chunk_size: int | None = None,
-               overrides: dict[str, Any] | None = None, out_dir: str | Path | None = None) -> Study:
+               overrides: dict[str, Any] | None = None, out_dir: str | Path | None = None,
+               given_as: Mapping[str, str] = COMMAND_LINE) -> Study:
     """Validate a sweep spec given as a dict (the TOML's tables); ``base`` is relative to
     ``base_dir``. ``overrides`` maps key paths (``"params.comm_radius"``) to values; a string
-    given for a list Config field (``config.filters = "NAME"``) is a one-item list."""
+    given for a list Config field (``config.filters = "NAME"``) is a one-item list. ``given_as``:
+    how messages name ``seeds``, ``chunk_size`` and the overrides (:data:`COMMAND_LINE`, the
+    default, or :data:`KEYWORDS`).
+
+    A spec with several mistakes gets them all, one line each, in one :class:`SpecError`: every
+    unknown key of every table, every bad value of ``[config]``, ``[params]``, ``[grid]`` and ``[zip]``
+    (each checked on its own; ``[params]`` without a shape check when ``[config]`` has mistakes; of the
+    base file's values a changed ``[config]`` makes wrong, the first) and of ``seeds``, ``chunk_size``,
+    ``base_seed`` and ``timeseries``. The checks that need all of
+    those right — a Config's fields together, ``[zip]``'s lengths, the number of points and runs, the
+    scenario's checks across Params, the memory a chunk needs — come after, and the first that
+    fails stops. A missing or unreadable ``base`` (or a mistake inside it) stops at once."""
     overrides = dict(overrides or {})
     data = json.loads(json.dumps(data))  # a deep copy: the overrides never touch the caller's dict
     if isinstance(data.get("config"), dict):  # the spec's filter files beside the spec, the command line's here
         data["config"] = _absolute_filters(data["config"], base_dir)
     if "config.filters" in overrides:
         overrides["config.filters"] = _absolute_filters({"filters": overrides["config.filters"]}, Path.cwd())["filters"]
-    _apply_overrides(data, overrides)
-    check_keys("", data, SPEC_KEYS)
+    _apply_overrides(data, overrides, given_as)
+    mistakes = Mistakes()
+    with mistakes.check():
+        check_keys("", data, SPEC_KEYS)
     for key in ("description", "scenario"):
-        check_text("", data, key)
+        with mistakes.check():
+            check_text("", data, key)
     for key in ("config", "params", "grid", "zip"):
-        subtable("", data, key)
+        with mistakes.check():
+            subtable("", data, key)
+    tables = {key: data.get(key, {}) if isinstance(data.get(key, {}), dict) else {}
+              for key in ("config", "params", "grid", "zip")}
     if "base" not in data:
-        raise SpecError("base: missing; give the config file the sweep starts from")
+        mistakes.lines.append("base: missing; give the config file the sweep starts from")
+        mistakes.stop()
     if not isinstance(data["base"], str) or not data["base"].strip():
-        raise SpecError(f"base: must be the path of a config file (configs/*.toml), relative to the spec; "
-                        f"got {show(data['base'])}")
+        mistakes.lines.append(f"base: must be the path of a config file (configs/*.toml), relative to the spec; "
+                              f"got {got(data['base'])}")
+        mistakes.stop()
     base_path = (Path(base_dir) / data["base"]).resolve()
     if base_path.is_dir():
-        raise SpecError(f"base: {data['base']!r} is a folder ({base_path}), not a config file (configs/*.toml)")
-    if not base_path.exists():
-        raise SpecError(f"base: config file not found: {base_path}")
-    base = read_config_file(base_path)
+        mistakes.lines.append(f"base: {data['base']!r} is a folder ({base_path}), not a config file (configs/*.toml)")
+    elif not base_path.exists():
+        mistakes.lines.append(f"base: config file not found: {base_path}")
+    mistakes.stop()
+    with mistakes.check():
+        base = read_config_file(base_path)
+    mistakes.stop()  # the base's own mistakes: nothing of the spec can be checked without it
     scenario, cfg, params = base.scenario, base.config, dict(base.params)
-    if "scenario" in data and data["scenario"] != scenario.name:
-        raise SpecError(f"scenario: must be the base config's {scenario.name!r} (or left out); got "
-                        f"{data['scenario']!r}")
-    cfg_over = dict(data.get("config", {}))
+    see = _see_all(scenario, base_path)
+    if "scenario" in data and isinstance(data["scenario"], str) and data["scenario"] != scenario.name:
+        mistakes.lines.append(f"scenario: must be the base config's {scenario.name!r} (or left out); got "
+                              f"{data['scenario']!r}")
+    cfg_over = dict(tables["config"])
     for path, value in overrides.items():  # --set config.filters=NAME: a one-item list
         table, _, name = str(path).partition(".")
         s = scenario.settings.get(name)
@@ -289,32 +362,50 @@ def build_spec(data: dict, base_dir: str | Path, *, seeds: int | None = None, ch
             cfg_over[name] = [value]
             data["config"][name] = [value]
     if cfg_over:
-        check_keys("config.", cfg_over, list(scenario.settings))
-        cfg = _build_config(scenario, {**dataclasses.asdict(cfg), **cfg_over}, "config.")
-    spec_params = data.get("params", {})
-    _check_params(scenario, cfg, spec_params, "params.")
+        cfg = None  # unless [config] is right: [params] and the axes are then checked without their shapes
+        with mistakes.check():
+            cfg = _build_config(scenario, {**dataclasses.asdict(base.config), **cfg_over}, "config.", see)
+    spec_params = tables["params"]
+    with mistakes.check():
+        _check_params(scenario, cfg, spec_params, "params.", see)
     params.update(spec_params)
-    if cfg_over:  # the base file's values again, against the final Config (e.g. a new n_agents)
-        swept = {*data.get("grid", {}), *data.get("zip", {})}
-        _check_params(scenario, cfg, {k: v for k, v in base.params.items() if k not in spec_params and k not in swept},
-                      f"{base.path.name}: params.")
+    if cfg_over and cfg is not None:  # the base file's values again, against the final Config (e.g. a new n_agents)
+        swept = {*tables["grid"], *tables["zip"]}
+        try:
+            _check_params(scenario, cfg, {k: v for k, v in base.params.items() if k not in spec_params and k not in swept},
+                          f"{base.path.name}: params.", see)
+        except SpecError as exc:  # the consequences of one change of [config]: the first of them
+            mistakes.lines.append(str(exc).splitlines()[0])
+    wrong = {k for k in spec_params if any(line.startswith(f"params.{k}: ") for line in mistakes.lines)}
     axes = {}
     for table in ("grid", "zip"):
-        raw = data.get(table, {})
-        check_keys(f"{table}.", raw, list(scenario.params_table))
+        raw = tables[table]
+        with mistakes.check():
+            check_keys(f"{table}.", raw, list(scenario.params_table), see)
         axes[table] = {}
         for k, v in raw.items():
-            p = scenario.params_table[k]
-            values = _axis_values(f"{table}.{k}", v, p.integral())
-            for value in values:
-                _check_params(scenario, cfg, {k: value}, f"{table}.")
-            values = _same_shape(f"{table}.{k}", values, p, cfg)
-            if table == "grid" and (dup := _distinct(values)) is not None:
-                raise SpecError(f"grid.{k}: must not repeat a value (each point once); {dup} is given twice")
-            axes[table][k] = values
-            if k in spec_params:
-                raise SpecError(f"params.{k}: must not be set while {table}.{k} sweeps it; change the axis instead "
-                                f"({table}.{k} = [...], or --set '{table}.{k}=[...]')")
+            if k not in scenario.params_table:
+                continue
+            with mistakes.check():  # a [params] value already wrong is not told again that it is swept
+                axes[table][k] = _axis(table, k, v, scenario, cfg, {p: 1 for p in spec_params if p not in wrong},
+                                       given_as)
+    with mistakes.check():
+        seeds_where = given_as["seeds"] if seeds is not None else "seeds"
+        if seeds is None:  # the spec's seeds, else the config file's (the paper's run count), else DEFAULT_SEEDS
+            seeds = data.get("seeds", base.seeds if base.seeds is not None else DEFAULT_SEEDS)
+        count(seeds_where, seeds, 1, MAX_SEEDS)
+    chunk_where = given_as["chunk_size"] if chunk_size is not None else "chunk_size"
+    with mistakes.check():
+        chunk = count(chunk_where, data.get("chunk_size", 1000) if chunk_size is None else chunk_size, 1, MAX_CHUNK_SIZE)
+    with mistakes.check():
+        base_seed = count("base_seed", data.get("base_seed", 0), 0, MAX_BASE_SEED)
+    timeseries = data.get("timeseries", False)
+    if not isinstance(timeseries, bool):
+        mistakes.lines.append(f"timeseries: must be true or false; got {got(timeseries)}")
+    elif timeseries and scenario.timeseries is None:
+        mistakes.lines.append(f"timeseries: must be false: scenario {scenario.name!r} has no per-step series")
+    mistakes.stop()
+    # the checks across values: each needs the values above right
     grid, zipped = axes["grid"], axes["zip"]
     both = set(grid) & set(zipped)
     if both:
@@ -332,28 +423,32 @@ def build_spec(data: dict, base_dir: str | Path, *, seeds: int | None = None, ch
         raise SpecError(f"{'grid' if grid else 'zip'}: the axes make {n_points} points ({sizes}); allowed: at most "
                         f"{MAX_POINTS} points per sweep")
     base_params = scenario.default_params(cfg, **params)
-    # the spec's seeds, else the config file's (the paper's run count), else DEFAULT_SEEDS
-    seeds_where = "--seeds" if seeds is not None else "seeds"
-    if seeds is None:
-        seeds = data.get("seeds", base.seeds if base.seeds is not None else DEFAULT_SEEDS)
-    count(seeds_where, seeds, 1, MAX_SEEDS)
     if n_points * seeds > MAX_RUNS:
         raise SpecError(f"{seeds_where}: {n_points} point(s) x {seeds} seeds = {n_points * seeds} runs; allowed: at "
                         f"most {MAX_RUNS} runs per sweep ({seeds_where} <= {MAX_RUNS // n_points})")
-    chunk_where = "--chunk-size" if chunk_size is not None else "chunk_size"
-    chunk = count(chunk_where, data.get("chunk_size", 1000) if chunk_size is None else chunk_size, 1, MAX_CHUNK_SIZE)
-    base_seed = count("base_seed", data.get("base_seed", 0), 0, MAX_BASE_SEED)
-    timeseries = data.get("timeseries", False)
-    if not isinstance(timeseries, bool):
-        raise SpecError(f"timeseries: must be true or false; got {show(timeseries)}")
-    if timeseries and scenario.timeseries is None:
-        raise SpecError(f"timeseries: must be false: scenario {scenario.name!r} has no per-step series")
     sensitivity = read_sensitivity(scenario, cfg, data.get("sensitivity"))
     spec = Study(scenario, cfg, base_params, grid, zipped, seeds, base_seed, chunk, data, timeseries,
                  json.loads(json.dumps(overrides)), None if out_dir is None else Path(out_dir), sensitivity)
     _check_points(spec, params)
     check_memory(spec, chunk_where)
     return spec
+
+
+def _axis(table: str, k: str, v, scenario: Scenario, cfg, spec_params: dict, given_as: Mapping[str, str]) -> list:
+    """The values of the axis ``k`` of ``[grid]`` or ``[zip]`` (``table``), each checked against its
+    declaration (its shape too, and one shape for all, when ``cfg`` is known)."""
+    p = scenario.params_table[k]
+    values = _axis_values(f"{table}.{k}", v, p.integral())
+    for value in values:
+        _check_params(scenario, cfg, {k: value}, f"{table}.")
+    if cfg is not None:
+        values = _same_shape(f"{table}.{k}", values, p, cfg)
+    if table == "grid" and (dup := _distinct(values)) is not None:
+        raise SpecError(f"grid.{k}: must not repeat a value (each point once); {dup} is given twice")
+    if k in spec_params:
+        raise SpecError(f"params.{k}: must not be set while {table}.{k} sweeps it; change the axis instead "
+                        f"({table}.{k} = [...], or {_set_text(f'{table}.{k}', given_as, '[...]', example=True)})")
+    return values
 
 
 def _check_points(spec: Study, params: dict) -> None:

@@ -219,11 +219,39 @@ def prepare_output(study: Study, out_dir: str | Path, *, resume: bool = False, f
             for line in problems:
                 (note or (lambda _: None))(f"resume: {line}")
             return todo
+        if not force:
+            _refuse_a_sweep_in(study, out_dir, ident)
         start_fresh(out_dir, force=force, keep=keep, note=note)
         write_identity(out_dir, IDENTITY_FILE, {**ident, "set": study.overrides, "spec_file": _spec_file(spec_file)})
     except OSError as exc:
         raise OutputError(f"output folder {out_dir}: {exc.strerror or exc}") from None
     return None
+
+
+def _refuse_a_sweep_in(study: Study, out_dir: Path, ident: dict) -> None:
+    """A fresh sweep into a folder that holds a sweep (a readable ``sweep.json`` and parts) is refused with what
+    the folder holds and what to do: this sweep complete (report it, or run it again with --force), this sweep
+    unfinished (--resume), or another sweep (--force). Any other folder is :func:`start_fresh`'s to judge."""
+    if not (out_dir / IDENTITY_FILE).is_file() or _wrote_nothing(out_dir, IDENTITY_FILE):
+        return
+    try:
+        saved = read_identity(out_dir)
+    except OutputError:
+        return
+    if not parquet.existing_parts(out_dir, "runs"):
+        return
+    if {k: saved[k] for k in IDENTITY_KEYS} != ident:
+        differ = ", ".join(sorted(k for k in IDENTITY_KEYS if saved.get(k) != ident.get(k)))
+        raise OutputError(f"output folder {out_dir} is not empty: it holds another sweep ({differ} differ); pass "
+                          f"--force to replace it, or choose another --out")
+    missing, chunks = len(missing_chunks(study, out_dir)), len(study.plan)
+    if missing:
+        raise OutputError(f"output folder {out_dir} is not empty: it holds this sweep, {chunks - missing} of {chunks} "
+                          f"chunk(s) written; pass --resume to finish it, --force to start again, or choose another "
+                          f"--out")
+    raise OutputError(f"output folder {out_dir} already holds this sweep, complete ({chunks} of {chunks} chunk(s) "
+                      f"written): `mcjax report {out_dir}` reads it; pass --force to run it again, or choose another "
+                      f"--out")
 
 
 def check_parts(study: Study, out_dir: str | Path) -> tuple[list[int], list[str]]:

@@ -130,6 +130,20 @@ def test_no_divergence_sentence_claims_an_order_of_overlapping_rates():
     assert div.orders == () and "diverges least" not in div.text, div.text
 
 
+def test_an_interval_of_zero_width_says_every_run_gave_it():
+    """Every run at 50 km disconnected for 3 steps: "every run: 3", not "mean 3 [3, 3] per run"; a spread keeps
+    its mean and interval."""
+    spec = {50e3: {"icf": (50.0, 5.0), "cif": (40.0, 5.0)}, 100e3: {"icf": (20.0, 2.0), "cif": (10.0, 2.0)}}
+    graph = next(f for f in findings.findings(_runs(spec, seeds=20, disconnected={50e3: 20, 100e3: 5}), _meta(spec))
+                 if f.kind == "graph").text
+    assert "at 50 km in 100.0 % [83.9, 100.0] of runs (disconnected_steps, every run: 3)" in graph, graph
+    assert re.search(r"at 100 km in 25\.0 % \[.*\] of runs \(disconnected_steps: mean 0\.75 \[.*\] per run\)",
+                     graph), graph
+    assert findings.quote(17.0, 17.0, 17.0, "steps") == "every run: 17 steps"
+    assert findings.quote(0.0, 0.0, 0.0, "m", every="every seed") == "every seed: 0 m"
+    assert findings.quote(17.0, math.nan, math.nan, "steps") == "17 steps (no interval)"
+
+
 @pytest.mark.parametrize("rate, low, high, text", [(0.02, 0.005502, 0.07001, "2.0 % [0.6, 7.0]"),
                                                    (0.0, 0.0, 0.03699, "0.0 % [0.0, 3.7]"),
                                                    (0.5, math.nan, math.nan, "50.0 %")])

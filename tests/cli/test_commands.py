@@ -40,9 +40,9 @@ def test_sweep_writes_tidy_parquet(tmp_path):
     meta = read_metadata(out)
     assert meta["config"]["n_steps"] == 15 and "jax" in meta and "git_revision" in meta
     assert "modified_icf" in r.output
-    # a second run into the same folder refuses, writing nothing
+    # a second run into the same folder refuses, writing nothing: the sweep is complete, so not --resume
     r2 = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out), "--seeds", "6"])
-    assert r2.exit_code == 2 and "not empty" in r2.output
+    assert r2.exit_code == 2 and "already holds this sweep, complete" in r2.output and "--resume" not in r2.output
 
 
 def test_dry_run_compiles_and_writes_nothing(tmp_path):

@@ -42,7 +42,10 @@ def test_setting_and_param_checks_name_the_allowed_values():
     assert p.problem(0.0, 3) == "must be > 0 m; got 0.0"
     assert p.problem([1.0, 2.0], 3) == "must be a number or a list of n_agents = 3 numbers; got [1.0, 2.0]"
     assert p.problem(float("nan")) == "must be finite; got nan"
-    assert p.problem("x") == "must be a number or a list of numbers; got 'x'"
+    assert p.problem("x") == "must be a number or a list of numbers; got the string 'x'"  # what it got, by kind
+    assert p.problem("2.5") == ("must be a number or a list of numbers; got the string '2.5' (a number is written "
+                                "without quotes: 2.5)")
+    assert s.problem(True) == "must be an integer >= 1; got the boolean true"
     shaped = Param(np.zeros((2, 2)), "m", "positions", shape=("n", 2))
     assert shaped.problem(np.zeros((3, 2)), 3) is None
     assert "of shape n_agentsx2 (3x2)" in shaped.problem(np.zeros((2, 2)), 3)

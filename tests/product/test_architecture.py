@@ -19,6 +19,8 @@ ONE_CONCERN = {
     "mcjax/base/parquet.py": "the Parquet parts of an output folder: write, list, read, check, remove",
     "mcjax/claims/spec.py": "reading and checking a claims file into its claims and sweeps",
     "mcjax/analysis/findings.py": "the sentences a sweep's intervals support (the report's 'What this shows')",
+    "mcjax/study/spec.py": "reading and checking a sweep spec or a config file into a Study, every mistake named",
+    "mcjax/base/validation.py": "the one validation layer: exact kinds, ranges, keys, and the lines that name a mistake",
 }
 
 

@@ -1,17 +1,23 @@
 """The first hour's papercuts stay fixed: a fresh clone's datasets say "no uncommitted changes" with the
 README's .venv in it; a folder left by a sweep that wrote nothing is reused without --force; one warning
 without mcjax.configure(); no undated timing in a sweep file's comments; the stored-program warning reads
-as English."""
+as English. Issue 61's: the README states the divergence rule the code applies and the suite's size and
+time once, dated; an xdist worker ends before execnet interrupts it; an unknown key's line is short; a
+wrong kind says what it got; a spec's mistakes one per line; a complete dataset run again is told so."""
 
+import gc
 import re
 import shutil
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import pytest
+from click.testing import CliRunner
 
 from mcjax import runtime
+from mcjax.cli import main
 from mcjax.study import OutputError, load_spec, prepare_output
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -116,3 +122,137 @@ def test_library_md_states_run_filters_conventions():
     assert default and paper and default.group(1) != paper.group(1)
     assert f'`icf_variant =\n"{default.group(1)}"`' in text or f'`icf_variant = "{default.group(1)}"`' in text
     assert f'`"{paper.group(1)}"`' in text
+
+
+def test_the_readme_states_the_divergence_rule_the_code_applies():
+    """`div_rate`'s sentence: the error passed the threshold at any step after the warm-up (not "ended"), with
+    the default sweep's threshold and warm-up; and the rule is that: an error that passes and comes back counts."""
+    import jax.numpy as jnp
+
+    from mcjax.tracking.metrics import diverged
+
+    text = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
+    sentence = re.search(r"`div_rate` is the share of runs in which (.*?)\. ", text).group(1)
+    config = tomllib.loads((ROOT / "configs" / "sun2011.toml").read_text(encoding="utf-8"))["config"]
+    assert f"more than {config['divergence_threshold'] / 1000:g} km off at any step after the " \
+           f"{config['warmup_steps']} warm-up steps" in sentence, sentence
+    assert "ended" not in sentence and "not finite" in sentence, sentence
+    errors = jnp.array([[5000.0], [10.0], [1500.0], [10.0]])  # (steps, agents): off at step 2, back by the end
+    assert bool(diverged(errors, 1000.0, warmup=1)) and not bool(diverged(errors, 1000.0, warmup=3))
+
+
+def test_the_readme_states_the_suites_size_and_time_once_with_its_date():
+    """One place in the README says how many tests the suite has and how long it took, with its date (the
+    other copies went stale); pyproject.toml's comment points there."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    counts = re.findall(r"(?<!-n )\b\d[\d,]* tests\b", text)  # not `pytest -n 2 tests/…`
+    assert len(counts) == 1, counts
+    sentence = next(s for s in " ".join(text.split()).split(". ") if counts[0] in s)
+    assert re.search(r"20\d\d-\d\d-\d\d", sentence) and re.search(r"\d+ min", sentence), sentence
+    assert "README: one place" in (ROOT / "pyproject.toml").read_text(encoding="utf-8")
+
+
+def test_an_xdist_worker_ends_before_execnet_interrupts_it():
+    """The green run ended with a KeyboardInterrupt traceback in XLA's garbage-collection callback: once every
+    worker has finished, execnet gives each 5 s to end, then sends it a SIGINT, and a worker spent them in
+    pytest's five full collections of its heap (reproduced with 8 million objects held in each worker). A
+    worker now collects once before it reports it has finished and freezes the rest (tests/conftest.py), so
+    those collections traverse only what is newer; the controller's own session is left alone."""
+    from tests import conftest
+
+    class Session:
+        def __init__(self, worker: bool):
+            self.config = type("Config", (), {"workerinput": {}} if worker else {})()
+
+    held = [[i] for i in range(50_000)]  # objects alive at the session's end
+    try:
+        conftest.pytest_sessionfinish(Session(worker=False))
+        assert gc.get_freeze_count() == 0
+        conftest.pytest_sessionfinish(Session(worker=True))
+        assert gc.get_freeze_count() > len(held)
+        assert not {id(x) for x in held[:100]} & {id(x) for x in gc.get_objects()}  # no collection traverses them
+    finally:
+        gc.unfreeze()
+
+
+def _spec(tmp_path, body: str = "") -> Path:
+    spec = tmp_path / "spec.toml"
+    spec.write_text(f'base = "{ROOT / "configs" / "sun2011.toml"}"\nseeds = 2\n{body}', encoding="utf-8")
+    return spec
+
+
+def _refusal(spec: Path, *args: str) -> list[str]:
+    r = CliRunner().invoke(main, ["sweep", str(spec), "--dry-run", *args])
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    return r.output.splitlines()
+
+
+def test_an_unknown_keys_line_is_short(tmp_path):
+    """Not every one of a scenario's 32 Params on one line: the closest names and where to see them all."""
+    lines = _refusal(_spec(tmp_path, "[params]\nsigma_rang = 20.0\n"))
+    assert lines == ["error: params.sigma_rang: unknown key (did you mean 'sigma_range'?); also close: sigma_bearing, "
+                     "sigma_accel; all 32 listed by `mcjax list leader_follower`"], lines
+    assert len(lines[0]) <= 160
+    listed = CliRunner().invoke(main, ["list", "leader_follower"]).output
+    assert "sigma_bearing" in listed and "alpha_phi" in listed  # where it says they are
+    # a short list of keys is still given whole
+    assert _refusal(_spec(tmp_path, "sedes = 3\n"))[0].endswith(
+        "allowed: scenario, base, seeds, base_seed, chunk_size, config, params, grid, zip, description, timeseries, "
+        "sensitivity")
+
+
+def test_a_wrong_kind_says_what_it_got(tmp_path):
+    lines = _refusal(_spec(tmp_path, '[params]\ncomm_radius = "100e3"\n'))
+    assert lines[0].endswith("got the string '100e3' (a number is written without quotes: 100e3)"), lines
+    assert _refusal(_spec(tmp_path, "[config]\nn_steps = true\n"))[0].endswith("got the boolean true")
+    assert _refusal(_spec(tmp_path, "timeseries = \"yes\"\n"))[0] == \
+        "error: timeseries: must be true or false; got the string 'yes'"
+
+
+def test_a_spec_with_several_mistakes_lists_each_on_its_own_line(tmp_path):
+    """Every independent mistake, one line each, exit 2: an unknown key in [config], a bad value in [params]
+    (and another), a bad axis, a bad seed count; the checks across values wait until those are right."""
+    spec = _spec(tmp_path, 'chunk_size = 0\n[config]\nn_agnts = 4\n[params]\ncomm_radius = "100e3"\n'
+                           'sigma_range = -1.0\n[grid]\nsigma_bearing = []\n')
+    lines = _refusal(spec)
+    assert [line.split(":")[1].strip() for line in lines] == [
+        "config.n_agnts", "params.comm_radius", "params.sigma_range", "grid.sigma_bearing", "chunk_size"], lines
+    assert all(line.startswith("error: ") for line in lines)
+    # from Python, the same mistakes in one SpecError, one per line, the arguments named as written
+    import mcjax.notebook as mc
+
+    with pytest.raises(mc.SpecError) as caught:
+        mc.sweep(spec, seeds=0, chunk_size=0, set={"params.sigma_accel": "x"})
+    assert [line.split(":")[0] for line in str(caught.value).splitlines()] == [
+        "config.n_agnts", "params.comm_radius", "params.sigma_range", "params.sigma_accel", "grid.sigma_bearing",
+        "seeds", "chunk_size"], str(caught.value)
+
+
+def test_a_complete_dataset_run_again_is_told_it_is_complete(tmp_path):
+    """Not "pass --resume to finish it": it is finished. An unfinished one is told --resume, another sweep
+    --force; exit 2 each, nothing written."""
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(f'base = "{ROOT / "configs" / "chen2013.toml"}"\nseeds = 3\nchunk_size = 3\n'
+                    "[grid]\neta = [0.0, 0.01]\n", encoding="utf-8")
+    out = tmp_path / "out"
+    study = load_spec(spec, out_dir=out)
+    prepare_output(study, out, spec_file=spec)
+    from mcjax.study.rows import chunk_parts
+
+    parts = [part for i, (a, b) in enumerate(study.plan) for part in chunk_parts(study, i, a, b)]
+    for part in parts:  # the names are what marks a chunk written
+        (out / "runs" / f"{part}.parquet").parent.mkdir(parents=True, exist_ok=True)
+        (out / "runs" / f"{part}.parquet").write_bytes(b"PAR1")
+
+    def again(*args):
+        r = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out), *args])
+        assert r.exit_code == 2, r.output
+        return r.output.strip()
+
+    n = len(study.plan)
+    assert again() == (f"error: output folder {out} already holds this sweep, complete ({n} of {n} chunk(s) written): "
+                       f"`mcjax report {out}` reads it; pass --force to run it again, or choose another --out")
+    assert re.search(r"holds another sweep \(.*seeds differ\); pass --force to replace it", again("--seeds", "4"))
+    (out / "runs" / f"{parts[-1]}.parquet").unlink()
+    assert f"it holds this sweep, {n - 1} of {n} chunk(s) written; pass --resume to finish it" in again()
+    assert len(list(out.rglob("*.parquet"))) == len(parts) - 1  # nothing written
