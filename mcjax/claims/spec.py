@@ -41,6 +41,12 @@ difference of the two sides paired by seed. Relations (:data:`RELATIONS`):
 * ``consistent``: the paper's number (``paper``, from ``paper_runs`` runs) is one its runs could
   give if ours were the truth (:func:`mcjax.claims.verdicts.consistent`).
 
+The file's claims are one family: ``family = "holm"`` (the default) or ``"bonferroni"`` fixes,
+before the runs, how their verdicts are held to a family-wise error of 5 %
+(:mod:`mcjax.claims.evaluate`). :func:`load_claims` can run every sweep from another base seed
+(``base_seed``, as if each sweep's table said so; ``shift``: added to each sweep's base seed: a
+replication's seed range, :mod:`mcjax.claims.runner`).
+
 Every problem is a :class:`ClaimsError` of one line naming the claim and the field.
 """
 
@@ -57,12 +63,14 @@ import numpy as np
 from mcjax.base.validation import SpecError, check_keys, key_text, read_toml, show, suggest
 from mcjax.claims.verdicts import STATISTICS
 from mcjax.study.plan import Study
-from mcjax.study.spec import MAX_SEEDS, build_spec, is_config_file
+from mcjax.study.spec import MAX_BASE_SEED, MAX_SEEDS, build_spec, is_config_file
 from mcjax.study.sweep_tables import load_checked, named_tables
 
 RELATIONS = ("below", "above", "within", "equal", "ordered", "monotone", "consistent")
 DIRECTIONS = ("increasing", "decreasing")
-FILE_KEYS = ("paper", "title", "description", "seeds", "sweeps", "claim")
+FILE_KEYS = ("paper", "title", "description", "seeds", "family", "sweeps", "claim")
+#: How a file's claims are held to a family-wise error (``family``; :mod:`mcjax.claims.evaluate`).
+FAMILIES = ("holm", "bonferroni")
 SIDE_KEYS = ("sweep", "output", "filter", "at", "statistic", "q", "over", "under")
 CLAIM_KEYS = ("id", "claim", "where", "paper", "paper_runs", *SIDE_KEYS, "minus", "relation", "value", "band",
               "tolerance", "than", "order", "along", "direction")
@@ -113,7 +121,9 @@ class Claim(NamedTuple):
 class ClaimsFile(NamedTuple):
     """A checked claims file: its ``path``, ``paper``, ``title``, the ``sweeps`` (name → Study,
     with the spec file each came from in ``spec_files``, None when inline), the ``claims`` and the
-    file's tables as read (``source``: what ``--resume`` compares)."""
+    file's tables as read (``source``: what ``--resume`` compares); its ``family`` method (None
+    when the file names none: ``"holm"`` then) and what :func:`load_claims` was given (``seeds``,
+    ``base_seed``, ``shift``: to read it again for another seed range)."""
 
     path: Path
     paper: str
@@ -122,6 +132,10 @@ class ClaimsFile(NamedTuple):
     spec_files: dict
     claims: tuple
     source: dict
+    family: str | None = None
+    seeds: int | None = None
+    base_seed: int | None = None
+    shift: int = 0
 
 
 def _err(where: str, text: str) -> ClaimsError:
@@ -144,7 +158,17 @@ def _number(where: str, value) -> float:
     return float(value)
 
 
-def _sweeps(path: Path, data: dict, seeds: int | None) -> tuple[dict, dict]:
+def _reseeded(table: dict, base_seed: int | None, shift: int) -> dict:
+    """A sweep's table with ``base_seed`` (the sweep's own when None) plus ``shift`` written in,
+    as a hand-edited copy would hold it (left as it is when neither changes it)."""
+    if base_seed is None and not shift:
+        return table
+    own = table.get("base_seed", 0) if base_seed is None else base_seed
+    return {**table, "base_seed": own + shift if isinstance(own, int) and not isinstance(own, bool) else own}
+
+
+def _sweeps(path: Path, data: dict, seeds: int | None, base_seed: int | None = None,
+            shift: int = 0) -> tuple[dict, dict]:
     studies, files = {}, {}
     for name, where, table in named_tables(
             f"{path.name}: sweeps", data.get("sweeps"), SPEC_TABLE_KEYS, ClaimsError,
@@ -161,10 +185,10 @@ def _sweeps(path: Path, data: dict, seeds: int | None) -> tuple[dict, dict]:
                 spec = read_toml(spec_file, "sweep spec")
                 if is_config_file(spec):
                     raise SpecError(f"spec: {table['spec']} is a config file, not a sweep spec")
-                studies[name] = build_spec(spec, spec_file.parent, seeds=seeds)
+                studies[name] = build_spec(_reseeded(spec, base_seed, shift), spec_file.parent, seeds=seeds)
                 files[name] = spec_file
             else:
-                studies[name] = build_spec(table, path.parent, seeds=seeds)
+                studies[name] = build_spec(_reseeded(table, base_seed, shift), path.parent, seeds=seeds)
                 files[name] = None
         except ClaimsError:
             raise
@@ -377,28 +401,39 @@ def _claim(path: Path, i: int, raw: Any, studies: dict, seen: set) -> Claim:
     return Claim(cid, text, place, paper, paper_runs, side, relation, value, band, others, direction, free)
 
 
-def load_claims(path: str | Path, *, seeds: int | None = None) -> ClaimsFile:
+def load_claims(path: str | Path, *, seeds: int | None = None, base_seed: int | None = None,
+                shift: int = 0) -> ClaimsFile:
     """Read and check the claims file ``path`` (module docstring) with every sweep it names
-    (``seeds``: runs per point of each, over the file's ``seeds`` and the sweeps' own).
-    Raises :class:`ClaimsError` (one line naming the claim and the field)."""
-    return load_checked(_load, path, seeds, ClaimsError)
+    (``seeds``: runs per point of each, over the file's ``seeds`` and the sweeps' own;
+    ``base_seed``: every sweep's base seed, over their own; ``shift``: added to each sweep's base
+    seed). Raises :class:`ClaimsError` (one line naming the claim and the field)."""
+    if base_seed is not None and (isinstance(base_seed, bool) or not isinstance(base_seed, int)
+                                  or not 0 <= base_seed <= MAX_BASE_SEED):
+        raise ClaimsError(f"--base-seed: must be an integer in [0, {MAX_BASE_SEED}]; got {show(base_seed)}")
+    given = seeds
+    claims = load_checked(lambda p, n: _load(p, n, base_seed, shift), path, seeds, ClaimsError)
+    return claims._replace(seeds=given, base_seed=base_seed, shift=shift)
 
 
-def _load(path: Path, seeds: int | None) -> ClaimsFile:
+def _load(path: Path, seeds: int | None, base_seed: int | None = None, shift: int = 0) -> ClaimsFile:
     data = read_toml(path, "claims file")
     check_keys(f"{path.name}: ", data, FILE_KEYS)
     paper = _text(f"{path.name}: ", data, "paper", required=True)
     title = _text(f"{path.name}: ", data, "title")
+    family = data.get("family")
+    if family is not None and family not in FAMILIES:
+        raise _err(f"{path.name}: family", f"must be one of {', '.join(FAMILIES)} (how the file's claims are held "
+                   f"to a family-wise error of 5 %); got {show(family)}")
     if seeds is None and "seeds" in data:
         s = data["seeds"]
         if isinstance(s, bool) or not isinstance(s, int) or not 1 <= s <= MAX_SEEDS:
             raise _err(f"{path.name}: seeds", f"must be an integer in [1, {MAX_SEEDS}]; got {show(s)}")
         seeds = s
-    studies, files = _sweeps(path, data, seeds)
+    studies, files = _sweeps(path, data, seeds, base_seed, shift)
     raw = data.get("claim")
     if not isinstance(raw, list) or not raw:
         raise _err(f"{path.name}: claim", "must hold at least one claim ([[claim]] tables)"
                    + ("" if raw is None else f"; got {show(raw)}"))
     seen: set = set()
     claims = tuple(_claim(path, i, c, studies, seen) for i, c in enumerate(raw))
-    return ClaimsFile(path, paper, title, studies, files, claims, data)
+    return ClaimsFile(path, paper, title, studies, files, claims, data, family)

@@ -24,6 +24,12 @@ meet, judged by where the interval lies.
   neighbouring pair's intervals are apart in the claimed direction, fails when one pair's are apart
   the other way, undecided otherwise (apart intervals: a conservative test, as in the report's
   findings). An order of paired sides is judged by :func:`paired` differences instead.
+* :func:`tails` -- the one-sided p-values of a statistic against a value, from the test its
+  interval inverts (:mod:`mcjax.analysis.statistics`): the smallest one-sided level ``a`` at which
+  its interval of confidence ``1 − 2a`` lies below / above the value; :func:`first_level` -- that
+  level for any verdict, found by bisection (an order, a paper's number). The family-wise verdict
+  of a claims file (:mod:`mcjax.claims.evaluate`) judges each claim at the level Holm's procedure
+  gives it.
 
 Every interval describes one design point or one pairing of the design; nothing pools points.
 Pure functions of numbers; no pandas, no JAX.
@@ -36,7 +42,8 @@ from typing import Iterable, NamedTuple, Sequence
 
 import numpy as np
 
-from mcjax.analysis.statistics import CONFIDENCE, mean_ci, t_critical, wilson_interval
+from mcjax.analysis.statistics import (CONFIDENCE, mean_ci, mean_tails, order_tails, t_critical, wilson_interval,
+                                       wilson_tails)
 
 STATISTICS = ("mean", "median", "quantile", "rate")
 RELATIONS = ("below", "above", "within")
@@ -101,6 +108,13 @@ def paired(a: Sequence[float], b: Sequence[float], seeds_a: Sequence[int], seeds
     """The mean of ``a − b`` over the seeds both sides ran, matched by seed, with the Student-t
     interval of the differences (a paired t interval). :class:`PairingError` (one line) when the
     two sides' seeds are not the same set, or one side has a seed twice."""
+    d = differences(a, b, seeds_a, seeds_b)
+    m = mean_ci(d, confidence)
+    return Estimate("paired difference", m.mean, m.low, m.high, int(np.sum(np.isfinite(d))))
+
+
+def differences(a: Sequence[float], b: Sequence[float], seeds_a: Sequence[int], seeds_b: Sequence[int]) -> np.ndarray:
+    """``a − b`` matched by seed, in the order of the seeds (:func:`paired`'s refusals)."""
     sa, sb = np.asarray(seeds_a).ravel(), np.asarray(seeds_b).ravel()
     if len(set(sa.tolist())) != len(sa) or len(set(sb.tolist())) != len(sb):
         raise PairingError("a paired comparison needs each seed once on each side; a side has a seed twice")
@@ -108,13 +122,10 @@ def paired(a: Sequence[float], b: Sequence[float], seeds_a: Sequence[int], seeds
         only = sorted(set(sa.tolist()) ^ set(sb.tolist()))
         raise PairingError(f"a paired comparison needs the same seeds on both sides; {len(only)} seed(s) are on "
                            f"one side only (e.g. {only[:3]})")
-    xa = np.asarray(a, np.float64).ravel()[np.argsort(sa)]
-    xb = np.asarray(b, np.float64).ravel()[np.argsort(sb)]
-    m = mean_ci(xa - xb, confidence)
-    return Estimate("paired difference", m.mean, m.low, m.high, int(np.sum(np.isfinite(xa - xb))))
+    return np.asarray(a, np.float64).ravel()[np.argsort(sa)] - np.asarray(b, np.float64).ravel()[np.argsort(sb)]
 
 
-def _runs_to_decide(est: Estimate, boundary: float) -> int | None:
+def _runs_to_decide(est: Estimate, boundary: float, confidence: float = CONFIDENCE) -> int | None:
     """Runs that would shrink the interval's half-width to the estimate's distance from ``boundary``.
     A rate's Wilson interval does not shrink as 1/√n near 0 or 1 (at 0 of n its upper end is about
     z²/n): there, the fewest runs whose Wilson interval at the same observed rate leaves the boundary
@@ -127,7 +138,7 @@ def _runs_to_decide(est: Estimate, boundary: float) -> int | None:
         return guess
 
     def apart(n: int) -> bool:
-        low, high = wilson_interval(round(est.value * n), n)
+        low, high = wilson_interval(round(est.value * n), n, confidence)
         return high < boundary if est.value < boundary else low > boundary
 
     lo, hi = est.n, max(guess, est.n + 1)
@@ -142,10 +153,11 @@ def _runs_to_decide(est: Estimate, boundary: float) -> int | None:
 
 
 def compare(est: Estimate, relation: str, value: float | None = None,
-            band: tuple[float, float] | None = None) -> Verdict:
+            band: tuple[float, float] | None = None, confidence: float = CONFIDENCE) -> Verdict:
     """The verdict of ``est`` being ``below`` / ``above`` ``value``, or ``within`` ``band`` =
     ``(low, high)`` (:data:`RELATIONS`): from where its interval lies (module docstring). An
-    estimate without an interval (too few runs) is undecided."""
+    estimate without an interval (too few runs) is undecided. ``confidence``: the interval's, for
+    the runs that would decide an undecided rate."""
     if relation not in RELATIONS:
         raise ValueError(f"relation must be one of {', '.join(RELATIONS)}; got {relation!r}")
     if relation == "within":
@@ -158,18 +170,18 @@ def compare(est: Estimate, relation: str, value: float | None = None,
     if relation == "below":
         if est.high < value:
             return Verdict("holds")
-        return Verdict("fails") if est.low > value else Verdict("undecided", _runs_to_decide(est, value))
+        return Verdict("fails") if est.low > value else Verdict("undecided", _runs_to_decide(est, value, confidence))
     if relation == "above":
         if est.low > value:
             return Verdict("holds")
-        return Verdict("fails") if est.high < value else Verdict("undecided", _runs_to_decide(est, value))
+        return Verdict("fails") if est.high < value else Verdict("undecided", _runs_to_decide(est, value, confidence))
     lo, hi = band
     if lo <= est.low and est.high <= hi:
         return Verdict("holds")
     if est.high < lo or est.low > hi:
         return Verdict("fails")
     edge = lo if abs(est.value - lo) <= abs(est.value - hi) else hi
-    return Verdict("undecided", _runs_to_decide(est, edge))
+    return Verdict("undecided", _runs_to_decide(est, edge, confidence))
 
 
 def consistent(est: Estimate, paper: float, runs: int, confidence: float = CONFIDENCE) -> Verdict:
@@ -208,3 +220,47 @@ def ordered(estimates: Sequence[Estimate], decreasing: bool = False) -> Verdict:
         elif not hi_a < lo_b:
             decided = False
     return Verdict("holds" if decided else "undecided")
+
+
+def tails(values: Iterable, statistic: str, value: float, *, q: float | None = None) -> tuple[float, float]:
+    """``(below, above)``: the smallest one-sided level ``a`` at which :func:`estimate`'s interval
+    of ``statistic`` at confidence ``1 − 2a`` lies entirely below / above ``value`` — the one-sided
+    p-values of the test that interval inverts: Student-t for a mean (pass a paired difference's
+    per-seed differences as a mean's values), the score test for a rate, the binomial test for a
+    median or quantile (:func:`mcjax.analysis.statistics.mean_tails` and its neighbours). 1.0: at
+    no level (no interval, or a zero-width one on the value)."""
+    if statistic == "rate":
+        flags = np.asarray(list(values) if not isinstance(values, np.ndarray) else values).ravel().astype(bool)
+        below, above = wilson_tails(int(np.sum(flags)), len(flags), value)
+    else:
+        x = _finite(values)
+        if statistic == "mean":
+            n = len(x)
+            sd = float(np.std(x, ddof=1)) if n > 1 else math.nan
+            below, above = mean_tails(float(np.mean(x)) if n else math.nan, sd / math.sqrt(max(n, 1)), n - 1, value)
+        else:
+            level = 0.5 if statistic == "median" else q
+            below, above = order_tails(int(np.sum(x < value)), int(np.sum(x <= value)), len(x), level)
+    return float(below), float(above)
+
+
+#: The smallest and largest one-sided level :func:`first_level` looks at (1e-12: decided at any
+#: level a family of claims uses; 0.45: an interval of confidence 0.1).
+TAIL_RANGE = (1e-12, 0.45)
+
+
+def first_level(decided, steps: int = 30) -> float:
+    """The smallest one-sided level ``a`` at which ``decided(a)`` (its verdict from intervals of
+    confidence ``1 − 2a``: once decided, decided at every larger ``a``, the intervals being nested),
+    by bisection on ``log a`` over :data:`TAIL_RANGE` (relative precision ~3e-8): 0.0 when decided
+    at the smallest, 1.0 when not at the largest."""
+    lo, hi = TAIL_RANGE
+    if decided(lo):
+        return 0.0
+    if not decided(hi):
+        return 1.0
+    lo, hi = math.log(lo), math.log(hi)
+    for _ in range(steps):
+        mid = (lo + hi) / 2
+        lo, hi = (lo, mid) if decided(math.exp(mid)) else (mid, hi)
+    return math.exp(hi)

@@ -28,42 +28,77 @@ def dask_options(command):
                              "(pip install -e \".[dask]\").")(command)
 
 
+def _integer(option: str, text: str | None, what: str) -> int | None:
+    """An option's integer (None when not given); one line, exit 2, when it is not one."""
+    if text is None:
+        return None
+    try:
+        value = int(text.strip())
+    except ValueError:
+        fail(f"{option}: must be {what}; got {text!r}")
+    return value
+
+
 @main.command(short_help="Check a claims file: its sweeps, then a verdict per claim.")
 @click.argument("claims", type=click.Path(path_type=Path))
 @click.option("--seeds", type=click.IntRange(min=1), default=None,
               help="Runs per point of every sweep [default: the claims file's `seeds`, else each sweep's].")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output folder [default: results/check_<claims file name>].")
-@click.option("--resume", is_flag=True, help="Finish an interrupted check in --out (the same file and --seeds).")
+@click.option("--resume", is_flag=True,
+              help="Finish an interrupted check in --out (the same file, --seeds, --base-seed and --replicate).")
 @click.option("--force", is_flag=True, help="Replace an existing output folder that holds a previous check.")
-@click.option("--strict", is_flag=True, help="Exit 1 when any claim fails (default: exit 0 whatever the verdicts).")
+@click.option("--strict", is_flag=True,
+              help="Exit 1 when any claim fails, at the level printed (default: exit 0 whatever the verdicts).")
 @click.option("--format", "fmt", type=click.Choice(["text", "markdown", "csv"]), default="text", show_default=True,
               help="Format of the printed verdict table (markdown: for docs).")
 @click.option("--markdown", is_flag=True, help="The same as --format markdown.")
+@click.option("--family", "family", default=None, metavar="METHOD",
+              help="How the file's claims, one family, are held to a family-wise error of 5 %: holm (Holm's "
+                   "step-down) or bonferroni (simultaneous intervals) [default: the claims file's `family`, else "
+                   "holm].")
+@click.option("--per-claim", is_flag=True,
+              help="Print each claim's verdict from its own 95 % interval alone (no family-wise level).")
+@click.option("--base-seed", "base_seed", default=None, metavar="N",
+              help="Run every sweep of the file from base seed N (another seed range), as if each sweep said "
+                   "base_seed = N.")
+@click.option("--replicate", default=None, metavar="K",
+              help="Run the check on K >= 2 disjoint seed ranges (OUT/range_<r>/: range 0 the file's seeds, range r "
+                   "every base seed + r x 1,000,000) and mark each claim whose verdicts differ.")
 @dask_options
-def check(claims, seeds, out_dir, resume, force, strict, fmt, markdown, executor, scheduler, workers):
+def check(claims, seeds, out_dir, resume, force, strict, fmt, markdown, family, per_claim, base_seed, replicate,
+          executor, scheduler, workers):
     """Check the claims file CLAIMS (benchmarks/claims/*.toml): run the sweeps it names through
     the study pipeline into OUT/<sweep>/ (resume, locks, Dask and the program store as for
     `mcjax sweep`; claims that share a sweep share its runs), then give every claim a verdict
-    from 95 % intervals — holds (the interval lies on the claimed side), fails (on the other),
-    undecided (it straddles; with roughly the runs that would decide it) — written to
-    OUT/claims.parquet and printed beside the paper's figures. `mcjax report OUT` shows it again
-    with each sweep's figures.
+    from its intervals — holds (the interval lies on the claimed side), fails (on the other),
+    undecided (it straddles; with roughly the runs that would decide it). The file's claims are
+    one family: the verdict is stated at a family-wise error of 5 % (Holm's step-down over the
+    claims' one-sided tests: each claim judged on its intervals at the level that gives it),
+    beside each claim's verdict from its own 95 % interval alone — written to OUT/claims.parquet
+    and printed beside the paper's figures. `mcjax report OUT` shows it again with each sweep's
+    figures.
 
-    A malformed claims file exits 2 with one line naming the claim and the field, before
-    anything runs. The first Ctrl-C stops after the chunk in flight (exit 130) and prints the
-    command that resumes.
+    A malformed claims file or option exits 2 with one line naming the claim and the field, or
+    the option, before anything runs. The first Ctrl-C stops after the chunk in flight (exit 130) and prints
+    the command that resumes.
     """
     refuse_clashing_filters()
     state = {"out": out_dir, "started": False, "words": ""}
     fmt = "markdown" if markdown else fmt
+    base_seed = _integer("--base-seed", base_seed, "an integer in [0, 4294967295]")
+    replicate = _integer("--replicate", replicate, "an integer >= 2 (the number of seed ranges)")
+    if replicate is not None and replicate < 2:
+        fail(f"--replicate: must be an integer >= 2 (the number of seed ranges); got {replicate}")
+    again = "".join(f" {o} {shlex.quote(str(v))}" for o, v in (("--seeds", seeds), ("--base-seed", base_seed),
+                                                               ("--replicate", replicate), ("--family", family)) if v)
 
     def hint() -> str:
         if not state["started"]:
             return "interrupted before the check started; nothing was written"
         return (f"interrupted: the chunks written stay in {state['out']}; finish with: mcjax check "
                 f"{shlex.quote(str(claims))} --out {shlex.quote(str(state['out']))} --resume"
-                + (f" --seeds {seeds}" if seeds else "") + state["words"])
+                + again + state["words"])
 
     with ctrl_c(hint, ACK_DASK if executor == "dask" else ACK) as stop:
         remote = executor_options(executor, scheduler, workers)
@@ -73,12 +108,15 @@ def check(claims, seeds, out_dir, resume, force, strict, fmt, markdown, executor
         from mcjax.claims.spec import ClaimsError, load_claims
         from mcjax.study import ChunkError, OutputError
 
-        try:
-            checked = load_claims(claims, seeds=seeds)  # the whole file checked before any folder is touched
+        try:  # the whole file, and the options against it, checked before any folder is touched
+            checked = load_claims(claims, seeds=seeds, base_seed=base_seed)
+            runner.family_method(checked, family)
         except ClaimsError as exc:
             fail(str(exc))
         state["out"] = out_dir = out_dir or runner.default_out_dir(claims)
-        bars = Bars(**{name: "chunk" for name in checked.sweeps})
+        stages = [f"range_{r}/{name}" for r in range(replicate) for name in checked.sweeps] if replicate else \
+            list(checked.sweeps)
+        bars = Bars(**{stage: "chunk" for stage in stages})
 
         def progress(name, at) -> None:
             state["started"] = True
@@ -86,9 +124,10 @@ def check(claims, seeds, out_dir, resume, force, strict, fmt, markdown, executor
 
         with open_executor(remote) as ex, bars:
             try:
-                result = runner.run_check(checked, out_dir=out_dir, resume=resume, force=force,
-                                          executor=ex, message=bars.echo, warn=lambda line: click.echo(line, err=True),
-                                          progress=progress, should_stop=stop.is_set)
+                result = runner.run_check(checked, out_dir=out_dir, replicate=replicate, family=family, resume=resume,
+                                          force=force, executor=ex, message=bars.echo,
+                                          warn=lambda line: click.echo(line, err=True), progress=progress,
+                                          should_stop=stop.is_set)
             except (OutputError, ClaimsError) as exc:
                 fail(str(exc))
             except ChunkError as exc:
@@ -96,11 +135,9 @@ def check(claims, seeds, out_dir, resume, force, strict, fmt, markdown, executor
         if result.stopped:
             click.echo(hint(), err=True)
             exit_now(130)
-        meta = {"paper": result.claims.paper, "claims_file": str(claims),
-                "seeds": {k: s.seeds for k, s in result.claims.sweeps.items()}}
-        click.echo(verdict_text(result.table, meta, fmt))
+        click.echo(verdict_text(result.table, {**result.meta, "claims_file": str(claims)}, fmt, per_claim=per_claim))
         click.echo(f"verdicts: {out_dir / runner.TABLE_FILE}")
-        failed = strict and bool((result.table["verdict"] == "fails").any())
+        failed = strict and bool((result.table["verdict" if per_claim else "family_verdict"] == "fails").any())
         if own_process():  # leave now, so no Ctrl-C can land in the teardown (mcjax.base.interrupt.finish)
             exit_now(130 if stop.is_set() else int(failed))
         if failed:
