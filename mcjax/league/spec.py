@@ -196,12 +196,24 @@ def _load(path: Path, seeds: int | None) -> League:
                            path.parent, seeds=1)
                 notes[f] = "left out by the league file"
             except SpecError as exc:
-                notes[f] = "cannot run here: " + " ".join(str(exc).split())
+                notes[f] = "cannot run here: " + _refusal(first.scenario, f, exc)
         entries[key] = Entry(key, first.scenario.name, own, notes)
     described = {p: t.get("description", p) for p, t in points.items()}
     source = json.loads(json.dumps(data, default=str))
     return League(path, data.get("title", path.stem), names, config_names, entries, described, studies, seeds,
                   timing, source)
+
+
+def _refusal(scenario, name: str, exc: Exception) -> str:
+    """Why ``scenario`` cannot run the filter ``name``, short: a built-in filter it does not offer is named
+    with the ones it does; anything else is the scenario's own one-line refusal."""
+    from mcjax.tracking.filters.registry import FILTER_KINDS  # loaded already: the league's filters were resolved
+
+    setting = scenario.settings.get("filters")
+    if setting is not None and name in FILTER_KINDS and name not in (setting.choices or ()):
+        own = "; or a filter of one's own" if setting.plugins else ""
+        return f"{scenario.name} offers no {name!r} (its filters: {', '.join(setting.choices)}{own})"
+    return " ".join(str(exc).split())
 
 
 def describe(league: League) -> str:

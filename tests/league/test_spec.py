@@ -53,7 +53,8 @@ def test_a_filter_a_scenario_cannot_run_is_refused_when_asked_and_explained_when
     league = load_league(league_file(text + FLOCK.replace("[scenarios.flock]\n",
                                                           "[scenarios.flock]\nfilters = ['kcf', 'local']\n")))
     assert league.scenarios["flock"].filters == ("kcf", "local")
-    assert league.scenarios["flock"].notes["cif"].startswith("cannot run here: config.filters:")
+    assert league.scenarios["flock"].notes["cif"] == ("cannot run here: flocking offers no 'cif' (its filters: kcf, "
+                                                      "local, ci, hcmci; or a filter of one's own)")
     left = load_league(league_file(TINY.replace("[scenarios.wind]\n", "[scenarios.wind]\nfilters = ['kcf']\n")))
     assert left.scenarios["wind"].notes == {"local": "left out by the league file"}
 
