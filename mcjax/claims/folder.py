@@ -1,5 +1,6 @@
 """The files of a check folder, read and written without JAX: ``check.json`` (what ``--resume``
-compares) and ``claims.parquet`` (the verdict table with its metadata)."""
+compares, with the claims file as read: :func:`claim_tables`), ``claims.parquet`` (the verdict table
+with its metadata) and where each sweep's runs are (:func:`sweep_folder`)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,8 @@ from mcjax.base.files import atomic_write
 
 CHECK_FILE = "check.json"
 TABLE_FILE = "claims.parquet"
+
+
 def is_check_folder(folder: str | Path) -> bool:
     """True for the output folder of ``mcjax check`` (it holds ``check.json``)."""
     return (Path(folder) / CHECK_FILE).is_file()
@@ -39,3 +42,33 @@ def read_verdicts(folder: str | Path) -> tuple[pd.DataFrame, dict]:
     t = pq.read_table(path)
     meta = json.loads((t.schema.metadata or {}).get(b"mcjax.check", b"{}"))
     return t.to_pandas(), meta
+
+
+def read_check(folder: str | Path) -> dict:
+    """``check.json`` of a check folder ({} when it is missing or damaged)."""
+    try:
+        saved = json.loads((Path(folder) / CHECK_FILE).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return {}
+    return saved if isinstance(saved, dict) else {}
+
+
+def claim_tables(folder: str | Path) -> dict[str, dict]:
+    """Each claim's table as the claims file gave it (``check.json`` holds the file as read), by id,
+    with ``sweep`` filled in when the file has one sweep; {} when the folder does not say."""
+    source = read_check(folder).get("claims")
+    if not isinstance(source, dict) or not isinstance(source.get("claim"), list):
+        return {}
+    sweeps = list(source.get("sweeps") or {}) if isinstance(source.get("sweeps"), dict) else []
+    out = {}
+    for raw in source["claim"]:
+        if isinstance(raw, dict) and isinstance(raw.get("id"), str):
+            out[raw["id"]] = {**({"sweep": sweeps[0]} if len(sweeps) == 1 else {}), **raw}
+    return out
+
+
+def sweep_folder(folder: str | Path, sweep: str) -> Path:
+    """The folder of the check's sweep ``sweep``: ``folder/<sweep>``, or range 0's
+    (``folder/range_0/<sweep>``) in a replication."""
+    own = Path(folder) / sweep
+    return own if own.is_dir() or not (Path(folder) / "range_0" / sweep).is_dir() else Path(folder) / "range_0" / sweep

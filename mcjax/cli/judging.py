@@ -104,7 +104,7 @@ def check(claims, seeds, out_dir, resume, force, strict, fmt, markdown, family, 
         remote = executor_options(executor, scheduler, workers)
         state["words"] = remote.words
         from mcjax.claims import runner
-        from mcjax.claims.report import verdict_text
+        from mcjax.claims.report import claim_units, terminal_width, verdict_text
         from mcjax.claims.spec import ClaimsError, load_claims
         from mcjax.study import ChunkError, OutputError
 
@@ -135,7 +135,9 @@ def check(claims, seeds, out_dir, resume, force, strict, fmt, markdown, family, 
         if result.stopped:
             click.echo(hint(), err=True)
             exit_now(130)
-        click.echo(verdict_text(result.table, {**result.meta, "claims_file": str(claims)}, fmt, per_claim=per_claim))
+        click.echo(verdict_text(result.table, {**result.meta, "claims_file": str(claims)}, fmt, per_claim=per_claim,
+                                units=claim_units(result.table, out_dir),
+                                width=terminal_width() if fmt == "text" else None))
         click.echo(f"verdicts: {out_dir / runner.TABLE_FILE}")
         failed = strict and bool((result.table["verdict" if per_claim else "family_verdict"] == "fails").any())
         if own_process():  # leave now, so no Ctrl-C can land in the teardown (mcjax.base.interrupt.finish)

@@ -153,8 +153,9 @@ def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
     ``OUT/report/`` and then the self-contained page ``OUT/report/index.html``
     (:mod:`mcjax.report.html_page`: description, spec, provenance, tables, every plot with its
     caption), whose path is the last of the returned paths. The folder of ``mcjax check``
-    (``check.json``) gets its verdict table first, then each of its sweeps' reports
-    (:func:`mcjax.claims.report.report_check`). The folder of a tune (``tune.json``,
+    (``check.json``) gets its verdict table as the text, each of its sweeps' reports, then the
+    forest plot and the page that leads with the verdicts (:mod:`mcjax.report.claims_page`).
+    The folder of a tune (``tune.json``,
     ``trace.parquet``) gets :mod:`mcjax.report.tune_page`'s table (a ``role`` column first) and page
     instead, and no plots; a folder of
     datasets (e.g. ``results/``) gets :func:`listing` as its text and no files. A dataset with
@@ -179,11 +180,11 @@ def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
         from mcjax.report.league_page import report_league
 
         return report_league(out, fmt, plots=plots)
-    if is_check_folder(out):  # the verdict table first, then each sweep's report and figures
-        from mcjax.claims.report import report_check
+    if is_check_folder(out):  # the verdict table first, each sweep's report, then the verdicts' page
+        from mcjax.report.claims_page import report_check_folder
 
         try:
-            return report_check(out, fmt, plots=plots, warn=warn, sweep_report=report)
+            return report_check_folder(out, fmt, plots=plots, warn=warn, sweep_report=report)
         except FileNotFoundError as exc:
             raise ValueError(str(exc)) from None
     try:
