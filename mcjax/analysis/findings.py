@@ -2,18 +2,32 @@
 backed by the intervals it quotes (the glossary and the base Params table beside them:
 :mod:`mcjax.report.glossary`).
 
-* :func:`findings` -- per swept axis, two to four :class:`Finding` sentences: which filter
-  has the lowest mean error where, how the error changes along the axis, where runs diverge,
-  where the comm graph disconnects. Every number comes with its 95 % interval.
-* :func:`percent` -- a rate with its interval as ``"2.0 % [0.6, 7.0]"``.
+* :func:`box` -- the box: a few :class:`Finding` sentences about the whole sweep (at most ~8 on
+  any built-in sweep), the table of the filters' order at each design point and the consistency
+  and error-floor table (:mod:`mcjax.analysis.quality`) under them. :func:`findings` -- its
+  sentences alone.
+* :func:`percent` -- a rate with its interval as ``"2.0 % [0.6, 7.0]"``; :func:`quote` -- a mean
+  with its interval.
+
+The sentences, in this order: the scenario's headline comparisons (its metadata's ``headlines``:
+pairs of filters, the one expected lower first -- :class:`mcjax.contract.Scenario`), where each
+holds; the full order of the filters' mean error at each design point, one clause per order
+with the points it holds at ("a < b < c at every radius from 60 to 100 km"),
+the exceptions named, the rest in the order table; per swept axis, how each filter's mean error
+changes from its first value to its last; where runs diverge; where the comm graph disconnects;
+one sentence about consistency and one about the floor. A sentence about several design points
+names them compactly -- a range of an axis, a product of ranges, "every point but ..." -- and is
+about each of them: runs at different design points are never pooled into one interval.
 
 The rule of every sentence: an order between two filters (or between two values of an axis)
 is stated only when their 95 % intervals do not overlap -- the mean error's Student-t
 intervals, the divergence rate's Wilson intervals. Separate intervals are a conservative
 test (two means whose intervals touch may still differ); where they overlap the sentence
-says so and claims no order. Counts ("no run diverged") are stated as counts, with the
-upper end of the rate's interval. :class:`Finding` keeps each order it claims, so a test
-can check every claim against the intervals.
+says so and claims no order. In an order, ``<`` stands between two groups of filters only where
+every filter before it lies below every filter after it (their intervals apart); filters ``≈``
+each other are not ordered. Counts ("no run diverged") are stated as counts, with the upper end
+of the rate's interval. :class:`Finding` keeps each order it claims, at its design point, and
+each change along an axis, so a test can check every claim against the intervals.
 
 Everything is read from the dataset's metadata (the scenario's declarations): nothing
 here names a scenario, a filter or a unit. This module imports neither JAX nor matplotlib.
@@ -29,299 +43,426 @@ import numpy as np
 import pandas as pd
 
 from mcjax.analysis import quality, tables
-from mcjax.analysis.statistics import CONFIDENCE, mean_ci, wilson_interval
+from mcjax.analysis.statistics import mean_ci, wilson_interval
 from mcjax.analysis.summary import Summary, summary_for
+from mcjax.analysis.wording import MAX_CLAUSES, PCT, Grid, Point, apart, listing, ordered, percent, quote
+from mcjax.analysis.wording import where as name_points
 
-__all__ = ["PCT", "Finding", "findings", "percent", "quote"]
+__all__ = ["PCT", "MAX_CLAUSES", "Finding", "Box", "box", "findings", "headlines", "percent", "quote"]
 
-PCT = f"{100 * CONFIDENCE:g} %"
+
+
 
 
 class Finding(NamedTuple):
-    """One sentence of "What this shows": the swept axis it is about, its text, the orders it
-    claims -- ``(lower, higher, where)``: filter ``lower``'s statistic is below filter
-    ``higher``'s at the axis value ``where``, their intervals apart -- and its kind:
-    ``"lowest"`` (the mean error's order), ``"trend"``, ``"divergence"`` (orders of the
-    divergence rate), ``"graph"``, ``"consistency"`` or ``"floor"`` (per design point,
-    :mod:`mcjax.analysis.quality`)."""
+    """One sentence of "What this shows": the swept axis it is about ("" for one about the whole
+    sweep), its text, the orders it claims -- ``(lower, higher, point)``: filter ``lower``'s
+    statistic is below filter ``higher``'s at the design point ``point`` (``((axis, value),
+    ...)``), their intervals apart -- and its kind: ``"headline"`` and ``"order"`` (orders of the
+    mean error), ``"trend"``, ``"divergence"`` (orders of the divergence rate), ``"graph"``,
+    ``"consistency"`` or ``"floor"`` (:mod:`mcjax.analysis.quality`). A trend keeps its changes in
+    ``moves``: ``(filter, from_point, to_point, "falls" | "rises")``, the two intervals apart."""
 
     axis: str
     text: str
-    orders: tuple[tuple[str, str, Any], ...] = ()
-    kind: str = "lowest"
-    panel: tuple[tuple[str, Any], ...] = ()   # the other swept axes' values the sentence is about
+    orders: tuple[tuple[str, str, Point], ...] = ()
+    kind: str = "order"
+    panel: tuple[tuple[str, Any], ...] = ()   # kept for readers of older Findings: always () now
+    moves: tuple[tuple[str, Point, Point, str], ...] = ()
 
 
-def percent(rate: float, low: float, high: float) -> str:
-    """A rate with its interval in percent, one decimal: ``"2.0 % [0.6, 7.0]"``."""
-    if not math.isfinite(rate):
-        return "nan"
-    if not (math.isfinite(low) and math.isfinite(high)):
-        return f"{100 * rate:.1f} %"
-    return f"{100 * rate:.1f} % [{100 * low:.1f}, {100 * high:.1f}]"
+class Box(NamedTuple):
+    """What "What this shows" holds (:func:`box`)."""
+
+    sentences: list[Finding]
+    orders: pd.DataFrame | None    # per design point (its axes' values as in the runs): the filters' order
+    quality: pd.DataFrame | None   # quality.quality_table: per point and filter, NEES / NIS verdicts and the floor
+    legend: list[str]              # the quality table's one legend (empty without it)
 
 
-def quote(mean: float, low: float, high: float, unit: str = "", every: str = "every run") -> str:
-    """A mean with its interval in the tables' number format: ``"11.09 m [10.96, 11.22]"``; an interval of
-    zero width (every value the same: ``every`` names them) says so: ``"every run: 17 steps"``."""
-    u = f" {unit}" if unit else ""
-    m = tables.format_number(mean, tables.STAT_DIGITS)
-    if not (math.isfinite(low) and math.isfinite(high)):
-        return f"{m}{u} (no interval)"
-    if low == high:
-        return f"{every}: {m}{u}"
-    return f"{m}{u} [{tables.format_number(low, tables.STAT_DIGITS)}, {tables.format_number(high, tables.STAT_DIGITS)}]"
+def _space(text: str) -> str:
+    return f" {text}" if text else ""
 
 
-def _apart(lo_a: float, hi_a: float, lo_b: float, hi_b: float) -> bool:
-    """Interval a lies wholly below interval b (both finite)."""
-    return all(math.isfinite(x) for x in (lo_a, hi_a, lo_b, hi_b)) and hi_a < lo_b
+# ------------------------------------------------------------------------------ the sentences
 
 
-def _listing(items: Sequence[str]) -> str:
-    items = list(items)
-    if len(items) <= 1:
-        return "".join(items)
-    return ", ".join(items[:-1]) + " and " + items[-1]
+def _interval(rows: pd.DataFrame, f: str, e: str) -> tuple[float, float, float]:
+    return (float(rows.loc[f, f"{e}_mean"]), float(rows.loc[f, f"{e}_ci_low"]), float(rows.loc[f, f"{e}_ci_high"]))
 
 
-class _Axis(NamedTuple):
-    name: str
-    values: list
-    unit: str
-    factor: float
-
-    def text(self, value: Any) -> str:
-        """A value in the axis' display unit (a per-agent tuple element-wise), as the plots show it."""
-        def scaled(v):
-            if isinstance(v, (tuple, list)):
-                return tuple(scaled(x) for x in v)
-            if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_)):
-                return float(v) * self.factor if self.factor != 1.0 else v
-            return v
-        return tables.format_number(scaled(value), 4) + (f" {self.unit}" if self.unit else "")
-
-    def texts(self, values: Sequence[Any]) -> str:
-        return _listing([self.text(v) for v in values])
+def headlines(metadata: Mapping[str, Any] | Any, filters: Sequence[str]) -> list[tuple[str, str]]:
+    """The metadata's headline comparisons (``headlines``: pairs of filters, the one expected lower
+    first) whose filters are both in ``filters``."""
+    pairs = metadata.get("headlines") if isinstance(metadata, Mapping) else None
+    out = []
+    for p in pairs if isinstance(pairs, (list, tuple)) else ():
+        if isinstance(p, (list, tuple)) and len(p) == 2 and all(str(f) in filters for f in p) and p[0] != p[1]:
+            out.append((str(p[0]), str(p[1])))
+    return out
 
 
-def _sorted_values(series: pd.Series) -> list:
-    values = list(pd.unique(series))
-    try:
-        return sorted(values)
-    except TypeError:
-        return values
-
-
-def _lowest_error(s: pd.DataFrame, ax: _Axis, sch: tables.Schema, filters: list, unit: str,
-                  pooled: str) -> Finding | None:
-    """Which filter has the lowest mean error at which values of the axis."""
-    e = sch.error
-    winners: dict[Any, str | None] = {}
-    overlaps: dict[Any, list[str]] = {}
-    orders: list[tuple[str, str, Any]] = []
-    chains: dict[Any, list[str]] = {}
-    for v in ax.values:
-        rows = s[s[ax.name].map(lambda x, v=v: x == v)].set_index("filter")
-        rows = rows.loc[[f for f in filters if f in rows.index]]
-        if len(rows) < 2:
-            return None
-        rows = rows.sort_values(f"{e}_mean")
-        means, los, his = (rows[c].to_numpy(dtype=float) for c in (f"{e}_mean", f"{e}_ci_low", f"{e}_ci_high"))
-        names = [str(f) for f in rows.index]
-        for i in range(len(names)):
-            for j in range(len(names)):
-                if i != j and _apart(los[i], his[i], los[j], his[j]):
-                    orders.append((names[i], names[j], v))
-        best = names[0]
-        clear = all(_apart(los[0], his[0], los[j], his[j]) for j in range(1, len(names)))
-        winners[v] = best if clear else None
-        if not clear:
-            overlaps[v] = [n for j, n in enumerate(names[1:], 1) if not _apart(los[0], his[0], los[j], his[j])]
-            overlaps[v].insert(0, best)
-        elif all(_apart(los[j], his[j], los[j + 1], his[j + 1]) for j in range(len(names) - 1)):
-            chains[v] = names
-    parts = []
-    for w in dict.fromkeys(x for x in winners.values() if x is not None):
-        where = [v for v, x in winners.items() if x == w]
-        at = max(where, key=lambda v: _gap(s, ax, v, w, e))  # where its lead is largest
-        r = s[(s[ax.name].map(lambda x, at=at: x == at)) & (s["filter"] == w)].iloc[0]
-        if at in chains and len(chains[at]) > 2:
-            rows = s[s[ax.name].map(lambda x, at=at: x == at)].set_index("filter")
-            chain = " < ".join(f"{f} {quote(rows.loc[f, f'{e}_mean'], rows.loc[f, f'{e}_ci_low'], rows.loc[f, f'{e}_ci_high'], unit)}"
-                               for f in chains[at])
-            detail = f"at {ax.text(at)} the whole order is apart: {chain}"
-        else:
-            rows = s[s[ax.name].map(lambda x, at=at: x == at)].set_index("filter")
-            others = rows.drop(index=w).sort_values(f"{e}_mean")
-            nxt = others.index[0]
-            detail = (f"at {ax.text(at)} {quote(r[f'{e}_mean'], r[f'{e}_ci_low'], r[f'{e}_ci_high'], unit)} "
-                      f"against {quote(others.loc[nxt, f'{e}_mean'], others.loc[nxt, f'{e}_ci_low'], others.loc[nxt, f'{e}_ci_high'], unit)} "
-                      f"for the next lowest, {nxt}")
-        parts.append(f"{w} at {ax.name} = {ax.texts(where)} ({detail})")
-    said = "; ".join(f"at {ax.text(v)} {_listing(n)} overlap" for v, n in overlaps.items())
-    if not parts:
-        text = f"{pooled}No filter's mean {e} lies below all the others' beyond the {PCT} intervals ({said})"
-    else:
-        if overlaps:
-            parts.append(f"elsewhere the {PCT} intervals of the lowest means overlap, so no filter is named "
-                         f"lowest ({said})")
-        text = f"{pooled}Lowest mean {e}: " + "; ".join(parts)
-    return Finding(ax.name, text + ".", tuple(orders))
-
-
-def _gap(s: pd.DataFrame, ax: _Axis, v: Any, winner: str, e: str) -> float:
-    """How many times the winner's mean error the next lowest's is, at axis value ``v``."""
-    rows = s[s[ax.name].map(lambda x: x == v)].set_index("filter")[f"{e}_mean"].astype(float)
-    best, rest = rows.get(winner), rows.drop(index=winner)
-    if rest.empty or not best or not math.isfinite(best):
-        return 0.0
-    return float(rest.min() / best) if best > 0 else math.inf
-
-
-def _trend(s: pd.DataFrame, ax: _Axis, sch: tables.Schema, filters: list, unit: str, pooled: str) -> Finding | None:
-    """How the error of each filter changes between the axis' first and last value."""
-    e = sch.error
-    first, last = ax.values[0], ax.values[-1]
-    moves: dict[str, list[str]] = {"falls": [], "rises": []}
-    still = []
-    for f in filters:
-        a = s[(s[ax.name].map(lambda x: x == first)) & (s["filter"] == f)]
-        b = s[(s[ax.name].map(lambda x: x == last)) & (s["filter"] == f)]
-        if a.empty or b.empty:
+def _headline(grid: Grid, e: str, unit: str, first: str, seconds: list[str]) -> Finding | None:
+    """``first`` against each of ``seconds``: where its mean error is lower, higher, or their
+    intervals overlap, with the numbers where its lead is largest."""
+    clauses, orders = [], []
+    for b in seconds:
+        lower, higher, overlap = [], [], []
+        for key in grid.points:
+            r = grid.rows[key]
+            if first not in r.index or b not in r.index:
+                continue
+            (ma, la, ha), (mb, lb, hb) = _interval(r, first, e), _interval(r, b, e)
+            if not (math.isfinite(ma) and math.isfinite(mb)):
+                continue
+            if apart(la, ha, lb, hb):
+                lower.append(key)
+                orders.append((first, b, grid.point(key)))
+            elif apart(lb, hb, la, ha):
+                higher.append(key)
+                orders.append((b, first, grid.point(key)))
+            else:
+                overlap.append(key)
+        present = [k for k in grid.points if k in set(lower + higher + overlap)]
+        if not present:
             continue
-        a, b = a.iloc[0], b.iloc[0]
-        qa = quote(a[f"{e}_mean"], a[f"{e}_ci_low"], a[f"{e}_ci_high"], unit)
-        qb = quote(b[f"{e}_mean"], b[f"{e}_ci_low"], b[f"{e}_ci_high"], unit)
-        lo_a, hi_a, lo_b, hi_b = (float(a[f"{e}_ci_low"]), float(a[f"{e}_ci_high"]),
-                                  float(b[f"{e}_ci_low"]), float(b[f"{e}_ci_high"]))
-        if _apart(lo_b, hi_b, lo_a, hi_a):
-            moves["falls"].append(f"{f}'s from {qa} to {qb}")
-        elif _apart(lo_a, hi_a, lo_b, hi_b):
-            moves["rises"].append(f"{f}'s from {qa} to {qb}")
-        else:
-            still.append(f)
-    if not any(moves.values()) and not still:
+
+        def numbers(key, b=b):
+            r = grid.rows[key]
+            return (grid.at(key, ": ") + quote(*_interval(r, first, e), unit) + " against "
+                    + quote(*_interval(r, b, e), unit))
+
+        def ratio(key, top, bottom):
+            r = grid.rows[key]
+            low = float(r.loc[bottom, f"{e}_mean"])
+            return float(r.loc[top, f"{e}_mean"]) / low if low > 0 else math.inf
+
+        parts = []
+        if lower:
+            best = max(lower, key=lambda k: ratio(k, b, first))
+            parts.append(f"lower mean {e}{_space(grid.where(lower, present))}, the {PCT} intervals apart "
+                         f"({numbers(best)})")
+        if higher:
+            worst = max(higher, key=lambda k: ratio(k, first, b))
+            parts.append(f"higher{_space(grid.where(higher, present))}, the intervals apart ({numbers(worst)})")
+        if overlap and (lower or higher):  # the rest of the points
+            where = grid.where(overlap, present)
+            parts.append(f"the intervals overlap {where}" if len(where) <= 60 and not where.startswith("at every")
+                         else "elsewhere the intervals overlap")
+        elif overlap:
+            parts.append(f"the {PCT} intervals of their mean {e} overlap{_space(grid.where(overlap, present))} "
+                         f"({numbers(overlap[-1])})")
+        clauses.append(f"against {b}: " + ", ".join(parts))
+    if not clauses:
         return None
-    said = [f"the mean {e} {way}{' for every filter' if len(m) == len(filters) else ''}: " + "; ".join(m)
-            for way, m in moves.items() if m]
-    if still:
-        said.append(f"the mean {e} of {_listing(still)} does not change beyond the {PCT} intervals (those at the "
-                    f"two ends overlap)")
-    text = f"From {ax.name} = {ax.text(first)} to {ax.text(last)} " + "; ".join(said)
-    return Finding(ax.name, (pooled + text)[0].upper() + (pooled + text)[1:] + ".", kind="trend")
+    return Finding("", f"{first} " + "; ".join(clauses) + ".", tuple(orders), "headline")
 
 
-def _rates_at(s: pd.DataFrame, ax: _Axis, v: Any, filters: list) -> str:
-    rows = s[s[ax.name].map(lambda x: x == v)].set_index("filter")
+def _chain(rows: pd.DataFrame, filters: Sequence[str], e: str) -> tuple[list[list[str]], list[tuple[str, str]]]:
+    """The filters at one point as groups, lowest mean error first, with ``<`` between two groups
+    only where every filter before lies below every filter after (intervals apart); inside a group
+    the declared order. Returns the groups and every pair ``(lower, higher)`` a ``<`` claims."""
+    present = [f for f in filters if f in rows.index and math.isfinite(float(rows.loc[f, f"{e}_mean"]))]
+    ranked = sorted(present, key=lambda f: float(rows.loc[f, f"{e}_mean"]))
+    iv = {f: _interval(rows, f, e) for f in ranked}
+    groups: list[list[str]] = []
+    start = 0
+    for i in range(1, len(ranked) + 1):
+        if i == len(ranked) or all(apart(iv[x][1], iv[x][2], iv[y][1], iv[y][2])
+                                   for x in ranked[:i] for y in ranked[i:]):
+            groups.append(sorted(ranked[start:i], key=present.index))
+            start = i
+    pairs = [(x, y) for gi, g in enumerate(groups) for x in g for h in groups[gi + 1:] for y in h]
+    return groups, pairs
+
+
+def _chain_text(groups: Sequence[Sequence[str]], label=lambda f: f) -> str:
+    return " < ".join(" ≈ ".join(label(f) for f in g) for g in groups)
+
+
+def _orders(grid: Grid, e: str, filters: Sequence[str]) -> tuple[Finding | None, dict]:
+    """The sentence of the filters' order (each order with the points it holds at, the most
+    common first, up to :data:`MAX_CLAUSES`) and every point's chain."""
+    chains = {}
+    for key in grid.points:
+        groups, pairs = _chain(grid.rows[key], filters, e)
+        if sum(map(len, groups)) >= 2:
+            chains[key] = (groups, pairs)
+    if not chains:
+        return None, chains
+    patterns: dict[tuple, list] = {}
+    for key, (groups, _) in chains.items():
+        patterns.setdefault(tuple(map(tuple, groups)), []).append(key)
+    ranked = sorted(patterns.items(), key=lambda kv: -len(kv[1]))  # stable: the first point's order first on ties
+    universe = list(chains)
+    parts, orders = [], []
+    for groups, keys in ranked[:MAX_CLAUSES]:
+        parts.append(_chain_text(groups) + _space(grid.where(keys, universe)))
+        orders += [(x, y, grid.point(k)) for k in keys for x, y in chains[k][1]]
+    rest = sum(len(keys) for _, keys in ranked[MAX_CLAUSES:])
+    if rest:
+        parts.append(f"another order at {rest} more point{'s' if rest > 1 else ''} (the table below)")
+    text = (f"Order of the mean {e}, lowest first ('<': every filter before it below every filter after it, the "
+            f"{PCT} intervals apart; '≈': not ordered): " + "; ".join(parts) + ".")
+    return Finding("", text, tuple(orders), "order"), chains
+
+
+def _direction(rows_a: pd.DataFrame, rows_b: pd.DataFrame, f: str, e: str) -> str | None:
+    """How ``f``'s mean error changes from point a to point b: "falls", "rises", "still" (None: missing)."""
+    if f not in rows_a.index or f not in rows_b.index or not all(
+            math.isfinite(float(r.loc[f, f"{e}_mean"])) for r in (rows_a, rows_b)):
+        return None
+    _, lo_a, hi_a = _interval(rows_a, f, e)
+    _, lo_b, hi_b = _interval(rows_b, f, e)
+    return "falls" if apart(lo_b, hi_b, lo_a, hi_a) else "rises" if apart(lo_a, hi_a, lo_b, hi_b) else "still"
+
+
+def _pattern_words(pattern: tuple[tuple[str, str], ...]) -> str:
+    by = {d: [f for f, x in pattern if x == d] for d in ("falls", "rises", "still")}
+    n = len(pattern)
+    if len(by["still"]) == n:
+        return f"does not change beyond the {PCT} intervals for any filter"
+    said = {"falls": "falls", "rises": "rises", "still": f"does not change beyond the {PCT} intervals"}
+    return listing([f"{said[d]} for {'every filter' if len(fs) == n and n > 1 else listing(fs)}"
+                     for d, fs in by.items() if fs])
+
+
+def _trend(grid: Grid, a: str, e: str, unit: str, filters: Sequence[str]) -> Finding | None:
+    """How each filter's mean error changes from the axis' first value to its last: with one panel
+    (no other axis), each change with its numbers; with several, the panels grouped by what changes."""
+    i = grid.axes.index(a)
+    ax = grid.shown[i]
+    values = ordered(p[i] for p in grid.points)
+    if len(values) < 2:
+        return None
+    first, last = values[0], values[-1]
+    others = [j for j in range(len(grid.axes)) if j != i]
+    key_of = {(p[i], tuple(p[j] for j in others)): p for p in grid.points}
+    panels = ordered(tuple(p[j] for j in others) for p in grid.points)
+    found: dict[tuple, tuple] = {}
+    for q in panels:
+        ka, kb = key_of.get((first, q)), key_of.get((last, q))
+        if ka is None or kb is None:
+            continue
+        pattern = tuple((f, d) for f in filters if (d := _direction(grid.rows[ka], grid.rows[kb], f, e)) is not None)
+        if pattern:
+            found[q] = (ka, kb, pattern)
+    if not found:
+        return None
+    head = f"From {ax.name} = {ax.text(first)} to {ax.text(last)}"
+    if not others:  # one panel: every change with its numbers
+        (ka, kb, pattern), = found.values()
+        ra, rb = grid.rows[ka], grid.rows[kb]
+        moves: dict[str, list[str]] = {"falls": [], "rises": []}
+        still = []
+        for f, d in pattern:
+            if d == "still":
+                still.append(f)
+            else:
+                moves[d].append(f"{f}'s from {quote(*_interval(ra, f, e), unit)} to {quote(*_interval(rb, f, e), unit)}")
+        said = [f"the mean {e} {way}{' for every filter' if len(m) == len(pattern) else ''}: " + "; ".join(m)
+                for way, m in moves.items() if m]
+        if still:
+            said.append(f"the mean {e} of {listing(still)} does not change beyond the {PCT} intervals (those at the "
+                        f"two ends overlap)")
+        text = f"{head} " + "; ".join(said) + "."
+    else:
+        groups: dict[tuple, list] = {}
+        for q, (_, _, pattern) in found.items():
+            groups.setdefault(pattern, []).append(q)
+        ranked = sorted(groups.items(), key=lambda kv: -len(kv[1]))
+        universe = list(found)
+        axes = [grid.shown[j] for j in others]
+        parts = [f"{_pattern_words(pattern)}{_space(name_points(qs, universe, axes))}" for pattern, qs in
+                 ranked[:MAX_CLAUSES]]
+        rest = sum(len(qs) for _, qs in ranked[MAX_CLAUSES:])
+        if rest:
+            parts.append(f"otherwise at {rest} more combination{'s' if rest > 1 else ''} of the other axes (the plots)")
+        text = f"{head} the mean {e} " + "; ".join(parts) + "."
+        found = {q: found[q] for _, qs in ranked[:MAX_CLAUSES] for q in qs}
+    moves_ = tuple((f, grid.point(ka), grid.point(kb), d) for ka, kb, pattern in found.values()
+                   for f, d in pattern if d != "still")
+    return Finding(a, text, kind="trend", moves=moves_)
+
+
+def _rates(grid: Grid, key: tuple, filters: Sequence[str]) -> str:
+    rows = grid.rows[key]
     return ", ".join(f"{f} {percent(rows.loc[f, 'div_rate'], rows.loc[f, 'div_ci_low'], rows.loc[f, 'div_ci_high'])}"
                      for f in filters if f in rows.index)
 
 
-def _divergence(s: pd.DataFrame, ax: _Axis, sch: tables.Schema, filters: list, pooled: str) -> Finding | None:
-    """At which values of the axis runs diverge, with the rates at the edge."""
-    if not sch.divergence:
-        return None
-    k = s.groupby(ax.name, sort=False)["diverged"].sum()
-    seen = [v for v in ax.values if k.get(v, 0) > 0]
-    none = [v for v in ax.values if k.get(v, 0) == 0]
-    n = s.groupby(ax.name, sort=False)["n"].min()
+def _divergence(grid: Grid, filters: Sequence[str]) -> Finding | None:
+    """Where runs diverge, with the rates where they are highest, where the filters differ most
+    and (one axis) where divergence starts."""
+    k = {key: int(r["diverged"].sum()) for key, r in grid.rows.items()}
+    n = {key: int(r["n"].min()) for key, r in grid.rows.items()}
+    if not grid.axes:
+        (key,) = grid.points
+        if k[key]:
+            return Finding("", f"Divergence rate: {_rates(grid, key, filters)}.", kind="divergence")
+        hi = wilson_interval(0, n[key]).high
+        return Finding("", f"No run of any filter diverged (0 of {n[key]} or more runs per filter; the rate's {PCT} "
+                           f"interval ends at {100 * hi:.1f} %).", kind="divergence")
+    seen = [p for p in grid.points if k[p] > 0]
+    none = [p for p in grid.points if k[p] == 0]
     if not seen:
-        hi = max(wilson_interval(0, int(n.get(v))).high for v in ax.values)
-        return Finding(ax.name, f"{pooled}No run of any filter diverged at any {ax.name} (0 runs of "
-                                f"{int(n.min())} or more per point and filter; the rate's {PCT} interval ends at "
-                                f"{100 * hi:.1f} % or below).", kind="divergence")
-    worst = max(seen, key=lambda v: float(s[s[ax.name].map(lambda x: x == v)]["div_rate"].max()))
-    spread = {v: float(np.ptp(s[s[ax.name].map(lambda x, v=v: x == v)]["div_rate"].to_numpy(float))) for v in seen}
-    apart = max(seen, key=spread.get)  # where the filters' rates differ most
-    text = f"{pooled}Runs diverge at {ax.name} = {ax.texts(seen)}"
+        hi = max(wilson_interval(0, n[p]).high for p in grid.points)
+        return Finding("", f"No run of any filter diverged at {grid.every()} (0 runs of {min(n.values())} or more per "
+                           f"point and filter; the rate's {PCT} interval ends at {100 * hi:.1f} % or below).",
+                       kind="divergence")
+    worst = max(seen, key=lambda p: float(grid.rows[p]["div_rate"].max()))
+    spread = {p: float(np.ptp(grid.rows[p]["div_rate"].to_numpy(float))) for p in seen}
+    widest = max(seen, key=spread.get)  # where the filters' rates differ most
+    text = f"Runs diverge {grid.where(seen)}"
+    edge = None
     if none:
-        hi = max(wilson_interval(0, int(n.get(v))).high for v in none)
-        text += f" and in none of the runs at {ax.texts(none)} (0 %, the interval up to {100 * hi:.1f} %)"
-        edge = None
-        if max(ax.values.index(v) for v in seen) < min(ax.values.index(v) for v in none):
-            edge = seen[-1]
-            text += f"; divergence starts below {ax.text(none[0])}: at {ax.text(edge)} {_rates_at(s, ax, edge, filters)}"
-        elif min(ax.values.index(v) for v in seen) > max(ax.values.index(v) for v in none):
-            edge = seen[0]
-            text += f"; divergence starts above {ax.text(none[-1])}: at {ax.text(edge)} {_rates_at(s, ax, edge, filters)}"
-        if worst != edge:
-            text += f"; at {ax.text(worst)} {_rates_at(s, ax, worst, filters)}"
-    else:
-        text += f" (every value); at {ax.text(worst)} {_rates_at(s, ax, worst, filters)}"
-        edge = None
-    if apart not in (edge, worst) and spread[apart] > 0:
-        text += f"; the filters differ most at {ax.text(apart)}: {_rates_at(s, ax, apart, filters)}"
+        hi = max(wilson_interval(0, n[p]).high for p in none)
+        if text.startswith("Runs diverge at every point but "):  # the exceptions are where none diverges
+            text += f", where none of the runs does (0 %, the interval up to {100 * hi:.1f} %)"
+        else:
+            text += f" and in none of the runs {grid.where(none)} (0 %, the interval up to {100 * hi:.1f} %)"
+        if len(grid.axes) == 1:
+            ax, index = grid.shown[0], grid.points.index
+            if max(map(index, seen)) < min(map(index, none)):
+                edge = seen[-1]
+                text += f"; divergence starts below {ax.text(none[0][0])}: {grid.at(edge, ':')} {_rates(grid, edge, filters)}"
+            elif min(map(index, seen)) > max(map(index, none)):
+                edge = seen[0]
+                text += f"; divergence starts above {ax.text(none[-1][0])}: {grid.at(edge, ':')} {_rates(grid, edge, filters)}"
+    if worst != edge:
+        text += f"; {grid.at(worst, ':')} {_rates(grid, worst, filters)}"
+    if widest not in (edge, worst) and spread[widest] > 0:
+        text += f"; the filters differ most {grid.at(widest)}: {_rates(grid, widest, filters)}"
     orders = []
-    rows = s[s[ax.name].map(lambda x: x == worst)].sort_values("div_rate")
+    rows = grid.rows[worst].sort_values("div_rate")
     if len(rows) > 1:
         lo = rows.iloc[0]
-        if all(_apart(lo["div_ci_low"], lo["div_ci_high"], r["div_ci_low"], r["div_ci_high"])
+        if all(apart(lo["div_ci_low"], lo["div_ci_high"], r["div_ci_low"], r["div_ci_high"])
                for _, r in rows.iloc[1:].iterrows()):
-            text += f"; there {lo['filter']} diverges least (its interval below the others')"
-            orders = [(str(lo["filter"]), str(r["filter"]), worst) for _, r in rows.iloc[1:].iterrows()]
-    return Finding(ax.name, text[0].upper() + text[1:] + ".", tuple(orders), "divergence")
+            text += f"; there {rows.index[0]} diverges least (its interval below the others')"
+            orders = [(str(rows.index[0]), str(f), grid.point(worst)) for f in rows.index[1:]]
+    return Finding("", text + ".", tuple(orders), "divergence")
 
 
-def _graph(df: pd.DataFrame, ax: _Axis, sch: tables.Schema, pooled: str) -> Finding | None:
+def _graph(grid: Grid, data: pd.DataFrame, sch: tables.Schema) -> Finding | None:
     """Where the comm graph disconnects (runs with a disconnected step), once per run."""
     ds = sch.disconnected_steps
-    if not ds:
+    if not ds or not grid.axes:
         return None
-    keys = [k for k in ("point_id", "seed_index") if k in df.columns]
-    runs = df.drop_duplicates(subset=keys) if len(keys) == 2 else df[df["filter"] == df["filter"].iloc[0]]
+    keys = [k for k in ("point_id", "seed_index") if k in data.columns]
+    runs = data.drop_duplicates(subset=keys) if len(keys) == 2 else data[data["filter"] == data["filter"].iloc[0]]
     stats = {}
-    for v in ax.values:
-        g = runs[runs[ax.name].map(lambda x, v=v: x == v)][ds].to_numpy(dtype=float)
+    for p in grid.points:
+        g = quality.rows_at(runs, grid.axes, p)[ds].to_numpy(dtype=float)
         g = g[np.isfinite(g)]
-        if g.size == 0:
-            continue
-        k = int((g > 0).sum())
-        stats[v] = (k, g.size, wilson_interval(k, g.size), mean_ci(g))
+        if g.size:
+            k = int((g > 0).sum())
+            stats[p] = (k, g.size, wilson_interval(k, g.size), mean_ci(g))
     if not stats:
         return None
-    some = [v for v, st in stats.items() if st[0] > 0]
-    none = [v for v, st in stats.items() if st[0] == 0]
+    universe = list(stats)
+    some = [p for p, st in stats.items() if st[0] > 0]
+    none = [p for p, st in stats.items() if st[0] == 0]
     u = tables.unit(ds, sch)
 
-    def at(v):
-        k, n, ci, m = stats[v]
+    def rate(p):
+        k, n, ci, _ = stats[p]
+        return percent(k / n, ci.low, ci.high)
+
+    def said(p):
+        m = stats[p][3]
         steps = f"{ds}, {quote(m.mean, m.low, m.high, u)}" if m.low == m.high else \
             f"{ds}: mean {quote(m.mean, m.low, m.high, u)} per run"
-        return f"at {ax.text(v)} in {percent(k / n, ci.low, ci.high)} of runs ({steps})"
+        return f"in {rate(p)} of runs ({steps})"
 
     if not some:
-        return Finding(ax.name, f"{pooled}The comm graph stays connected in every run at every {ax.name} "
-                                f"({ds} = 0 in all {sum(st[1] for st in stats.values())} runs).", kind="graph")
-    text = f"{pooled}The comm graph disconnects at some step " + "; ".join(at(v) for v in some)
+        return Finding("", f"The comm graph stays connected in every run {grid.where(universe, universe)} ({ds} = 0 in all "
+                           f"{sum(st[1] for st in stats.values())} runs).", kind="graph")
+    alike: dict[str, list] = {}  # points with the same numbers are named together
+    for p in some:
+        alike.setdefault(said(p), []).append(p)
+    if len(alike) <= MAX_CLAUSES + 1:
+        text = "The comm graph disconnects at some step " + "; ".join(
+            f"{grid.at(ps[0]) if len(ps) == 1 else name_points(ps, universe, grid.shown)} {words}"
+            for words, ps in alike.items())
+    else:
+        every = [p for p in some if stats[p][0] == stats[p][1]]
+        partly = [p for p in some if stats[p][0] < stats[p][1]]
+        parts = []
+        if every:
+            parts.append(f"in every run {name_points(every, universe, grid.shown)}")
+        if partly:
+            lo = min(partly, key=lambda p: stats[p][0] / stats[p][1])
+            hi = max(partly, key=lambda p: stats[p][0] / stats[p][1])
+            parts.append(f"in some runs {name_points(partly, universe, grid.shown)} (" + (
+                f"{rate(lo)} of them" if lo == hi else f"from {rate(lo)} of them {grid.at(lo)} to {rate(hi)} "
+                                                       f"{grid.at(hi)}") + ")")
+        text = "The comm graph disconnects at some step " + "; ".join(parts)
     if none:
-        hi = max(wilson_interval(0, stats[v][1]).high for v in none)
-        text += f", and in no run at {ax.texts(none)} (0 %, the interval up to {100 * hi:.1f} %)"
-    return Finding(ax.name, text[0].upper() + text[1:] + ".", kind="graph")
+        hi = max(wilson_interval(0, stats[p][1]).high for p in none)
+        text += f", and in no run {name_points(none, universe, grid.shown)} (0 %, the interval up to {100 * hi:.1f} %)"
+    return Finding("", text + ".", kind="graph")
+
+
+# ------------------------------------------------------------------------------ the box
+
+
+def box(df: pd.DataFrame, metadata: Mapping[str, Any] | tables.Schema, axes: Sequence[str] | None = None, *,
+        summary: Summary | None = None) -> Box:
+    """What "What this shows" holds for a runs table (module docstring): its sentences, the table of
+    the filters' order at each design point (None for a single point) and the consistency and floor
+    table with its legend (None and [] when the dataset has neither). Filters and axes are named by
+    the words the dataset declares for them (``filter_names``, a Param's ``label``), else by their
+    code names; the orders and changes each Finding keeps use the code names. ``summary``: the
+    page's :class:`mcjax.analysis.summary.Summary` of ``df`` (built here when not given)."""
+    summary = summary_for(df, metadata, axes, summary)
+    sch, data = summary.schema, summary.data
+    filters = [str(f) for f in tables.ordered_filters(data["filter"], sch.filters)]
+    e, unit = sch.error, tables.unit(sch.error, sch)
+    grid = Grid(summary)
+    found: list[Finding] = []
+    if len(filters) >= 2:
+        firsts: dict[str, list[str]] = {}
+        for a, b in headlines(metadata, filters):
+            firsts.setdefault(a, []).append(b)
+        found += [f for a, bs in firsts.items() if (f := _headline(grid, e, unit, a, bs)) is not None]
+    order, chains = _orders(grid, e, filters)
+    if order is not None:
+        found.append(order)
+    for a in grid.axes:
+        t = _trend(grid, a, e, unit, filters)
+        if t is not None:
+            found.append(t)
+    if sch.divergence:
+        found.append(_divergence(grid, filters))
+    g = _graph(grid, data, sch)
+    if g is not None:
+        found.append(g)
+    text = {a: ax.text for a, ax in zip(grid.axes, grid.shown)}
+    entries = quality.quality_rows(data, sch, grid.axes, filters)
+    found += [Finding("", t, kind=kind) for kind, t in
+              quality.quality_sentences(data, sch, grid.axes, filters, lambda a, v: text[a](v), entries)]
+    words = _words(metadata, sch)
+    # the sentences name filters and axes by the glossary's words, not their code names
+    found = [f._replace(text=_in_words(f.text, words)) for f in found]
+    orders = None
+    if len(grid.points) > 1 and chains:
+        def cell(key):
+            if key not in chains:
+                return "—"
+            rows = grid.rows[key]
+            by_mean = [sorted(g, key=lambda f: float(rows.loc[f, f"{e}_mean"])) for g in chains[key][0]]
+            return _replace_words(_chain_text(by_mean, lambda f: f"{f} {quote(*_interval(rows, f, e), unit)}"), words)
+        orders = pd.DataFrame([{**dict(zip(grid.axes, key)), f"order of the mean {e}, lowest first": cell(key)}
+                               for key in grid.points])
+    q = quality.quality_table(data, sch, grid.axes, filters, entries)
+    return Box(found, orders, q, quality.legend(sch, data) if q is not None else [])
 
 
 def findings(df: pd.DataFrame, metadata: Mapping[str, Any] | tables.Schema,
              axes: Sequence[str] | None = None, *, summary: Summary | None = None) -> list[Finding]:
-    """The sentences of "What this shows" for a runs table: per swept axis with more than one
-    value, which filter has the lowest mean error where, how each filter's error changes from
-    the axis' first to its last value, where runs diverge and where the comm graph
-    disconnects (each when the dataset declares it). With several axes, the sentences about
-    one axis are made per panel — each combination of the other axes' values, named at the
-    sentence's start and in :attr:`Finding.panel` — never over runs pooled across design points.
-    A single point gets the sentence about the filters' order only. The consistency and
-    error-floor sentences (:mod:`mcjax.analysis.quality`) are per design point. Filters and axes are named
-    by the words the dataset declares for them (``filter_names``, a Param's ``label``), else by
-    their code names. ``summary``: the page's :class:`mcjax.analysis.summary.Summary` of ``df``
-    (built here when not given)."""
-    summary = summary_for(df, metadata, axes, summary)
-    sch, data, plot_axes = summary.schema, summary.data, list(summary.plot_axes)
-    filters = [str(f) for f in tables.ordered_filters(data["filter"], sch.filters)]
-    unit = tables.unit(sch.error, sch)
-    out_quality = _quality(data, sch, plot_axes, filters)
-    found = _findings(summary, filters, unit, out_quality)
-    words = _words(metadata, sch)
-    # the sentences name filters and axes by the glossary's words, not their code names
-    return [f._replace(text=_in_words(f.text, words)) for f in found] if words else found
+    """The sentences of "What this shows" (:func:`box`)."""
+    return box(df, metadata, axes, summary=summary).sentences
 
 
 def _words(metadata, sch: tables.Schema) -> dict[str, str]:
@@ -335,89 +476,14 @@ def _words(metadata, sch: tables.Schema) -> dict[str, str]:
     return out
 
 
-def _in_words(text: str, words: Mapping[str, str]) -> str:
+def _replace_words(text: str, words: Mapping[str, str]) -> str:
     """``text`` with every code name of ``words`` standing alone (not inside another name) replaced."""
     for code in sorted(words, key=len, reverse=True):
         text = re.sub(rf"(?<![\w.]){re.escape(code)}(?!\w)", words[code], text)
+    return text
+
+
+def _in_words(text: str, words: Mapping[str, str]) -> str:
+    """:func:`_replace_words`, the first letter capitalised (a sentence)."""
+    text = _replace_words(text, words)
     return text[0].upper() + text[1:] if text else text
-
-
-def _findings(summary: Summary, filters: list, unit: str, out_quality: list[Finding]) -> list[Finding]:
-    data, sch, plot_axes = summary.data, summary.schema, list(summary.plot_axes)
-    if not plot_axes:
-        return _point_sentences(summary, filters, unit, ()) + out_quality
-    out: list[Finding] = []
-    for a in plot_axes:
-        shown, factor = tables.display(a, sch)
-        others = [o for o in plot_axes if o != a]
-        for panel, rows in _panels(data, others):
-            values = _sorted_values(rows[a])
-            if len(values) < 2:  # nothing varies along a in this panel (e.g. the axes of a zip)
-                continue
-            ax = _Axis(a, values, shown, factor)
-            where = ", ".join(f"{o} = {_Axis(o, [], *tables.display(o, sch)).text(v)}" for o, v in panel)
-            prefix = f"With {where}: " if where else ""
-            s = summary.at([a], panel)  # tables.summarize(rows, sch, [a]), cut from the page's summary
-            for make in (lambda: _lowest_error(s, ax, sch, filters, unit, prefix),
-                         lambda: _trend(s, ax, sch, filters, unit, prefix),
-                         lambda: _divergence(s, ax, sch, filters, prefix),
-                         lambda: _graph(rows, ax, sch, prefix)):
-                f = make()
-                if f is not None:
-                    out.append(f._replace(panel=panel))
-    if not out:  # no axis varies alone (a zip): the sentences of each design point
-        for panel, _ in _panels(data, plot_axes):
-            out += _point_sentences(summary, filters, unit, panel)
-    return out + out_quality
-
-
-def _point_sentences(summary: Summary, filters: list, unit: str, panel: tuple) -> list[Finding]:
-    """The filters' order and their divergence rates at one design point (``panel``: its axes'
-    values, named first; () for a dataset of one point)."""
-    sch = summary.schema
-    where = ", ".join(f"{o} = {_Axis(o, [], *tables.display(o, sch)).text(v)}" for o, v in panel)
-    prefix = f"At {where}: " if where else ""
-    s = summary.at([], panel)  # the point's rows of the page's summary
-    s.insert(0, "_point", "this point")
-    out = []
-    single = _lowest_error(s, _Axis("_point", ["this point"], "", 1.0), sch, filters, unit, "")
-    if single is not None:
-        text = single.text.replace("at _point = this point ", "").replace("at this point ", "")
-        out.append(Finding("", prefix + text, tuple((a, b, None) for a, b, _ in single.orders), panel=panel))
-    if sch.divergence:
-        ax = _Axis("_point", ["this point"], "", 1.0)
-        if int(s["diverged"].sum()):
-            text = f"Divergence rate: {_rates_at(s, ax, 'this point', filters)}."
-        else:
-            hi = wilson_interval(0, int(s["n"].min())).high
-            text = (f"No run of any filter diverged (0 of {int(s['n'].min())} or more runs per filter; the "
-                    f"rate's {PCT} interval ends at {100 * hi:.1f} %).")
-        out.append(Finding("", prefix + text, kind="divergence", panel=panel))
-    return out
-
-
-def _panels(data: pd.DataFrame, others: Sequence[str]) -> list[tuple[tuple, pd.DataFrame]]:
-    """The panels of the other swept axes: ``(((axis, value), ...), rows)`` per combination of their
-    values (one panel of every row without other axes). Sentences are made per panel: runs at
-    different design points are never pooled into one interval."""
-    if not others:
-        return [((), data)]
-    out = []
-    for key, rows in data.groupby(list(others), sort=True, dropna=False):
-        key = key if isinstance(key, tuple) else (key,)
-        out.append((tuple(zip(others, key)), rows))
-    return out
-
-
-def _quality(data: pd.DataFrame, sch: tables.Schema, axes: Sequence[str], filters: list) -> list[Finding]:
-    """The consistency and error-floor sentences, one per design point (:mod:`mcjax.analysis.quality`)."""
-    shown = {a: _Axis(a, [], *tables.display(a, sch)) for a in axes}
-
-    def text(a, v):
-        return shown[a].text(v)
-
-    return ([Finding("", t, kind="consistency") for t in quality.consistency_sentences(data, sch, axes, filters, text)]
-            + [Finding("", t, kind="floor") for t in quality.floor_sentences(data, sch, axes, filters, text)])
-
-
-# ------------------------------------------------------------------------------ glossary

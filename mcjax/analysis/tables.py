@@ -47,8 +47,20 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from mcjax.analysis.schema import (OPTIONAL_ROLES, Schema, axis_label, declaration, display, filter_rank,  # noqa: F401
-                          label, ordered_filters, resolve_axes, schema, swept_axes, unit)  # (re-exported: the report's modules read them here)
+from mcjax.analysis.schema import (  # noqa: F401
+    OPTIONAL_ROLES,
+    Schema,
+    axis_label,
+    declaration,
+    display,
+    filter_rank,
+    label,  # (re-exported: the report's modules read them here)
+    ordered_filters,
+    resolve_axes,
+    schema,
+    swept_axes,
+    unit,
+)
 from mcjax.analysis.statistics import CONFIDENCE, mean_ci, wilson_interval
 
 __all__ = [

@@ -13,8 +13,9 @@ class); the layers above use a scenario only through it and name no scenario, fi
   ``(F,)`` per filter, ``()`` per run; the record derives ``reduce(cfg, records, params)``
   (:class:`Reduce`) and ``outputs(cfg)`` from it, and ``timeseries`` / ``timeseries_outputs``
   from an optional ``series``; optionally ``check_params``, ``relaxation``
-  (:class:`mcjax.contract.relaxation.Relaxation`) and ``compiler_options`` (:data:`FAST_COMPILE`, or a function
-  of the Config returning such a mapping, where a team's size calls for other options).
+  (:class:`mcjax.contract.relaxation.Relaxation`), ``compiler_options`` (:data:`FAST_COMPILE`, or a function
+  of the Config returning such a mapping, where a team's size calls for other options) and
+  ``headlines`` (pairs of filter kinds, the one expected lower first: the comparisons its report leads with).
 
 Validation is :mod:`mcjax.base.validation`'s (the declarations' ``problem`` methods call it): it reads
 values as a spec (TOML) writes them — kinds are exact (:meth:`Param.problem` with
@@ -280,6 +281,8 @@ class Scenario:
     filter_names: Mapping[str, str] | None = None  # each filter kind's short name in sentences ("modified ICF")
     #: its programs run on one CPU device (True where two running at once deadlock in XLA's CPU runtime)
     one_device: bool = False
+    #: the comparisons its report leads with: pairs of filter kinds, the one expected lower first
+    headlines: tuple[tuple[str, str], ...] = ()
     # derived from summary / series (not given):
     reduce: Reduce | None = dataclasses.field(init=False, default=None)
     outputs: Callable[[Any], Mapping[str, Output]] | None = dataclasses.field(init=False, default=None)
@@ -297,6 +300,12 @@ class Scenario:
         for field in ("n_agents", "n_steps", "filters"):  # a Config built by config_type has SETTINGS
             if field not in getattr(self.Config, "SETTINGS", {}):
                 raise ValueError(f"{me}: Config must declare {field!r}")
+        kinds = tuple(self.settings["filters"].choices or ())
+        pairs = _headline_pairs(self.headlines, kinds)
+        if pairs is None:
+            raise ValueError(f"{me}: headlines must be pairs (expected lower, higher) of two different filter kinds "
+                             f"of its Config ({', '.join(kinds) or 'any'}); got {show(self.headlines)}")
+        object.__setattr__(self, "headlines", pairs)
         cfg = self.Config()
         check_outputs(self.outputs(cfg), f"{me}: outputs(Config())", error_role=True)
         if self.timeseries_outputs is not None:
@@ -333,7 +342,20 @@ class Scenario:
         names = self.filter_names or {}
         if names:
             out["filter_names"] = {f: names[f] for f in cfg.filters if f in names}
+        headlines = [list(p) for p in self.headlines if set(p) <= set(cfg.filters)]
+        if headlines:
+            out["headlines"] = headlines
         return out
+
+
+def _headline_pairs(headlines, kinds: tuple) -> tuple[tuple[str, str], ...] | None:
+    """``headlines`` as a tuple of pairs of two different filter kinds (of ``kinds``, when given), else None."""
+    if not isinstance(headlines, (tuple, list)):
+        return None
+    pairs = tuple(tuple(p) if isinstance(p, (tuple, list)) else p for p in headlines)
+    ok = all(isinstance(p, tuple) and len(p) == 2 and p[0] != p[1]
+             and all(isinstance(f, str) and (not kinds or f in kinds) for f in p) for p in pairs)
+    return pairs if ok else None
 
 
 def _naming_former_fields(init):

@@ -1,7 +1,8 @@
 """``OUT/report/index.html``: one self-contained page per sweep dataset.
 
-The page leads with what the data show: "What this shows", sentences written from the runs
-with their intervals (:mod:`mcjax.analysis.findings`). Then every plot with its caption, the summary
+The page leads with what the data show: "What this shows", a few sentences written from the runs
+with their intervals and, folded under them, the order of the filters at each design point and the
+consistency and error-floor table (:func:`mcjax.analysis.findings.box`). Then every plot with its caption, the summary
 tables (the wide one scrolls inside its box), a glossary from the scenario's declarations and
 the base Params; below them the spec (as TOML), the config and the provenance (package
 versions, git revision, dates, runs present and planned). Images are embedded as base64
@@ -85,6 +86,8 @@ figure { margin: 1.4rem 0; }
 figure img { max-width: 100%; height: auto; border: 1px solid #eee; }
 figcaption { color: #333; font-size: 0.9rem; max-width: 900px; }
 .legend li { font-size: 0.88rem; }
+details { margin: 0.5rem 0; }
+summary { cursor: pointer; font-weight: 600; }
 """
 
 
@@ -186,21 +189,59 @@ def _figures(plots: Sequence[Any]) -> list[str]:
     return out
 
 
+def _axis_cells(frame: pd.DataFrame, sch: tables.Schema, axes: Sequence[str]) -> tuple[list[str], list[list[str]]]:
+    """A table whose first columns are ``axes`` (values as in the runs) as headers and cells of text: the
+    axes in the plots' units (their unit in the header, as :func:`glance` shows them), the rest as it is."""
+    shown = {a: tables.display(a, sch) for a in axes}
+    headers = [f"{a} [{shown[a][0]}]" if shown[a][0] else a for a in axes] + [str(c) for c in frame.columns
+                                                                              if c not in axes]
+    rows = [[tables.format_number(_scaled(r[a], shown[a][1]), tables.KEY_DIGITS) for a in axes]
+            + [str(r[c]) for c in frame.columns if c not in axes] for _, r in frame.iterrows()]
+    return headers, rows
+
+
 def _findings_section(df: pd.DataFrame, metadata: Mapping[str, Any], summary: Summary,
                       warning: str | None, facts: str) -> str:
-    found = findings.findings(df, metadata, summary.axes, summary=summary)
+    """The box: its sentences, then (folded, under them) the order of the filters at each design
+    point and the consistency and error-floor table with its one legend."""
+    box = findings.box(df, metadata, summary.axes, summary=summary)
+    sch, axes = summary.schema, list(summary.plot_axes)
     parts = ['<section id="findings" class="findings"><h2>What this shows</h2>']
     if warning:
         parts.append(f'<p class="warning">WARNING: {_e(warning)}</p>')
     parts.append(f"<p>{_e(facts)}</p>")
-    if found:
-        parts.append("<ul>" + "".join(f"<li>{_e(f.text)}</li>" for f in found) + "</ul>")
+    if box.sentences:
+        parts.append("<ul>" + "".join(f"<li>{_e(f.text)}</li>" for f in box.sentences) + "</ul>")
     else:
         parts.append("<p>(No sentence: the dataset has fewer than two filters to compare.)</p>")
     parts.append(f'<p class="note">Written from the runs below; an order is stated only where the '
                  f'{_e(findings.PCT)} intervals do not overlap (<a href="#glossary">glossary</a>).</p>')
+    if box.orders is not None:
+        parts.append(f'<details id="orders"><summary>The order of the filters at each of the {len(box.orders)} '
+                     f"design points</summary>")
+        parts.append(f"<p>The mean {_e(sch.error)} with its {_e(findings.PCT)} interval, lowest first; '&lt;' "
+                     f"stands where every filter before it lies below every filter after it (the intervals apart), "
+                     f"'≈' between filters the intervals do not order.</p>")
+        parts.append(html_table(*_axis_cells(box.orders, sch, axes)))
+        parts.append("</details>")
+    if box.quality is not None:
+        parts.append('<details id="quality"><summary>Consistency and the error floor, per filter and design point'
+                     "</summary>")
+        parts.append('<ul class="legend">' + "".join(f"<li>{_e(line)}</li>" for line in box.legend) + "</ul>")
+        parts.append(html_table(*_axis_cells(box.quality, sch, axes)))
+        parts.append("</details>")
     parts.append("</section>")
     return "\n".join(parts)
+
+
+def _computed(df: pd.DataFrame, sch: tables.Schema, config: Mapping[str, Any]) -> str:
+    """Under the config table: the outputs every run computed (the dataset's declared columns), so that
+    a setting that reads off is not taken to have switched off what the page shows."""
+    names = [k for k in sch.outputs if k in df.columns]
+    off = [str(k) for k, v in config.items() if isinstance(v, str) and v.lower() == "off"]
+    return (f"Computed in every run of this dataset: {', '.join(names)}."
+            + (f" A setting above that reads off ({', '.join(off)}) left out only outputs not in this list."
+               if off else ""))
 
 
 def page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, Any], plots: Sequence[Any],
@@ -295,6 +336,7 @@ def page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, An
         rows = [[str(k), tables.format_number(v, tables.KEY_DIGITS) if not isinstance(v, str) else v]
                 for k, v in config.items()]
         parts.append(html_table(["field", "value"], rows))
+        parts.append(f'<p class="note">{_e(_computed(df, sch, config))}</p>')
     parts.append("</section>")
 
     # provenance

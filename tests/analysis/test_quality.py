@@ -1,6 +1,7 @@
 """How good is a filter in the report: the floor multiple's interval (its coverage, by simulation),
-the consistency and floor sentences per design point (never pooled across points), and the
-per-step figures of a timeseries with their bands."""
+the consistency and floor table per design point and filter (never pooled across points) with its
+one legend and one sentence each in the box, the verdict only over the runs that did not diverge
+(or "not judged" past half of them), and the per-step figures of a timeseries with their bands."""
 
 import numpy as np
 import pandas as pd
@@ -57,43 +58,88 @@ def test_floor_multiple_edge_cases():
         floor_multiple([1.0, 2.0], [1.0])
 
 
-def _by_point(sentences):
-    return {p: [s for s in sentences if f"noise = {p}" in s] for p in ("1 m", "2 m")}
+def _table(runs, meta=META):
+    box = findings.box(runs, meta)
+    return box, box.quality.set_index(["noise", "filter"])
 
 
-def test_consistency_sentences_name_each_filter_per_point_with_scipy_band():
+def test_one_table_per_point_and_filter_with_scipys_band_and_one_sentence():
     runs = _runs()
-    sch = tables.schema(META, runs.columns)
-    found = [f for f in findings.findings(runs, META) if f.kind == "consistency"]
-    assert len(found) == 4  # NEES and NIS at each of the two points: none pooled
-    band = chi2_band(4, 400)
+    box, table = _table(runs)
+    assert len(table) == 2 * 3  # each filter at each of the two points: none pooled
     lo, hi = stats.chi2.ppf([0.025, 0.975], 1600) / 400
-    assert (band.low, band.high) == pytest.approx((lo, hi))
-    nees = [f.text for f in found if "NEES" in f.text]
-    for text in nees:
-        assert text.split("good ")[1].split(";")[0].endswith("consistent")
-        assert text.split("proud ")[1].split(";")[0].endswith("over-confident")
-        assert text.split("timid ")[1].split(" (")[0].endswith("under-confident")
-        assert tables.format_number(lo, tables.STAT_DIGITS) in text
-    assert all(len(v) == 2 for v in _by_point([f.text for f in found]).values())
-    # without the NEES column only the NIS sentences remain
-    assert all("NIS" in t for t in quality.consistency_sentences(runs.drop(columns="anees"), sch, ["noise"],
-                                                                   ["good"], lambda a, v: str(v)))
+    assert (chi2_band(4, 400).low, chi2_band(4, 400).high) == pytest.approx((lo, hi))
+    for noise in (1.0, 2.0):
+        for f, verdict in (("good", "consistent"), ("proud", "over-confident"), ("timid", "under-confident")):
+            row = table.loc[(noise, f)]
+            assert row["NEES verdict"] == verdict and row["NIS verdict"] == verdict, (noise, f, row)
+            v = runs[(runs["noise"] == noise) & (runs["filter"] == f)]["anees"]
+            assert row["average NEES"] == tables.format_number(v.mean(), tables.STAT_DIGITS)
+            assert row["NEES band (4 dof)"] == f"[{tables.format_number(lo, 4)}, {tables.format_number(hi, 4)}]"
+            assert row["runs judged"] == "400 of 400"
+    (sentence,) = [f.text for f in box.sentences if f.kind == "consistency"]
+    assert "NEES (4 dof): good consistent at every point; proud over-confident at every point; timid under-confident" \
+        in sentence, sentence
+    # one legend: what each column is; without the NIS column the legend says it was not computed
+    assert sum("χ² band" in line for line in box.legend) == 2 and not any("not computed" in x for x in box.legend)
+    box, table = _table(runs.drop(columns="anis"), {**META, "outputs": {k: v for k, v in OUTPUTS.items() if k != "anis"}})
+    assert "NIS verdict" not in table.columns and "average NIS: not computed in this dataset" in " ".join(box.legend)
 
 
-def test_floor_sentences_give_each_filters_multiple_per_point():
+def test_the_verdict_is_over_the_runs_that_did_not_diverge_and_not_given_past_half():
+    """'good' diverges in 10 % of its runs (their NEES huge): judged consistent over the other 90 %, the
+    share left out named; 'proud' in 80 % at noise 2: not judged."""
+    runs = _runs(200)
+    n = runs.groupby(["noise", "filter"]).cumcount()
+    runs["diverged"] = ((runs["filter"] == "good") & (n < 20)) | ((runs["filter"] == "proud") & (runs["noise"] == 2.0)
+                                                                   & (n < 160))
+    runs.loc[runs["diverged"], "anees"] = 1e6
+    meta = {**META, "outputs": {**OUTPUTS, "diverged": {"unit": "", "description": "d", "per_filter": True,
+                                                        "role": "divergence"}}}
+    box, table = _table(runs, meta)
+    good = table.loc[(1.0, "good")]
+    kept = runs[(runs["noise"] == 1.0) & (runs["filter"] == "good") & ~runs["diverged"]]["anees"]
+    assert good["NEES verdict"] == "consistent" and good["runs judged"] == "180 of 200 (10 % diverged, left out)"
+    assert good["average NEES"] == tables.format_number(kept.mean(), tables.STAT_DIGITS)
+    lo, hi = stats.chi2.ppf([0.025, 0.975], 4 * 180) / 180
+    assert good["NEES band (4 dof)"] == f"[{tables.format_number(lo, 4)}, {tables.format_number(hi, 4)}]"
+    assert table.loc[(2.0, "proud"), "NEES verdict"] == "not judged: 80 % of runs diverged"
+    assert table.loc[(1.0, "proud"), "NEES verdict"] == "over-confident"
+    (sentence,) = [f.text for f in box.sentences if f.kind == "consistency"]
+    assert "over the runs that did not diverge, not judged where more than 50 %" in sentence
+    assert "proud over-confident at 1 point, not judged at 1 point" in sentence, sentence
+    assert quality.NOT_JUDGED_ABOVE == 0.5
+
+
+def test_the_floor_column_and_sentence_give_each_filters_multiple_per_point():
     runs = _runs()
-    found = [f.text for f in findings.findings(runs, META) if f.kind == "floor"]
-    assert len(found) == 2
-    for text in found:
-        for f, truth in (("good", 1.5), ("proud", 2.0), ("timid", 1.2)):
-            part = text.split(f"{f} ")[1].split(";")[0].rstrip(".")
-            m, rest = part.split("×")
-            low, high = (float(x) for x in rest.strip(" []").split(","))
-            assert low <= truth <= high and abs(float(m) - truth) < 0.1, (f, part)
-        assert "bug" not in text
-    below = _runs().assign(rmse=lambda d: d["pcrb_rmse"] * 0.5)
-    assert any("bug" in f.text for f in findings.findings(below, META) if f.kind == "floor")
+    box, table = _table(runs)
+    for (noise, f), row in table.iterrows():
+        truth = {"good": 1.5, "proud": 2.0, "timid": 1.2}[f]
+        m, rest = row["RMSE / floor"].split("× ")
+        low, high = (float(x) for x in rest.strip("[]").split(","))
+        assert low <= truth <= high and abs(float(m) - truth) < 0.1, (noise, f, row["RMSE / floor"])
+    (sentence,) = [f.text for f in box.sentences if f.kind == "floor"]
+    assert "good from 1." in sentence and "bug" not in sentence, sentence
+    below = runs.assign(rmse=lambda d: d["pcrb_rmse"] * 0.5)
+    (sentence,) = [f.text for f in findings.findings(below, META) if f.kind == "floor"]
+    assert "a bug to report" in sentence and "good at noise = 1 m" in sentence, sentence
+
+
+def test_a_per_agent_axis_gets_one_row_per_point():
+    """A per-agent parameter swept as lists (tuples once prepared) is compared whole, value by value."""
+    runs = _runs(100)
+    runs["noise"] = runs["noise"].map(lambda v: [v, 2 * v])
+    _, table = _table(runs)
+    assert sorted(set(table.index.get_level_values(0))) == [(1.0, 2.0), (2.0, 4.0)] and len(table) == 6
+
+
+def test_many_design_points_are_tallied_in_one_sentence():
+    runs = _runs(60)
+    runs = pd.concat([runs.assign(noise=runs["noise"] + 10 * k, point_id=runs["point_id"] + 10 * k) for k in range(7)])
+    found = [f.text for f in findings.findings(runs, META) if f.kind == "consistency"]
+    assert len(found) == 1 and "good consistent at every point" in found[0], found
+    assert "proud over-confident at every point" in found[0], found[0]
 
 
 def _series(n_runs=50, T=20):
@@ -129,19 +175,3 @@ def test_step_plots_draw_the_floor_and_the_bands_one_panel_per_point():
     assert np.allclose(lines["floor (PCRB)"].get_ydata(), 1.0)
     many = pd.concat([runs.assign(noise=runs["noise"] + k, point_id=runs["point_id"] + 10 * k) for k in range(12)])
     assert all(type(p).__name__ == "Skipped" for p in step_plots(ts, ts_meta, many, META))
-
-
-def test_a_per_agent_axis_gets_one_sentence_per_point():
-    """A per-agent parameter swept as lists (tuples once prepared) is compared whole, value by value."""
-    runs = _runs(100)
-    runs["noise"] = runs["noise"].map(lambda v: [v, 2 * v])
-    found = [f.text for f in findings.findings(runs, META) if f.kind == "floor"]
-    assert len(found) == 2 and "noise = (1, 2) m" in found[0] and "noise = (2, 4) m" in found[1], found
-
-
-def test_many_design_points_are_tallied_in_one_sentence():
-    runs = _runs(60)
-    runs = pd.concat([runs.assign(noise=runs["noise"] + 10 * k, point_id=runs["point_id"] + 10 * k) for k in range(7)])
-    found = [f.text for f in findings.findings(runs, META) if f.kind == "consistency"]
-    assert len(found) == 2 and found[0].startswith("Consistency over the 14 design points"), found
-    assert "good consistent at 14" in found[0] and "proud over-confident at 14" in found[0], found[0]

@@ -5,6 +5,7 @@ has one: Debian's ``chromium``; skipped otherwise)."""
 from __future__ import annotations
 
 import base64
+import html
 import json
 import re
 import shutil
@@ -22,6 +23,7 @@ from tests.report.test_plots import check_png
 
 from mcjax.base import parquet
 from mcjax.cli import main
+from mcjax.analysis import findings
 from mcjax.report.html_page import page, spec_toml
 
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -81,14 +83,14 @@ def parse(path: Path) -> Page:
 
 @pytest.fixture(scope="module")
 def reported(tmp_path_factory):
-    """A two-axis dataset with a few runs diverging, reported through the CLI."""
+    """A two-axis dataset with a few runs diverging, 24 of 30 planned runs present, reported through the CLI."""
     out = tmp_path_factory.mktemp("html") / "sweep"
     meta = make_metadata(GRID)
     # as a sweep writes a Param declared with display="km" (mcjax.contract.Param.as_json)
     meta["params"] = {**meta["params"], "comm_radius": {**meta["params"]["comm_radius"], "display_unit": "km",
                                                         "display_factor": 1e-3}}
     meta["spec"]["description"] = "Synthetic <sweep> & friends: accuracy vs comm radius and eps"
-    meta.update(n_runs=4 * 6, git_revision="0123456789abcdef0123456789abcdef01234567",
+    meta.update(n_runs=5 * 6, git_revision="0123456789abcdef0123456789abcdef01234567",
                 created_utc="2026-12-01T10:00:00+00:00", mcjax="0.1.0", jax="0.0.test")
     write_dataset(out, synthetic_runs(GRID, seeds=6), meta)
     r = CliRunner().invoke(main, ["report", str(out)])
@@ -156,7 +158,9 @@ def test_page_holds_description_spec_provenance_and_tables(reported):
     assert tomllib.loads(spec_text) == meta["spec"]
     tables = page.tables
     provenance = {row[0]: row[1] for row in next(t for t in tables if t and t[0] == ["what", "value"])[1:]}
-    assert provenance["runs present / planned"] == "24 / 24"
+    assert provenance["runs present / planned"] == "24 / 30"
+    # an incomplete dataset says so at the top of the page
+    assert any("incomplete dataset: 24 of 30 planned runs present" in t for t in page.text.get("p", []))
     assert provenance["git revision of mcjax"] == "0123456789abcdef0123456789abcdef01234567"
     assert provenance["dataset written (UTC)"] == "2026-12-01T10:00:00+00:00"
     assert provenance["jax"] == "0.0.test" and provenance["mcjax"] == "0.1.0"
@@ -170,15 +174,6 @@ def test_page_holds_description_spec_provenance_and_tables(reported):
     text_rows = CliRunner().invoke(main, ["report", str(out), "--no-plots"]).output.splitlines()
     text_rows = text_rows[text_rows.index("") + 2:]
     assert [r.split() for r in text_rows if r.strip()] == [row for row in full[1:]]  # the same cells
-
-
-def test_incomplete_dataset_warns_on_the_page(tmp_path):
-    meta = make_metadata({"eps": [0.1, 1.0]})
-    meta["n_runs"] = 20  # 2 x 6 present
-    write_dataset(tmp_path / "inc", synthetic_runs({"eps": [0.1, 1.0]}, seeds=6), meta)
-    assert CliRunner().invoke(main, ["report", str(tmp_path / "inc")]).exit_code == 0
-    page = parse(tmp_path / "inc" / "report" / "index.html")
-    assert any("incomplete dataset: 12 of 20 planned runs present" in t for t in page.text.get("p", []))
 
 
 def test_table_cells_are_escaped(tmp_path):
@@ -301,9 +296,10 @@ def test_the_default_sweeps_page_leads_with_findings_and_fits_1280_px(default_pa
     first_figure = next(i for i, (tag, _) in enumerate(page.tags) if tag in ("figure", "table"))
     findings_at = next(i for i, (tag, a) in enumerate(page.tags) if tag == "section" and a.get("id") == "findings")
     assert findings_at < first_figure
-    sentences = [" ".join(t.split()) for t in page.text.get("li", [])][:4]
-    assert sentences[0].startswith("Lowest mean rmse:") and "km" in sentences[0], sentences
-    assert any(s.startswith("Runs diverge at comm radius") and re.search(r"\d+\.\d % \[\d+\.\d, \d+\.\d\]", s)
+    box = raw.split('<section id="findings"', 1)[1].split("</ul>", 1)[0]
+    sentences = [html.unescape(" ".join(t.split())) for t in re.findall(r"<li>(.*?)</li>", box)]
+    assert 4 <= len(sentences) <= 8, sentences  # the box fits a screen
+    assert any(s.startswith("Runs diverge at ") and re.search(r"\d+\.\d % \[\d+\.\d, \d+\.\d\]", s)
                for s in sentences), sentences
     on_disk = {p.read_bytes() for p in default_page.parent.glob("*.png")}
     imgs = [a for tag, a in page.tags if tag == "img"]
@@ -347,3 +343,34 @@ def test_the_default_sweeps_page_in_a_browser_at_1280_px(default_page, tmp_path)
     assert len(found["images"]) == 4 and all(done and w > 100 and right <= 1280 for done, w, right in found["images"])
     assert all(right <= 1280 for _, _, right in found["boxes"])
     assert any(inner > outer for inner, outer, _ in found["boxes"]), found["boxes"]  # the wide table scrolls inside
+
+
+@pytest.mark.xdist_group("test_html_report")
+def test_the_default_sweeps_box_leads_with_the_headline_and_folds_the_tables(default_page):
+    """The first sentence is the scenario's headline, the modified ICF against the ICF with both intervals
+    (recomputed here with scipy); the order at each point and the consistency table are folded under the
+    box, the verdict "not judged" where most runs diverged; the config table's note says anees was computed
+    though the consistency setting reads off."""
+    from scipy import stats
+
+    raw = default_page.read_text(encoding="utf-8")
+    first = html.unescape(raw.split('<section id="findings"', 1)[1].split("<li>", 1)[1].split("</li>", 1)[0])
+    assert first.startswith("Modified ICF against ICF: lower mean rmse at "), first
+    df = parquet.read_table(default_page.parents[1])
+    at = re.search(r"\(at (\d+) km: ", first)
+    assert at, first
+    for f in ("modified_icf", "icf"):
+        x = df[(df["comm_radius"] == 1e3 * float(at.group(1))) & (df["filter"] == f)]["rmse"].to_numpy()
+        lo, hi = stats.t.interval(0.95, len(x) - 1, loc=x.mean(), scale=stats.sem(x))
+        assert findings.quote(x.mean(), lo, hi, "m") in first, (f, first)
+    page = parse(default_page)
+    assert [a.get("id") for tag, a in page.tags if tag == "details"] == ["orders", "quality"]
+    orders = next(t for t in page.tables if t and t[0] == ["comm_radius [km]", "order of the mean rmse, lowest first"])
+    assert [r[0] for r in orders[1:]] == ["50", "60", "80", "100"] and all("CIF" in r[1] for r in orders[1:])
+    quality = next(t for t in page.tables if t and t[0][:3] == ["comm_radius [km]", "filter", "runs judged"])
+    verdicts = {(r[0], r[1]): r[5] for r in quality[1:]}
+    k = int(df[(df["comm_radius"] == 50e3) & (df["filter"] == "icf")]["diverged"].sum())
+    assert verdicts[("50", "icf")] == f"not judged: {k} % of runs diverged"  # 100 runs: k of them is k %
+    assert verdicts[("100", "cif")] in ("consistent", "over-confident", "under-confident")
+    note = next(p for p in page.text.get("p", []) if p.startswith("Computed in every run of this dataset"))
+    assert "anees" in note and "(bound, consistency, faults)" in note, note

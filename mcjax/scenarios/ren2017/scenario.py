@@ -131,6 +131,7 @@ SCENARIO = Scenario(
     Config=Config, Params=Params, init=init, step=step, summary=summary, series=series,
     check_params=check_params, relaxation=Relaxation(Temperatures, kit.training_errors, kit.training_weights, ROUGH),
     filter_names={"imm": "IMM-UKF", "cv": "CV-only UKF", "ct": "CT-only UKF"},
+    headlines=(("imm", "cv"), ("imm", "ct")),  # the paper's point: the IMM-UKF beats either single model
     filter_words={
         "imm": "Ren & Lv 2017's consensus IMM-UKF: two motion models (constant velocity, coordinated turn) "
                "mixed by their probabilities, fused across UUVs by consensus",
