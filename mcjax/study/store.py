@@ -159,7 +159,8 @@ def hold_run_folder(out_dir: Path, ident: dict, *, identity_file: str, kind: str
     several sweeps (a ``kind`` of run: ``mcjax check``, ``mcjax league``), the folder made ready
     first: ``resume`` needs its ``identity_file`` readable and the same values of ``ident`` under
     ``compare`` (else :class:`OutputError`: the folder holds ``other`` — "another league file" —
-    or seed count); a fresh run needs it empty or missing, ``force`` replaces a previous run of that
+    or seed count); a fresh run needs it empty or missing (a folder that holds this very run is told so,
+    with ``--resume`` to finish it or print it again), ``force`` replaces a previous run of that
     kind (:func:`start_fresh`, ``keep``: files it must not hold), and writes ``ident`` as its
     identity file. ``--resume`` with ``--force``: :class:`OutputError`, before the lock is taken."""
     if resume and force:
@@ -175,6 +176,15 @@ def hold_run_folder(out_dir: Path, ident: dict, *, identity_file: str, kind: str
                 raise OutputError(f"{out_dir} holds {other} or seed count; --resume needs the same file and --seeds "
                                   f"(or start again with --force)")
         else:
+            if not force and out_dir.is_dir() and _contents(out_dir) and not _wrote_nothing(out_dir, identity_file):
+                try:
+                    saved = json.loads((out_dir / identity_file).read_text(encoding="utf-8"))
+                except (OSError, ValueError):
+                    saved = None
+                if isinstance(saved, dict) and {k: saved.get(k) for k in compare} == {k: ident[k] for k in compare}:
+                    raise OutputError(f"{out_dir} already holds this {kind} (the same file and --seeds): pass --resume "
+                                      f"to finish it, or to print its table again if it is complete; --force to run it "
+                                      f"again, or choose another --out")
             try:
                 start_fresh(out_dir, force=force, keep=keep, identity_file=identity_file, kind=kind)
             except OSError as exc:

@@ -301,7 +301,7 @@ def test_check_cli_strict_report_and_markdown(tmp_path):
     strict = runner.invoke(main, ["check", str(path), "--out", str(out), "--resume", "--strict"])
     assert strict.exit_code == 1
     again = runner.invoke(main, ["check", str(path), "--out", str(out)])
-    assert again.exit_code == 2 and "is not empty; pass --resume" in again.output
+    assert again.exit_code == 2 and "already holds this check (the same file and --seeds): pass --resume" in again.output
     md = runner.invoke(main, ["report", str(out), "--format", "markdown", "--no-plots"])
     assert md.exit_code == 0
     assert "| claim | where | paper | ours [95 %] | runs | verdict |" in md.output

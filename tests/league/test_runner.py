@@ -55,9 +55,10 @@ def test_the_command_times_each_filter_and_prints_every_format(league_file, tmp_
     markdown = league_text(saved, meta, "markdown")
     assert "| scenario | point | filter | rank |" in markdown
     again = CliRunner().invoke(main, ["league", str(path), "--out", str(out)])
-    assert again.exit_code == 2 and "not empty" in again.output
+    assert again.exit_code == 2 and "already holds this league (the same file and --seeds): pass --resume" in again.output
     shown = CliRunner().invoke(main, ["report", str(out), "--markdown"])  # mcjax report leads with the table
     assert shown.exit_code == 0, shown.output
     assert shown.output.startswith(markdown.split("\n")[0]) and "| scenario | point | filter | rank |" in shown.output
     page = (out / "report" / "index.html").read_text(encoding="utf-8")
     assert "<table" in page and "tiny league" in page and page.index("<table") < page.index("</main>")
+
