@@ -317,7 +317,7 @@ def prepare_tune_output(ident: dict, out_dir: str | Path, *, resume: bool = Fals
                         spec_file: str | Path | None = None, keep: list = ()) -> None:
     """Make ``out_dir`` ready for a tune whose identity (its spec as written) is ``ident``: a
     fresh tune needs a missing or empty folder (``force`` replaces one holding a previous tune,
-    ``tune.json``); ``resume`` needs the same spec in ``tune.json`` and removes half-written
+    ``tune.json``; one holding this very tune is told so, with ``--resume``); ``resume`` needs the same spec in ``tune.json`` and removes half-written
     temporary files. Writes ``tune.json``. :class:`OutputError` otherwise, before anything is
     written."""
     out_dir = Path(out_dir)
@@ -338,6 +338,15 @@ def prepare_tune_output(ident: dict, out_dir: str | Path, *, resume: bool = Fals
             for tmp in out_dir.glob(".*.tmp"):
                 tmp.unlink()
             return
+        if not force and state.is_file() and not _wrote_nothing(out_dir, TUNE_IDENTITY_FILE):
+            try:
+                saved = json.loads(state.read_text(encoding="utf-8"))
+            except (UnicodeDecodeError, ValueError):
+                saved = None
+            if isinstance(saved, dict) and saved.get("spec") == ident["spec"]:
+                raise OutputError(f"{out_dir} already holds this tune (the same spec): pass --resume to finish it, or "
+                                  f"to print its result again if it is complete; --force to run it again, or choose "
+                                  f"another --out")
         start_fresh(out_dir, force=force, keep=keep, identity_file=TUNE_IDENTITY_FILE, kind="tune")
         write_identity(out_dir, TUNE_IDENTITY_FILE, {**ident, "spec_file": _spec_file(spec_file)})
     except OSError as exc:

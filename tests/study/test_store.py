@@ -57,3 +57,21 @@ def test_refusals_come_before_anything_is_written(tmp_path):
     with pytest.raises(OutputError, match="different sweep"):
         prepare_output(_study(seeds=149), tmp_path / "c", resume=True)
     assert read_identity(tmp_path / "c")["seeds"] == 150
+
+
+def test_a_tune_into_the_folder_of_the_same_tune_is_told_it_is_there(tmp_path):
+    """The same tune spec into its own folder: told it already holds this tune (--resume), not 'not empty'; a
+    different spec there is still refused as before, --force replaces it, and a folder whose tune wrote nothing
+    is reused."""
+    from mcjax.study.store import TUNE_IDENTITY_FILE, prepare_tune_output
+
+    out = tmp_path / "tune"
+    prepare_tune_output({"spec": {"a": 1}}, out)
+    (out / "trace.parquet").write_bytes(b"x")  # something the tune wrote
+    with pytest.raises(OutputError, match=r"already holds this tune \(the same spec\): pass --resume"):
+        prepare_tune_output({"spec": {"a": 1}}, out)
+    with pytest.raises(OutputError, match="is not empty; pass --resume"):
+        prepare_tune_output({"spec": {"a": 2}}, out)
+    prepare_tune_output({"spec": {"a": 1}}, out, force=True)
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == [TUNE_IDENTITY_FILE]
+    prepare_tune_output({"spec": {"a": 1}}, out)  # only the identity file: a tune that wrote nothing, reused

@@ -395,11 +395,11 @@ def test_cli_resume_after_a_kill_gives_the_same_trace_end_to_end_and_report(spec
     r2 = CliRunner().invoke(main, ["report", str(out), "--no-plots"])
     assert r2.exit_code == 0, r2.output
     assert "comm_radius" in r2.output
-    # resuming a finished tune re-runs nothing; a non-empty folder without --resume is refused
+    # resuming a finished tune re-runs nothing; the same tune into its folder without --resume is told it is there
     r3 = CliRunner().invoke(main, ["tune", str(spec_file), "--out", str(out), "--resume"])
     assert r3.exit_code == 0, r3.output
     r4 = CliRunner().invoke(main, ["tune", str(spec_file), "--out", str(out)])
-    assert r4.exit_code == 2 and "not empty" in r4.output
+    assert r4.exit_code == 2 and "already holds this tune (the same spec): pass --resume" in r4.output
 
 
 @pytest.mark.xdist_group("test_tune")  # one worker builds the module fixture once
