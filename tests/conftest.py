@@ -58,6 +58,12 @@ def pytest_sessionfinish(session):
         gc.collect()
         gc.freeze()
 
+# xdist's workers start with COLUMNS=80 and LINES=24 in their environment (execnet); the printed tables fit
+# COLUMNS when it is set (mcjax.analysis.tables.terminal_width), so the suite drops both: a test that wants a
+# terminal's width sets COLUMNS itself.
+for _name in ("COLUMNS", "LINES"):
+    os.environ.pop(_name, None)
+
 import mcjax  # noqa: E402
 
 mcjax.configure()  # 64-bit mode and the CPU devices (above: one), as the CLI and the engine do

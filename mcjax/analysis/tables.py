@@ -282,13 +282,34 @@ def format_cells(summary: pd.DataFrame) -> tuple[list[str], list[list[str]], lis
     return headers, rows, numeric
 
 
-def format_table(summary: pd.DataFrame, fmt: str = "text", header: Sequence[str] = ()) -> str:
+def terminal_width() -> int | None:
+    """The terminal's width in columns: ``COLUMNS`` when set, else the terminal's when standard output
+    (``sys.stdout``, as a caller may have replaced it) is one; None otherwise (a file, a pipe, a test's
+    captured output: the tables are printed whole)."""
+    import os
+    import shutil
+    import sys
+
+    env = os.environ.get("COLUMNS", "").strip()
+    if env.isdigit() and int(env) > 0:
+        return int(env)
+    try:
+        tty = sys.stdout is not None and sys.stdout.isatty()
+    except (AttributeError, ValueError, OSError):
+        tty = False
+    columns = shutil.get_terminal_size(fallback=(0, 0)).columns if tty else 0
+    return columns if columns > 0 else None
+
+
+def format_table(summary: pd.DataFrame, fmt: str = "text", header: Sequence[str] = (), width: int | None = None) -> str:
     """Render a :func:`summarize` table (any DataFrame works) as a string.
 
     ``fmt``:
 
     * ``"text"``: the ``header`` lines, a blank line, then aligned plain-text columns
-      (numbers right-aligned; 6 significant digits up to the ``filter`` column, 4 after);
+      (numbers right-aligned; 6 significant digits up to the ``filter`` column, 4 after); with a
+      ``width`` (a terminal's columns) a table wider than it is cut into blocks of columns that fit,
+      each block repeating the key columns (the swept axes and ``filter``), and the header lines wrapped;
     * ``"csv"``: ``DataFrame.to_csv`` without index, full precision, no header lines;
     * ``"markdown"``: the ``header`` lines as a bullet list, a blank line, then a GitHub
       pipe table with the same number formatting as ``"text"``.
@@ -320,4 +341,26 @@ def format_table(summary: pd.DataFrame, fmt: str = "text", header: Sequence[str]
                          for c, w, num in zip(cells, widths, numeric)).rstrip()
 
     lines = list(header) + ([""] if header else [])
-    return "\n".join([*lines, line(headers), *(line(r) for r in rows)]) + "\n"
+    if width is None or len(line(headers)) <= width:
+        return "\n".join([*lines, line(headers), *(line(r) for r in rows)]) + "\n"
+    import textwrap
+
+    lines = [w for h in header for w in (textwrap.wrap(h, width, subsequent_indent="  ") or [""])]
+    lines += [""] if header else []
+    keys = list(range(headers.index("filter") + 1)) if "filter" in headers else [0]
+    rest = [i for i in range(len(headers)) if i not in keys]
+    blocks, block = [], []
+    for i in rest:  # as many columns as fit beside the key columns (at least one per block)
+        if block and sum(widths[j] + 2 for j in keys + block + [i]) - 2 > width:
+            blocks.append(block)
+            block = []
+        block.append(i)
+    blocks.append(block)
+    for n, block in enumerate(blocks):
+        cols = keys + block
+
+        def cut(cells: list[str]) -> str:
+            return "  ".join(cells[i].rjust(widths[i]) if numeric[i] else cells[i].ljust(widths[i]) for i in cols).rstrip()
+
+        lines += ([""] if n else []) + [cut(headers), *(cut(r) for r in rows)]
+    return "\n".join(lines) + "\n"

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import math
 import os
-import shutil
 import textwrap
 from pathlib import Path
 from typing import Callable
@@ -25,6 +24,7 @@ import pandas as pd
 
 from mcjax.analysis import tables
 from mcjax.analysis.schema import unit
+from mcjax.analysis.tables import terminal_width
 from mcjax.base import parquet
 from mcjax.claims.folder import claim_tables, read_verdicts, sweep_folder
 
@@ -45,14 +45,6 @@ VERDICT_WORDS = (
 MIN_TEXT = 40
 #: What ends a shortened text.
 ELLIPSIS = "…"
-
-
-def terminal_width() -> int | None:
-    """The terminal's width in columns (``COLUMNS`` first, as :func:`shutil.get_terminal_size`
-    reads it); None when the output is no terminal and ``COLUMNS`` is unset (a file, a pipe: the
-    table is printed whole)."""
-    columns = shutil.get_terminal_size(fallback=(0, 0)).columns
-    return columns if columns > 0 else None
 
 
 def _own_keys(raw: dict) -> dict:

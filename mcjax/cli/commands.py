@@ -50,10 +50,11 @@ def _read_kind(path: Path) -> dict | None:
 
 def _print_summary(df, spec) -> None:
     """The report's table of a sweep's rows (per point and filter), from the declarations."""
+    from mcjax.analysis.tables import terminal_width
     from mcjax.report import summary_text
 
-    # the declarations and the spec are all the table needs (no provenance, no git call)
-    click.echo(summary_text(df, {**spec.scenario.metadata(spec.config), "spec": spec.source}))
+    # the declarations and the spec are all the table needs (no provenance, no git call); it fits the terminal
+    click.echo(summary_text(df, {**spec.scenario.metadata(spec.config), "spec": spec.source}, width=terminal_width()))
 
 
 class Commands(click.Group):
@@ -61,9 +62,7 @@ class Commands(click.Group):
     (:class:`mcjax.contract.filter.FilterError`), ends any command with its one line and exit 2."""
 
     def invoke(self, ctx):
-        from mcjax.contract.filter import (
-            FilterError,  # here, not at import: the contract loads numpy
-        )
+        from mcjax.contract.filter import FilterError  # here, not at import: the contract loads numpy
 
         try:
             return super().invoke(ctx)
@@ -255,12 +254,13 @@ def report(out_dir, fmt, markdown, no_plots):
     resting on fewer than 5 runs is drawn hollow and not joined; where the number of runs
     varies, each point shows it.
     """
+    from mcjax.analysis.tables import terminal_width
     from mcjax.report import report as make_report
 
     fmt = "markdown" if markdown else fmt
     warn = (lambda text: click.echo(f"warning: {text}", err=True)) if fmt == "csv" else None
     try:
-        table, plots = make_report(out_dir, fmt, plots=not no_plots, warn=warn)
+        table, plots = make_report(out_dir, fmt, plots=not no_plots, warn=warn, width=terminal_width())
     except ValueError as exc:
         fail(str(exc))
     except KeyboardInterrupt:

@@ -37,14 +37,15 @@ IDENTITY_FILE = "sweep.json"
 
 
 def summary_text(df: pd.DataFrame, metadata: Mapping[str, Any], fmt: str = "text",
-                 warning: str | None = None, *, summary: Summary | None = None) -> str:
+                 warning: str | None = None, *, summary: Summary | None = None, width: int | None = None) -> str:
     """The summary table of a runs table, grouped by the metadata's swept axes × filter.
 
     For ``"text"`` and ``"markdown"`` the table is preceded by the legend of
     :func:`mcjax.analysis.tables.legend_lines` (scenario, then one line per metric and swept axis
     with its unit and description, then how the statistics are computed); ``"csv"`` is the
     bare table. ``summary``: the page's :class:`mcjax.analysis.summary.Summary` of ``df`` (built
-    here when not given).
+    here when not given). ``width``: a terminal's columns, which the text table then fits
+    (:func:`mcjax.analysis.tables.format_table`); None: one block, however wide.
 
     Raises:
         ValueError: ``fmt`` is not one of :data:`FORMATS`; ``df`` is empty; the metadata
@@ -57,7 +58,7 @@ def summary_text(df: pd.DataFrame, metadata: Mapping[str, Any], fmt: str = "text
         raise ValueError("summary_text: the runs table is empty")
     one = summary_for(df, metadata, tables.swept_axes(metadata, df.columns), summary)
     header = tables.legend_lines(one.schema, one.axes)
-    return tables.format_table(one.table, fmt, ([f"WARNING: {warning}"] if warning else []) + header)
+    return tables.format_table(one.table, fmt, ([f"WARNING: {warning}"] if warning else []) + header, width)
 
 
 def _identity(out: Path) -> dict | None:
@@ -144,7 +145,7 @@ def listing(folder: str | os.PathLike, inside: list[Path]) -> str:
 
 
 def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
-           warn: Callable[[str], None] | None = None) -> tuple[str, list[Path]]:
+           warn: Callable[[str], None] | None = None, width: int | None = None) -> tuple[str, list[Path]]:
     """Summarise a sweep's output folder: ``(formatted table, plot paths)``.
 
     Reads ``OUT/runs`` (:func:`mcjax.base.parquet.read_table`) and its metadata
@@ -213,7 +214,7 @@ def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
     # a sweep's one summary: its table, findings, quality sentences, figures and page all read it
     one = None if tune else summarize_dataset(df, metadata)
     table = (tune_page.summary_table(out, df, metadata, fmt, warning=incomplete) if tune
-             else summary_text(df, metadata, fmt, warning=incomplete, summary=one))
+             else summary_text(df, metadata, fmt, warning=incomplete, summary=one, width=width))
     if not plots:
         return table, []
     if tune:  # a two-point zip: the tune's own page, no sweep plots

@@ -361,3 +361,38 @@ def test_format_number():
     assert tables.format_number(1.23456e-6) == "1.235e-06"
     assert tables.format_number(np.nan) == "nan" and tables.format_number(np.int64(7)) == "7"
     assert tables.format_number((50e3, 1.5), 6) == "(50000, 1.5)"
+
+
+def test_a_text_table_wider_than_the_terminal_is_cut_into_blocks_that_fit():
+    """With a width, the text table is cut into blocks of columns that fit, each repeating the key columns (the
+    axes and filter), every cell kept once; without one (a pipe) it is the one block it always was."""
+    import numpy as np
+    import pandas as pd
+
+    from mcjax.analysis.tables import format_table
+
+    df = pd.DataFrame({"comm_radius": [5e4, 1e5], "filter": ["icf", "cif"],
+                       **{f"col_{i}_long_name": np.arange(2) * 1.25 + i for i in range(12)}})
+    whole = format_table(df, "text", ["legend " * 30])
+    assert max(map(len, whole.splitlines())) > 200 and whole == format_table(df, "text", ["legend " * 30], None)
+    cut = format_table(df, "text", ["legend " * 30], width=80)
+    lines = cut.splitlines()
+    assert max(map(len, lines)) <= 80
+    heads = [line for line in lines if line.startswith("comm_radius  filter")]
+    assert len(heads) == 4  # four blocks of three columns each
+    assert [c for h in heads for c in h.split()[2:]] == [f"col_{i}_long_name" for i in range(12)]
+    assert sum(line.split()[1] == "cif" for line in lines if line.strip().startswith("100000")) == 4
+    assert format_table(df, "text", (), width=10_000) == format_table(df, "text")
+
+
+def test_the_terminal_width_is_columns_or_a_terminals_and_none_for_a_pipe(monkeypatch):
+    import io
+    import sys
+
+    from mcjax.analysis.tables import terminal_width
+
+    monkeypatch.setenv("COLUMNS", "123")
+    assert terminal_width() == 123
+    monkeypatch.delenv("COLUMNS")
+    monkeypatch.setattr(sys, "stdout", io.StringIO())
+    assert terminal_width() is None
