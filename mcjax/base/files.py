@@ -7,6 +7,7 @@ This module is a leaf: it imports nothing from mcjax and no JAX.
 
 from __future__ import annotations
 
+import json
 import os
 import uuid
 from pathlib import Path
@@ -61,3 +62,13 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Path], None] | bytes 
     if durable:
         fsync_dir(path.parent)
     return path
+
+
+def read_json_object(path: str | os.PathLike) -> dict:
+    """The JSON object in ``path``; ``{}`` when the file is missing, unreadable, damaged or holds
+    anything but an object (an identity or state file a command only consults)."""
+    try:
+        saved = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return {}
+    return saved if isinstance(saved, dict) else {}

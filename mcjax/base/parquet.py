@@ -407,3 +407,17 @@ def remove_part(out_dir: str | os.PathLike, table_name: str, part_name: str) -> 
         (_check_out_dir(out_dir) / table_name / f"{part_name}{_PARQUET_SUFFIX}").unlink()
     except FileNotFoundError:
         pass
+
+
+def write_single_table(path: str | os.PathLike, table: pd.DataFrame, key: str, metadata: Mapping[str, Any]) -> Path:
+    """One Parquet file (a league's or a check's table, not parts) with ``metadata`` as JSON under the schema
+    metadata key ``key`` (``"mcjax.league"``, ``"mcjax.check"``), written atomically."""
+    t = pa.Table.from_pandas(table, preserve_index=False)
+    t = t.replace_schema_metadata({**(t.schema.metadata or {}), key.encode(): json.dumps(metadata).encode()})
+    return atomic_write(path, lambda tmp: pq.write_table(t, tmp))
+
+
+def read_single_table(path: str | os.PathLike, key: str) -> tuple[pd.DataFrame, dict]:
+    """A file of :func:`write_single_table`: the table and the metadata under ``key`` ({} when none)."""
+    t = pq.read_table(path)
+    return t.to_pandas(), json.loads((t.schema.metadata or {}).get(key.encode(), b"{}"))

@@ -4,13 +4,13 @@ with its metadata) and where each sweep's runs are (:func:`sweep_folder`)."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
-from mcjax.base.files import atomic_write
+from mcjax.base.files import read_json_object
+from mcjax.base.parquet import read_single_table, write_single_table
 
 CHECK_FILE = "check.json"
 TABLE_FILE = "claims.parquet"
@@ -23,34 +23,21 @@ def is_check_folder(folder: str | Path) -> bool:
 
 def write_table(path: Path, table: pd.DataFrame, metadata: dict[str, Any]) -> Path:
     """The verdict table as Parquet with ``metadata`` (JSON under ``mcjax.check``), atomically."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    t = pa.Table.from_pandas(table, preserve_index=False)
-    t = t.replace_schema_metadata({**(t.schema.metadata or {}), b"mcjax.check": json.dumps(metadata).encode()})
-    return atomic_write(path, lambda tmp: pq.write_table(t, tmp))
+    return write_single_table(path, table, "mcjax.check", metadata)
 
 
 def read_verdicts(folder: str | Path) -> tuple[pd.DataFrame, dict]:
     """The verdict table of a check folder and its metadata; FileNotFoundError naming the file
     when the check has not finished."""
-    import pyarrow.parquet as pq
-
     path = Path(folder) / TABLE_FILE
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no verdicts yet (the check has not finished: run it again with --resume)")
-    t = pq.read_table(path)
-    meta = json.loads((t.schema.metadata or {}).get(b"mcjax.check", b"{}"))
-    return t.to_pandas(), meta
+    return read_single_table(path, "mcjax.check")
 
 
 def read_check(folder: str | Path) -> dict:
     """``check.json`` of a check folder ({} when it is missing or damaged)."""
-    try:
-        saved = json.loads((Path(folder) / CHECK_FILE).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError):
-        return {}
-    return saved if isinstance(saved, dict) else {}
+    return read_json_object(Path(folder) / CHECK_FILE)
 
 
 def claim_tables(folder: str | Path) -> dict[str, dict]:

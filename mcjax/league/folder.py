@@ -10,7 +10,8 @@ from typing import Any
 
 import pandas as pd
 
-from mcjax.base.files import atomic_write
+from mcjax.base.files import atomic_write, read_json_object
+from mcjax.base.parquet import read_single_table, write_single_table
 
 LEAGUE_FILE = "league.json"
 TIMING_FILE = "timing.json"
@@ -24,11 +25,7 @@ def is_league_folder(folder: str | Path) -> bool:
 
 def read_timing(folder: str | Path) -> dict:
     """The timing pass saved in ``folder`` (``{}`` when none is, or it is damaged)."""
-    try:
-        saved = json.loads((Path(folder) / TIMING_FILE).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {}
-    return saved if isinstance(saved, dict) else {}
+    return read_json_object(Path(folder) / TIMING_FILE)
 
 
 def write_timing(folder: str | Path, timing: dict) -> None:
@@ -37,23 +34,14 @@ def write_timing(folder: str | Path, timing: dict) -> None:
 
 def write_table(path: Path, table: pd.DataFrame, metadata: dict[str, Any]) -> Path:
     """The league table as Parquet with ``metadata`` (JSON under ``mcjax.league``), atomically."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    t = pa.Table.from_pandas(table, preserve_index=False)
-    t = t.replace_schema_metadata({**(t.schema.metadata or {}), b"mcjax.league": json.dumps(metadata).encode()})
-    return atomic_write(path, lambda tmp: pq.write_table(t, tmp))
+    return write_single_table(path, table, "mcjax.league", metadata)
 
 
 def read_league(folder: str | Path) -> tuple[pd.DataFrame, dict]:
     """The league table of a league folder and its metadata; FileNotFoundError naming the file
     when the league has not finished."""
-    import pyarrow.parquet as pq
-
     path = Path(folder) / TABLE_FILE
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no league table yet (the league has not finished: run it again with "
                                 f"--resume)")
-    t = pq.read_table(path)
-    meta = json.loads((t.schema.metadata or {}).get(b"mcjax.league", b"{}"))
-    return t.to_pandas(), meta
+    return read_single_table(path, "mcjax.league")

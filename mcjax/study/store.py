@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 from mcjax.base import parquet
-from mcjax.base.files import atomic_write
+from mcjax.base.files import atomic_write, read_json_object
 from mcjax.base.validation import is_int, one_line
 from mcjax.study import lock
 from mcjax.study.plan import Study
@@ -177,11 +177,8 @@ def hold_run_folder(out_dir: Path, ident: dict, *, identity_file: str, kind: str
                                   f"(or start again with --force)")
         else:
             if not force and out_dir.is_dir() and _contents(out_dir) and not _wrote_nothing(out_dir, identity_file):
-                try:
-                    saved = json.loads((out_dir / identity_file).read_text(encoding="utf-8"))
-                except (OSError, ValueError):
-                    saved = None
-                if isinstance(saved, dict) and {k: saved.get(k) for k in compare} == {k: ident[k] for k in compare}:
+                saved = read_json_object(out_dir / identity_file)
+                if {k: saved.get(k) for k in compare} == {k: ident[k] for k in compare}:
                     raise OutputError(f"{out_dir} already holds this {kind} (the same file and --seeds): pass --resume "
                                       f"to finish it, or to print its table again if it is complete; --force to run it "
                                       f"again, or choose another --out")
@@ -339,11 +336,7 @@ def prepare_tune_output(ident: dict, out_dir: str | Path, *, resume: bool = Fals
                 tmp.unlink()
             return
         if not force and state.is_file() and not _wrote_nothing(out_dir, TUNE_IDENTITY_FILE):
-            try:
-                saved = json.loads(state.read_text(encoding="utf-8"))
-            except (UnicodeDecodeError, ValueError):
-                saved = None
-            if isinstance(saved, dict) and saved.get("spec") == ident["spec"]:
+            if read_json_object(state).get("spec") == ident["spec"]:
                 raise OutputError(f"{out_dir} already holds this tune (the same spec): pass --resume to finish it, or "
                                   f"to print its result again if it is complete; --force to run it again, or choose "
                                   f"another --out")
