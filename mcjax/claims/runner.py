@@ -43,9 +43,9 @@ from mcjax.claims.evaluate import needed_columns, replication, verdict_table
 from mcjax.claims.folder import CHECK_FILE, TABLE_FILE, write_table
 from mcjax.claims.spec import FAMILIES, ClaimsError, ClaimsFile, load_claims
 from mcjax.study.execute import Executor
-from mcjax.study.runner import SweepProgress, run_sweep_folder
+from mcjax.study.runner import NamedSweep, SweepProgress, run_named_sweeps
 from mcjax.study.spec import MAX_BASE_SEED
-from mcjax.study.store import IDENTITY_FILE, RESULTS_DIR, OutputError, hold_run_folder
+from mcjax.study.store import RESULTS_DIR, OutputError, hold_run_folder
 
 #: How far apart the base seeds of two seed ranges of a replication are (range r: + r x this).
 SEEDS_PER_RANGE = 1_000_000
@@ -143,27 +143,19 @@ def run_check(claims_file: str | Path | ClaimsFile, *, out_dir: str | Path | Non
     ident = {**_identity(claims), "claims_file": str(claims.path.resolve())}
     if resume:
         _refuse_other_seeds(out, ident)
-    rows: dict[str, pd.DataFrame] = {}
     with hold_run_folder(out, ident, identity_file=CHECK_FILE, kind="check", compare=COMPARED,
                          other="the check of another claims file", resume=resume, force=force, keep=_keep(claims),
                          warn=warn):
         say(f"{claims.paper}: {len(claims.claims)} claim(s) on {len(claims.sweeps)} sweep(s) "
             f"({', '.join(f'{k}: {s.n_points} point(s) x {s.seeds} seed(s)' for k, s in claims.sweeps.items())})")
         columns = needed_columns(claims)
-        for name, study in claims.sweeps.items():
-            folder = out / name
-            again = resume and (folder / IDENTITY_FILE).is_file()
-            say(f"sweep {name}:")
-            result = run_sweep_folder(study, spec_file=claims.spec_files[name], out_dir=folder, resume=again,
-                                      executor=executor, columns=columns[name], message=say, warn=warn,
-                                      progress=(lambda at, name=name: progress(name, at)) if progress else None,
-                                      should_stop=stop)
-            if result.stopped:
-                return CheckResult(claims, out, None, True)
-            if result.runs_run:
-                say(f"sweep {name}: {result.runs_run} runs in {result.seconds:.1f} s (compilation included)")
-            rows[name] = result.rows
-        table = verdict_table(claims, rows, method)
+        ran = run_named_sweeps([NamedSweep(name, out / name, study, claims.spec_files[name], columns[name],
+                                           label=f"sweep {name}") for name, study in claims.sweeps.items()],
+                               resume=resume, executor=executor, message=say, warn=warn, progress=progress,
+                               should_stop=stop)
+        if ran is None:
+            return CheckResult(claims, out, None, True)
+        table = verdict_table(claims, ran, method)
         meta = _meta(claims, table)
         write_table(out / TABLE_FILE, table, {**meta, **provenance.environment_metadata()})
     return CheckResult(claims, out, table, False, meta)

@@ -33,8 +33,8 @@ from mcjax.league.folder import LEAGUE_FILE, TABLE_FILE, read_timing, write_tabl
 from mcjax.league.spec import League, LeagueError, describe, identity, load_league
 from mcjax.league.timing import timing_pass
 from mcjax.study.execute import ChunkError, Executor
-from mcjax.study.runner import SweepProgress, run_sweep_folder
-from mcjax.study.store import IDENTITY_FILE, RESULTS_DIR, OutputError, hold_run_folder
+from mcjax.study.runner import NamedSweep, SweepProgress, run_named_sweeps
+from mcjax.study.store import RESULTS_DIR, OutputError, hold_run_folder
 
 
 class LeagueResult(NamedTuple):
@@ -96,25 +96,17 @@ def run_league(league_file: str | Path | League, *, out_dir: str | Path | None =
     league = league_file if isinstance(league_file, League) else load_league(league_file, seeds=seeds)
     out = Path(default_out_dir(league.path) if out_dir is None else out_dir)
     ident = {**identity(league), "league_file": str(league.path.resolve())}
-    rows: dict[tuple, pd.DataFrame] = {}
     with hold_run_folder(out, ident, identity_file=LEAGUE_FILE, kind="league", compare=("league", "seeds"),
                          other="another league file", resume=resume, force=force, keep=[league.path.resolve()],
                          warn=warn):
         say(describe(league))
-        for (key, point), study in league.studies.items():
-            folder = out / key / point
-            name = f"{key}/{point}"
-            again = resume and (folder / IDENTITY_FILE).is_file()
-            say(f"{name}:")
-            result = run_sweep_folder(study, out_dir=folder, resume=again, executor=executor,
-                                      columns=_columns(study), message=say, warn=warn,
-                                      progress=(lambda at, name=name: progress(name, at)) if progress else None,
-                                      should_stop=stop)
-            if result.stopped:
-                return LeagueResult(league, out, None, True)
-            if result.runs_run:
-                say(f"{name}: {result.runs_run} runs in {result.seconds:.1f} s (compilation included)")
-            rows[key, point] = result.rows
+        ran = run_named_sweeps([NamedSweep(f"{key}/{point}", out / key / point, study, columns=_columns(study))
+                                for (key, point), study in league.studies.items()],
+                               resume=resume, executor=executor, message=say, warn=warn, progress=progress,
+                               should_stop=stop)
+        if ran is None:
+            return LeagueResult(league, out, None, True)
+        rows = {(key, point): ran[f"{key}/{point}"] for key, point in league.studies}
         timing: dict = {}
         if league.timing_runs:
             timing, stopped = timing_pass(league, read_timing(out), save=lambda t: write_timing(out, t),

@@ -18,7 +18,7 @@ from __future__ import annotations
 import contextlib
 import time
 from pathlib import Path
-from typing import Any, Callable, NamedTuple
+from typing import Any, Callable, Iterable, NamedTuple
 
 import pandas as pd
 
@@ -27,7 +27,7 @@ from mcjax.base import parquet
 from mcjax.study.execute import Executor, run_sweep
 from mcjax.study.plan import Study
 from mcjax.study.spec import load_spec
-from mcjax.study.store import default_out_dir, prepare_output, read_identity
+from mcjax.study.store import IDENTITY_FILE, default_out_dir, prepare_output, read_identity
 
 
 class SweepProgress(NamedTuple):
@@ -87,6 +87,47 @@ def summary_columns(study: Study) -> list[str]:
     """The columns the summary table reads (keys, axes, outputs with a role): what a big sweep loads back."""
     return ["point_id", "filter", *study.axes,
             *(k for k, o in study.scenario.outputs(study.config).items() if o.role is not None)]
+
+
+class NamedSweep(NamedTuple):
+    """One of several sweeps a command runs in turn (:func:`run_named_sweeps`): its ``name`` (its rows'
+    key, and what ``progress`` is told), its ``folder``, the ``study``, the ``spec_file`` it was read
+    from (None: written inline or built), the ``columns`` of its runs to read back, and its ``label``
+    in the messages (default: the name)."""
+
+    name: str
+    folder: Path
+    study: Study
+    spec_file: Path | None = None
+    columns: list[str] | None = None
+    label: str | None = None
+
+
+def run_named_sweeps(sweeps: Iterable[NamedSweep], *, resume: bool = False, executor: Executor | None = None,
+                     message: Callable[[str], None] | None = None, warn: Callable[[str], None] | None = None,
+                     progress: Callable[[str, SweepProgress], None] | None = None,
+                     should_stop: Callable[[], bool] | None = None) -> dict[str, pd.DataFrame] | None:
+    """Run ``sweeps`` in turn, each into its own folder (:func:`run_sweep_folder`), as ``mcjax check``
+    and ``mcjax league`` do: with ``resume``, a folder that already holds its sweep is resumed (one
+    that does not is started); ``message`` says each name before and its runs and seconds after,
+    ``progress(name, SweepProgress)``. Returns each sweep's rows by name, or None when
+    ``should_stop()`` stopped one (the chunks written stay, for ``--resume``)."""
+    say = message or _ignore
+    rows: dict[str, pd.DataFrame] = {}
+    for sweep in sweeps:
+        label = sweep.label or sweep.name
+        say(f"{label}:")
+        result = run_sweep_folder(sweep.study, spec_file=sweep.spec_file, out_dir=sweep.folder,
+                                  resume=resume and (sweep.folder / IDENTITY_FILE).is_file(), executor=executor,
+                                  columns=sweep.columns, message=say, warn=warn,
+                                  progress=(lambda at, name=sweep.name: progress(name, at)) if progress else None,
+                                  should_stop=should_stop)
+        if result.stopped:
+            return None
+        if result.runs_run:
+            say(f"{label}: {result.runs_run} runs in {result.seconds:.1f} s (compilation included)")
+        rows[sweep.name] = result.rows
+    return rows
 
 
 def run_sweep_folder(study: Study, *, spec_file: str | Path | None = None, out_dir: str | Path | None = None,
