@@ -74,15 +74,19 @@ def claim_units(table: pd.DataFrame, folder: str | os.PathLike) -> dict[str, str
     return out
 
 
-def _with_unit(text: str, u: str) -> str:
+def with_unit(text: str, u: str) -> str:
+    """``text`` (a printed statistic) followed by its unit ``u``, when both are there."""
     return f"{text} {u}" if u and text else text
 
 
-def _is_number(text: str) -> bool:
+def paper_with_unit(paper, u: str) -> str:
+    """A claim's ``paper`` text with the unit ``u`` when it is one finite number ("6.5" → "6.5 m"); a text
+    such as "0.95 vs 1.2" or "KCF below KF" as written."""
     try:
-        return math.isfinite(float(text))
+        number = math.isfinite(float(paper))
     except (TypeError, ValueError):
-        return False
+        number = False
+    return with_unit(paper, u) if number else paper
 
 
 def _verdicts(table: pd.DataFrame, column: str, runs: str) -> list[str]:
@@ -112,8 +116,8 @@ def display_table(table: pd.DataFrame, per_claim: bool = False, units: dict[str,
     u = [units.get(i, "") for i in table["id"]]
     shown = {"claim": [f"{i}: {c}" for i, c in zip(table["id"], table["claim"])],
              "where": table["where"],
-             "paper": [_with_unit(p, x) if _is_number(p) else p for p, x in zip(table["paper"], u)],
-             "ours [95 %]": [_with_unit(o, x) for o, x in zip(table["ours"], u)], "runs": table["runs"],
+             "paper": [paper_with_unit(p, x) for p, x in zip(table["paper"], u)],
+             "ours [95 %]": [with_unit(o, x) for o, x in zip(table["ours"], u)], "runs": table["runs"],
              "verdict": verdict}
     if family:
         shown["per claim"] = _verdicts(table, "verdict", "runs_to_decide")

@@ -11,7 +11,6 @@ each sweep's report and the check's provenance. Self-contained, as every report 
 from __future__ import annotations
 
 import html
-import math
 import os
 from datetime import datetime, timezone
 from pathlib import Path
@@ -22,7 +21,7 @@ import pandas as pd
 from mcjax.base.files import atomic_write
 from mcjax.claims.folder import claim_tables, read_verdicts
 from mcjax.claims.report import (NOT_REPLICATED, VERDICT_ORDER, VERDICT_WORDS, claim_units, family_legend,
-                                 report_check, sweep_folders)
+                                 paper_with_unit, report_check, sweep_folders, with_unit)
 from mcjax.report import html_page
 
 __all__ = ["PAGE_NAME", "verdict_rows", "page", "report_check_folder"]
@@ -39,17 +38,6 @@ def _e(value: Any) -> str:
     return html.escape(str(value), quote=True)
 
 
-def _with_unit(text: str, u: str) -> str:
-    return f"{text} {u}" if u and text else text
-
-
-def _is_number(text: Any) -> bool:
-    try:
-        return math.isfinite(float(text))
-    except (TypeError, ValueError):
-        return False
-
-
 def verdict_rows(table: pd.DataFrame, units: Mapping[str, str] | None = None) -> pd.DataFrame:
     """The page's verdict table, every text whole: claim (``id: text``), where, paper, statistic
     (and the relation it is judged by), ours [95 %] and (with a family) ours at the family's level
@@ -59,12 +47,12 @@ def verdict_rows(table: pd.DataFrame, units: Mapping[str, str] | None = None) ->
     units = units or {}
     family = "family_verdict" in table
     u = [units.get(i, "") for i in table["id"]]
-    paper = [_with_unit(p, x) if _is_number(p) else p for p, x in zip(table["paper"], u)]
+    paper = [paper_with_unit(p, x) for p, x in zip(table["paper"], u)]
     out = {"claim": [f"{i}: {c}" for i, c in zip(table["id"], table["claim"])], "where": table["where"],
            "paper": paper, "statistic": [f"{s}; {r}" for s, r in zip(table["statistic"], table["relation"])],
-           "ours [95 %]": [_with_unit(o, x) for o, x in zip(table["ours"], u)]}
+           "ours [95 %]": [with_unit(o, x) for o, x in zip(table["ours"], u)]}
     if family:
-        out["ours at the family's level"] = [f"{_with_unit(o, x)} ({100 * c:.2f} %)" for o, x, c in
+        out["ours at the family's level"] = [f"{with_unit(o, x)} ({100 * c:.2f} %)" for o, x, c in
                                              zip(table["family_ours"], u, table["family_confidence"])]
     out["runs"] = [f"{int(n):,}" for n in table["runs"]]
     verdict, runs = ("family_verdict", "family_runs_to_decide") if family else ("verdict", "runs_to_decide")
