@@ -256,3 +256,15 @@ def test_a_complete_dataset_run_again_is_told_it_is_complete(tmp_path):
     (out / "runs" / f"{parts[-1]}.parquet").unlink()
     assert f"it holds this sweep, {n - 1} of {n} chunk(s) written; pass --resume to finish it" in again()
     assert len(list(out.rglob("*.parquet"))) == len(parts) - 1  # nothing written
+
+
+# ---------------------------------------------------------------- issue 67, item 7
+
+def test_pytest_q_ends_with_its_pass_count(tmp_path):
+    """addopts held -q, so `pytest -q` was -qq and printed no "N passed" line at the end."""
+    (tmp_path / "test_tiny.py").write_text("def test_one():\n    pass\n\n\ndef test_two():\n    pass\n")
+    done = subprocess.run([sys.executable, "-m", "pytest", "-c", str(ROOT / "pyproject.toml"), "--rootdir", str(ROOT),
+                           "-q", "-n", "0", "-p", "no:cacheprovider", str(tmp_path / "test_tiny.py")],
+                          capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert re.match(r"2 passed in [\d.]+s", done.stdout.strip().splitlines()[-1]), done.stdout
