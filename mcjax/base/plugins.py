@@ -31,10 +31,46 @@ def module_file(module) -> str:
     return f" ({where})" if where else ""
 
 
-def import_reference(ref: str, base_dir: Path | None, kind: str) -> tuple[Any, str]:
+class ImportFailed(ValueError):
+    """A referenced file or module that failed to import (its code raised, or a module it needs is missing),
+    in one line: the reference, what was imported, the exception's type, its first line and the line of the
+    file it was raised at."""
+
+
+def failure(exc: BaseException, path: str | None = None) -> str:
+    """``"TYPE: first line (line N)"`` of an exception raised while importing: N is the line of ``path`` (a
+    file imported by reference) it was raised at, or the line a SyntaxError names; for a module, the deepest
+    frame outside Python's import machinery, as ``(FILE, line N)``."""
+    text = str(exc).splitlines()[0] if str(exc) else ""
+    if isinstance(exc, SyntaxError) and exc.lineno is not None:
+        text = exc.msg
+        where = f" (line {exc.lineno})" if path is None or exc.filename in (None, path) else \
+            f" ({exc.filename}, line {exc.lineno})"
+        return f"{type(exc).__name__}: {text}{where}"
+    frames = []
+    tb = exc.__traceback__
+    while tb is not None:
+        frames.append((tb.tb_frame.f_code.co_filename, tb.tb_lineno))
+        tb = tb.tb_next
+    mine = [f for f in frames if path is not None and f[0] == path]
+    outside = [f for f in frames if "importlib" not in f[0] and not f[0].startswith("<frozen")
+               and not f[0].endswith("plugins.py")]
+    if mine:
+        where = f" (line {mine[-1][1]})"
+    elif outside:
+        where = f" ({outside[-1][0]}, line {outside[-1][1]})"
+    else:
+        where = ""
+    return f"{type(exc).__name__}: {text}{where}"
+
+
+def import_reference(ref: str, base_dir: Path | None, kind: str, *, one_line: bool = False) -> tuple[Any, str]:
     """``(object, where it came from)`` for ``ref`` (``FILE.py:ATTR`` or ``MODULE:ATTR``); ``kind`` (a
     scenario, a filter) names it in the one-line ValueError of a missing file or attribute. A file is
-    imported once per process under a name of its own; one whose code fails is not left half-imported."""
+    imported once per process under a name of its own; one whose code fails is not left half-imported.
+    ``one_line``: a file or module whose import fails is an :class:`ImportFailed` of one line
+    (``"filter 'x.py:F': importing /abs/x.py failed: NameError: name 'foo' is not defined (line 3)"``), not
+    the exception its code raised."""
     where, _, attr = ref.rpartition(":")
     if where.endswith(".py"):
         path = Path(where)
@@ -51,12 +87,19 @@ def import_reference(ref: str, base_dir: Path | None, kind: str) -> tuple[Any, s
             sys.modules[name] = module  # before exec: its dataclasses look their module up
             try:
                 spec.loader.exec_module(module)
-            except BaseException:  # not half a module for the next call to find: it fails the same way
+            except BaseException as exc:  # not half a module for the next call to find: it fails the same way
                 del sys.modules[name]
+                if one_line and isinstance(exc, Exception):
+                    raise ImportFailed(f"{kind} {ref!r}: importing {path} failed: {failure(exc, str(path))}") from None
                 raise
         source = str(path)
     else:
-        module = importlib.import_module(where)
+        try:
+            module = importlib.import_module(where)
+        except Exception as exc:
+            if not one_line:
+                raise
+            raise ImportFailed(f"{kind} {ref!r}: importing module {where} failed: {failure(exc)}") from None
         source = f"module {where}{module_file(module)}"
     if not hasattr(module, attr):
         raise ValueError(f"{kind} {ref!r}: {where} has no attribute {attr!r}")

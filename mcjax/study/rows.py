@@ -32,19 +32,48 @@ def _check_declared(got, declared, scenario: Scenario, what: str) -> None:
                          f"declared but missing: {missing}")
 
 
+def _own_kinds(scenario: Scenario) -> tuple:
+    setting = getattr(scenario, "settings", {}).get("filters")
+    return tuple(getattr(setting, "choices", None) or ())
+
+
+def shown_filters(scenario: Scenario, cfg) -> list[str]:
+    """The name each of the config's ``filters`` is shown by — the ``filter`` column, the metadata's filter
+    order, the tables and the page: a built-in's or the scenario's own name as written, a filter of one's own
+    (a file, a module, a plugin) by its record's name
+    (:func:`mcjax.tracking.filters.registry.shown_name`); the config keeps the reference."""
+    own = _own_kinds(scenario)
+    if all(f in own for f in cfg.filters):
+        return list(cfg.filters)
+    from mcjax.tracking.filters.registry import shown_name
+
+    return [shown_name(f, own) for f in cfg.filters]
+
+
+def filter_sources(scenario: Scenario, cfg) -> dict[str, str]:
+    """Shown name → where each filter of one's own came from (its file, module or plugin), as the dataset's
+    metadata keeps it (``filter_sources``); empty when every filter is the scenario's own."""
+    own = _own_kinds(scenario)
+    if all(f in own for f in cfg.filters):
+        return {}
+    from mcjax.tracking.filters.registry import sources
+
+    return sources(cfg.filters, own)
+
+
 def run_rows(scenario: Scenario, cfg, outputs: Mapping[str, Any], keys: Mapping[str, Any],
              extra: Mapping[str, Any] | None = None) -> pd.DataFrame:
     """Tidy rows, one per run and filter, of a batch's reduced ``outputs`` (each (runs, F) or
     (runs,), as declared by ``scenario.outputs(cfg)``). ``keys``: per-run key columns (e.g.
     ``point_id``, ``seed_index``, swept values, a benchmark's case) — arrays of length runs or
-    scalars. Columns: ``scenario``, the keys, ``filter``, then the outputs in declaration
+    scalars. Columns: ``scenario``, the keys, ``filter`` (its shown name, :func:`shown_filters`), then the outputs in declaration
     order, then ``extra`` (declarations of outputs the study adds: sensitivity columns).
     Sorted by point, seed and filter."""
     declared = {**scenario.outputs(cfg), **(extra or {})}
     _check_declared(outputs, declared, scenario, "reduce")
     n = len(np.asarray(next(iter(outputs.values()))))
     frames = []
-    for f, name in enumerate(cfg.filters):
+    for f, name in enumerate(shown_filters(scenario, cfg)):
         cols = {"scenario": scenario.name}
         cols.update({k: (v if np.ndim(v) == 0 else np.asarray(v)) for k, v in keys.items()})
         cols["filter"] = name
@@ -55,6 +84,23 @@ def run_rows(scenario: Scenario, cfg, outputs: Mapping[str, Any], keys: Mapping[
     df = pd.concat(frames, ignore_index=True)
     order = [c for c in ("point_id", "seed_index", "filter") if c in df.columns]
     return df.sort_values(order, kind="stable").reset_index(drop=True)
+
+
+def _shown(scenario: Scenario, cfg, meta: dict) -> dict:
+    """The scenario's metadata with its filters by their shown names, and, for a filter of one's own, its
+    record's title as its description and where it came from (``filter_sources``)."""
+    sources = filter_sources(scenario, cfg)
+    if not sources:
+        return meta
+    from mcjax.tracking.filters.registry import get
+
+    shown = shown_filters(scenario, cfg)
+    words = dict(meta.get("filter_descriptions") or {})
+    for ref, name in zip(cfg.filters, shown):
+        if name in sources and name not in words:
+            f = get(ref)
+            words[name] = f"{f.title} ({'ours' if f.reference == 'ours' else f.reference}; from {sources[name]})"
+    return {**meta, "filters": shown, "filter_descriptions": words, "filter_sources": sources}
 
 
 def chunk_keys(study: Study, start: int, n: int) -> dict:
@@ -74,7 +120,7 @@ def timeseries_rows(study: Study, start: int, series: dict) -> pd.DataFrame:
     or (runs, T, F) as declared by ``scenario.timeseries_outputs``."""
     declared = study.scenario.timeseries_outputs(study.config)
     _check_declared(series, declared, study.scenario, "timeseries")
-    filters = study.config.filters
+    filters = shown_filters(study.scenario, study.config)
     first = np.asarray(next(iter(series.values())))
     n, T = first.shape[:2]
     from mcjax.engine import point_and_seed
@@ -105,7 +151,7 @@ def part_metadata(study: Study, chunk_size: int) -> dict:
     order), the spec, config, seeds and provenance — everything ``mcjax report`` needs."""
     from mcjax.base import provenance
 
-    meta = study.scenario.metadata(study.config)
+    meta = _shown(study.scenario, study.config, study.scenario.metadata(study.config))
     extra = declarations(study.scenario, study.config, study.sensitivity)
     meta["outputs"] = {**meta["outputs"], **{k: o.as_json() for k, o in extra.items()}}
     ran = {**study.source, "seeds": study.seeds, "chunk_size": study.chunk_size}  # --seeds merged as --set is

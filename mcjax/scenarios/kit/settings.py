@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax.contract import Setting
-from mcjax.tracking.filters.registry import ENTRY_POINT_GROUP, FILTER_KINDS, get
+from mcjax.tracking.filters.registry import ENTRY_POINT_GROUP, FILTER_KINDS, get, same_names
 
 DTYPES = ("float64", "float32")
 
@@ -44,16 +44,21 @@ def common_settings(*, filter_kinds: tuple[str, ...], filters: tuple[str, ...] |
 def check_common(cfg) -> None:
     """The checks across the common fields: ``warmup_steps < n_steps``; every filter that is not a built-in
     one resolves to a filter record (:func:`mcjax.tracking.filters.registry.get`: an unknown plugin, one that
-    fails to import or is not a Filter, a name that clashes with a built-in: one line)."""
+    fails to import or is not a Filter, a name that clashes with a built-in: one line); no two filters are shown
+    by one name (:func:`mcjax.tracking.filters.registry.same_names`)."""
     if cfg.warmup_steps >= cfg.n_steps:
         raise ValueError(f"warmup_steps must be an integer in [0, n_steps = {cfg.n_steps}); got {cfg.warmup_steps}")
-    if getattr(type(cfg), "SETTINGS", {}).get("filters", Setting(None, "")).plugins:
+    setting = getattr(type(cfg), "SETTINGS", {}).get("filters", Setting(None, ""))
+    if setting.plugins:
         for name in cfg.filters:
             if name not in FILTER_KINDS:
                 try:
                     get(name)
                 except ValueError as exc:
                     raise ValueError(f"filters: {exc}") from None
+        twice = same_names(cfg.filters, tuple(setting.choices or ()))
+        if twice:
+            raise ValueError(twice)
 
 
 def param_value(Params, cfg, values: dict, name: str) -> np.ndarray:

@@ -11,6 +11,12 @@ Three ways to name a filter in a config's ``filters`` list:
   path is read against that file's folder, a command line's against the current folder (both made absolute
   when the file is read: :func:`mcjax.base.plugins.absolute_reference`); here, against ``base_dir`` or the
   current folder.
+
+A filter is shown by its record's name (:attr:`mcjax.contract.filter.Filter.name`) wherever a built-in's name
+appears — the datasets' ``filter`` column, the tables, the report's sentences — and where it came from (the
+file, module or plugin) once, in the dataset's metadata (:func:`shown_name`, :func:`sources`); a config's
+``filters`` keeps what was written, the reference. Two filters of one config with one record name are refused
+(:func:`same_names`).
 """
 
 from __future__ import annotations
@@ -45,18 +51,40 @@ def known() -> list[str]:
     return [*BUILTIN, *sorted(n for n in _plugin_points() if n not in BUILTIN)]
 
 
-def _checked(obj, ref: str) -> Filter:
+def _checked(obj, ref: str, plugin: str | None = None) -> Filter:
+    """``obj`` when it is a Filter whose name is its own: not a built-in's, nor (for a file or a module named by
+    reference) an installed plugin's other than this very record (``plugin``: the entry point it was loaded by)."""
     if not isinstance(obj, Filter):
         raise ValueError(f"filter {ref!r} is a {type(obj).__name__}, not an mcjax.contract.filter.Filter")
     if obj.name in BUILTIN and BUILTIN[obj.name] is not obj:
         raise ValueError(f"filter {ref!r} is named {obj.name!r}, the name of a built-in filter; give it another name")
+    points = _plugin_points()
+    if plugin is None and obj.name in points:
+        try:
+            same = points[obj.name].load() is obj
+        except Exception:  # noqa: BLE001 - a plugin that does not load is not this record
+            same = False
+        if not same:
+            raise ValueError(f"filter {ref!r} is named {obj.name!r}, the name of the installed plugin "
+                             f"{points[obj.name].value}; give it another name (the datasets show a filter by its name)")
     return obj
+
+
+def did_you_mean(name: str, names) -> str:
+    """``"; did you mean 'X'?"`` for the name of ``names`` one typo away from ``name`` — a letter missing, wrong
+    or extra (:func:`difflib.get_close_matches` at 0.75), or two letters swapped ('kfc' for 'kcf') — else ``""``."""
+    names = list(names)
+    close = difflib.get_close_matches(name, names, n=1, cutoff=0.75)
+    if not close:
+        close = [n for n in names if len(n) == len(name) and sorted(n) == sorted(name)
+                 and sum(a != b for a, b in zip(n, name)) == 2]
+    return f"; did you mean {close[0]!r}?" if close else ""
 
 
 def get(name: str, base_dir: str | Path | None = None) -> Filter:
     """The filter called ``name`` (module docstring); a one-line ValueError otherwise (an unknown name with
-    the known ones and a did-you-mean, a plugin that fails to import, an object that is not a Filter, a
-    reference to a record named like a built-in). A built-in name is always the built-in: an installed plugin
+    the known ones and a did-you-mean, a plugin, file or module that fails to import, an object that is not a
+    Filter, a reference to a record named like a built-in or an installed plugin). A built-in name is always the built-in: an installed plugin
     whose entry point takes one is refused by :func:`clashes`, not resolved. Plugins and
     references are imported once per process."""
     if not isinstance(name, str):
@@ -73,14 +101,14 @@ def get(name: str, base_dir: str | Path | None = None) -> Filter:
         except Exception as exc:  # its one line, not a traceback
             raise ValueError(f"filter {name!r}: the plugin {point.value} failed to import: "
                              f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}") from None
-        found = (_checked(obj, name), f"plugin {point.value}{module_file(sys.modules.get(point.module))}")
+        found = (_checked(obj, name, point.value),
+                 f"plugin {point.value}{module_file(sys.modules.get(point.module))}")
     elif ":" in name:
-        obj, source = import_reference(name, None if base_dir is None else Path(base_dir), "filter")
+        obj, source = import_reference(name, None if base_dir is None else Path(base_dir), "filter", one_line=True)
         found = (_checked(obj, name), source)
     else:
-        close = difflib.get_close_matches(name, known(), n=1, cutoff=0.75)
-        hint = f"; did you mean {close[0]!r}?" if close else ""
-        raise ValueError(f"filter must be one of {', '.join(known())} (or 'file.py:ATTRIBUTE'); got {name!r}{hint}")
+        raise ValueError(f"filter must be one of {', '.join(known())} (or 'file.py:ATTRIBUTE'); got {name!r}"
+                         f"{did_you_mean(name, known())}")
     _FOUND[name] = found
     return found[0]
 
@@ -102,3 +130,41 @@ def _distribution(point) -> str:
 def origin(name: str) -> str | None:
     """Where the filter asked for as ``name`` came from (a plugin, a file, a module); None for a built-in."""
     return _FOUND[name][1] if name in _FOUND else None
+
+
+def shown_name(name: str, own=()) -> str:
+    """The name the datasets, tables and pages show for the filter a config names ``name``: the record's name
+    (a built-in's and any of ``own``, a scenario's own filter kinds, is ``name`` itself); ``name`` when it
+    names no filter record."""
+    if name in BUILTIN or name in own:
+        return name
+    try:
+        return get(name).name
+    except ValueError:
+        return name
+
+
+def sources(names, own=()) -> dict[str, str]:
+    """Shown name → where the filter came from (:func:`origin`: a plugin, a file, a module), for each of
+    ``names`` that is neither built in nor one of ``own``: what a dataset's metadata keeps of the reference."""
+    out = {}
+    for name in names:
+        if name in BUILTIN or name in own:
+            continue
+        shown = shown_name(name, own)  # resolves it (get), so that origin knows it
+        if origin(name) is not None:
+            out[shown] = origin(name)
+    return out
+
+
+def same_names(names, own=()) -> str | None:
+    """A one-line refusal when two of ``names`` (a config's ``filters``) are shown by one name — two files'
+    records both named 'my_ekf', a record named like an installed plugin the config also runs — else None."""
+    seen: dict[str, str] = {}
+    for name in names:
+        shown = shown_name(name, own)
+        if shown in seen and seen[shown] != name:
+            return (f"filters: {seen[shown]!r} and {name!r} are both named {shown!r} (the name the datasets show); "
+                    f"rename one of the two records")
+        seen.setdefault(shown, name)
+    return None

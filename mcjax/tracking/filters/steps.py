@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from mcjax.contract.filter import FilterError, Model
 from mcjax.tracking.filters.consensus import FilterOptions, Measurements
@@ -28,7 +29,7 @@ def checked(kind, new, post):
     given; else a one-line :class:`FilterError` naming the filter and the field (at the first trace, before
     anything runs)."""
     if not isinstance(new, Gaussian):
-        raise FilterError(f"filter {kind!r}: its step returned a {type(new).__name__}, not a Gaussian(x, P, Y) like "
+        raise FilterError(f"filter {kind!r}: its step returned {_what(new)}, not a Gaussian(x, P, Y) like "
                          f"the posterior it was given")
     for field, a, b in zip(Gaussian._fields, new, post):
         if jnp.shape(a) != jnp.shape(b) or jnp.result_type(a) != jnp.result_type(b):
@@ -36,6 +37,20 @@ def checked(kind, new, post):
                              f"{jnp.result_type(a)}; the posterior's {field} is {tuple(jnp.shape(b))} "
                              f"{jnp.result_type(b)}")
     return new
+
+
+def _what(value) -> str:
+    """What a step returned, in its author's words: an array with its shape (not JAX's tracer), a tuple of so
+    many values, None, else its type."""
+    if value is None:
+        return "None"
+    if isinstance(value, tuple):
+        inner = ", ".join(_what(v) for v in value[:4]) + (", …" if len(value) > 4 else "")
+        kind = "tuple" if type(value) is tuple else type(value).__name__
+        return f"a {kind} of {len(value)} ({inner})"
+    if isinstance(value, (jax.Array, np.ndarray)) or hasattr(value, "shape") and hasattr(value, "dtype"):
+        return f"an array (shape {tuple(jnp.shape(value))})"
+    return f"a {type(value).__name__}"
 
 
 def _with_agents(state: Gaussian, n_agents: int) -> Gaussian:
