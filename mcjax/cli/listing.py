@@ -104,11 +104,23 @@ def _config_keys(path: Path) -> set[str]:
     return set(table) if isinstance(table, dict) else set()
 
 
+def _takes(sc, name: str) -> str | None:
+    """None when scenario ``sc`` runs the filter ``name`` with its own defaults (its Config's check, the rule
+    that would refuse it), else that check's one-line refusal."""
+    try:
+        sc.Config(filters=(name,))
+    except Exception as exc:  # noqa: BLE001 - the scenario's own words, whatever the check raised
+        return " ".join(str(exc).split())
+    return None
+
+
 def filters_text() -> str:
     """``mcjax list filters``: every filter (built-in, then installed plugins) with its title, reference,
-    traits and the scenarios that can run it (a scenario lists a built-in filter among its ``filters``
-    choices; a plugin runs in every scenario whose ``filters`` take plugins). A plugin that cannot be
-    loaded, or that takes a built-in filter's name, is listed with its one-line reason, not hidden."""
+    traits and the scenarios that run it — each scenario asked by its own Config check, with its defaults,
+    the rule that would refuse it (a built-in filter it lists among its ``filters`` choices, a plugin where its
+    ``filters`` take plugins); a scenario that offers the filter but refuses it with its defaults is named
+    with its refusal. A plugin that cannot be loaded, or that takes a built-in filter's name, is listed with
+    its one-line reason, not hidden."""
     from mcjax import scenarios
     from mcjax.tracking.filters import registry
 
@@ -120,7 +132,7 @@ def filters_text() -> str:
             continue
         setting = sc.settings.get("filters")
         if setting is not None:
-            takers[sc.name] = (set(setting.choices or ()), bool(setting.plugins))
+            takers[sc.name] = (sc, set(setting.choices or ()), bool(setting.plugins))
     lines = []
     for name in registry.known():
         try:
@@ -129,10 +141,15 @@ def filters_text() -> str:
             lines += [f"{name}", f"    cannot be loaded: {exc}"]
             continue
         builtin = name in registry.BUILTIN
-        runs = [s for s, (choices, plugins) in takers.items() if (name in choices if builtin else plugins)]
+        offered = [sc for sc, choices, plugins in takers.values() if (name in choices if builtin else plugins)]
+        refusals = {sc.name: _takes(sc, name) for sc in offered}
+        runs = [s for s, why in refusals.items() if why is None]
         where = "" if builtin else f"  [plugin: {registry.origin(name).removeprefix('plugin ')}]"
-        lines += [f"{name:14s} {f.title}{where}", f"    reference: {f.reference}",
+        shown = f.name if f.name == name else f"{name} (shown as {f.name})"
+        lines += [f"{shown:14s} {f.title}{where}", f"    reference: {f.reference}",
                   f"    traits: {f.traits.words()}", f"    scenarios: {', '.join(runs) or 'none'}"]
+        lines += [f"    not with {s}'s defaults: {why.split(': ')[0].split(' (')[0]} (`mcjax list {s}`)"
+                  for s, why in refusals.items() if why is not None]
     for clash in registry.clashes():  # a plugin that takes a built-in's name: listed, never resolved
         lines += [clash.split(":")[0].removeprefix("filter ").strip("'"), f"    cannot be loaded: {clash}"]
     lines.append("a filter of your own: docs/library.md, 'Writing a filter' (entry-point group mcjax.filters, "

@@ -85,8 +85,14 @@ class League(NamedTuple):
     source: dict
 
     def filter_name(self, config_name: str) -> str:
-        """The league's name of a dataset's ``filter`` value."""
-        back = {v: k for k, v in self.config_names.items()}
+        """The league's name of a dataset's ``filter`` value: a filter of one's own is shown in a dataset by
+        its record's name (:func:`mcjax.tracking.filters.registry.shown_name`), and in one written before
+        2026-12-07 by its Config name (the reference made absolute); either gives the name the league file
+        wrote."""
+        from mcjax.tracking.filters.registry import shown_name  # resolved already: the league's filters were
+
+        back = {shown_name(v): k for k, v in self.config_names.items()}
+        back.update({v: k for k, v in self.config_names.items()})
         return back.get(config_name, config_name)
 
 

@@ -10,7 +10,7 @@ import numpy as np
 from mcjax.contract.filter import FilterError, Model
 from mcjax.tracking.filters.consensus import FilterOptions, Measurements
 from mcjax.tracking.filters.gaussian import Gaussian
-from mcjax.tracking.filters.registry import get
+from mcjax.tracking.filters.registry import get, shown_name
 from mcjax.tracking.numerics import spd_inverse, symmetrize
 
 
@@ -87,6 +87,7 @@ def delayed_sender(kinds) -> int | None:
     mailbox per run)."""
     found = [i for i, k in enumerate(kinds) if get(k).traits.messages and get(k).traits.late_messages]
     if len(found) > 1:
-        raise ValueError(f"filters: at most one filter that takes late consensus messages may run with "
-                         f"message_delay > 0; got {', '.join(kinds[i] for i in found)}")
+        raise ValueError(f"filters: at most one filter that sends consensus messages and takes them late "
+                         f"(traits.messages and traits.late_messages) may run with message_delay > 0 (one mailbox "
+                         f"per run); got {', '.join(shown_name(kinds[i]) for i in found)}")
     return found[0] if found else None
