@@ -16,7 +16,8 @@ about the columns is :mod:`mcjax.analysis.schema`'s; its names below are re-expo
 * :func:`ordered_filters` -- filter values in display order.
 * :func:`summary_columns`, :func:`summarize` -- one row per (swept axes..., filter) with the
   statistics of :mod:`mcjax.analysis.statistics`.
-* :func:`legend_lines` -- one line per metric and axis: its unit and description.
+* :func:`legend_lines` -- one line per metric the table shows and per axis: its unit and description;
+  :func:`in_display_units` -- the axes in the unit the plots and the page show them in.
 * :func:`format_table`, :func:`format_cells`, :func:`format_number` -- rendering (one number
   format for every table and plot).
 
@@ -79,6 +80,9 @@ __all__ = [
     "summary_columns",
     "summarize",
     "legend_lines",
+    "TABLE_ROLES",
+    "scaled",
+    "in_display_units",
     "check_format",
     "format_number",
     "format_cells",
@@ -207,19 +211,55 @@ def _unit_text(u: str) -> str:
     return u if u else "no unit"
 
 
-def legend_lines(metadata: Mapping[str, Any] | Schema, axes: Sequence[str] = ()) -> list[str]:
-    """Lines to print above a summary table: the scenario, then one line per metric
-    (``"rmse: <unit> — <description>"``) and per axis, then how the statistics columns are
-    computed."""
+#: The roles whose column a summary table shows (a statistic of it: :func:`summary_columns`); the
+#: others (NEES, NIS, the floor) have tables of their own, and the legend does not name them.
+TABLE_ROLES = ("divergence", "nonfinite", "connectivity_mean", "connectivity_min", "disconnected_steps")
+
+
+def scaled(value: Any, factor: float) -> Any:
+    """A value (a number, or a per-agent tuple of them) times ``factor``: an axis's value in its
+    display unit (:func:`display`); anything else as it is."""
+    if isinstance(value, (tuple, list)):
+        return tuple(scaled(v, factor) for v in value)
+    if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_)) \
+            and factor != 1.0:
+        return value * factor
+    return value
+
+
+def in_display_units(summary: pd.DataFrame, metadata: Mapping[str, Any] | Schema,
+                     axes: Sequence[str]) -> pd.DataFrame:
+    """``summary`` with each of ``axes`` in the unit the plots and the page show it in
+    (:func:`display`: km for a radius that declares it, degrees for radians); the same object when
+    none changes. What the printed table shows (a CSV keeps the dataset's units)."""
+    out = summary
+    for a in axes:
+        factor = display(a, metadata)[1]
+        if factor != 1.0 and a in summary.columns:
+            out = out.copy() if out is summary else out
+            out[a] = summary[a].map(lambda v, f=factor: scaled(v, f))
+    return out
+
+
+def legend_lines(metadata: Mapping[str, Any] | Schema, axes: Sequence[str] = (), *,
+                 display_units: bool = False) -> list[str]:
+    """Lines to print above a summary table: the scenario, then one line per metric the table
+    shows (``"rmse: <unit> — <description>"``, :data:`TABLE_ROLES`) and per axis, then how the
+    statistics columns are computed. ``display_units``: the table shows its axes in their display
+    units (:func:`in_display_units`), which the axes' lines then name (``"turn_rate: deg/s
+    (stored as rad/s)"``)."""
     sch = schema(metadata)
     lines = []
     if sch.scenario:
         lines.append(f"scenario: {sch.scenario}" + (f" — {sch.title}" if sch.title else ""))
-    metrics = [sch.error, *(getattr(sch, r) for r in OPTIONAL_ROLES)]
+    metrics = [sch.error, *(getattr(sch, r) for r in TABLE_ROLES)]
     for name in [m for m in metrics if m is not None] + list(axes):
         decl = declaration(name, sch)
         desc = str(decl.get("description") or "").strip()
-        lines.append(f"{name}: {_unit_text(unit(name, sch))}" + (f" — {desc}" if desc else ""))
+        stored = _unit_text(unit(name, sch))
+        shown = _unit_text(display(name, sch)[0]) if display_units and name in axes else stored
+        text = shown if shown == stored else f"{shown} (stored as {stored})"
+        lines.append(f"{name}: {text}" + (f" — {desc}" if desc else ""))
     pct = f"{100 * CONFIDENCE:g} %"
     e = sch.error
     text = (f"statistics: n runs per row; {e}_mean over the runs with a finite {e}, "

@@ -80,6 +80,23 @@ def suggest(key, allowed) -> str:
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
+def near_path(written, actual=None, *, folder: bool = False) -> str:
+    """``"; did you mean X?"`` for a path that does not exist: the file (with ``folder``, the
+    folder) beside it whose name is closest to its own (:mod:`difflib`), written as the user wrote
+    the path (``written``; ``actual``: where it points, when that is not ``written`` itself, e.g.
+    relative to a spec's folder), else ``""``."""
+    text = str(written).rstrip("/\\") or str(written)
+    target = Path(text if actual is None else actual)
+    try:
+        names = [p.name for p in target.parent.iterdir() if (p.is_dir() if folder else p.is_file())]
+    except OSError:
+        return ""
+    close = difflib.get_close_matches(target.name, names, n=1)
+    if not close or not text.endswith(Path(text).name):
+        return ""
+    return f"; did you mean {text[:len(text) - len(Path(text).name)]}{close[0]}?"
+
+
 def bad(allowed: str, value, kind_ok: bool = False) -> str:
     """The one-line message of a value that is not allowed: ``"must be …; got …"``, the value named by its
     kind (:func:`got`) unless ``kind_ok`` (a string where a string is wanted, but not one of the choices)."""
@@ -390,7 +407,7 @@ def read_toml(path: Path, what: str) -> dict:
     try:
         raw = path.read_bytes()
     except FileNotFoundError:
-        raise SpecError(f"{what} not found: {path}") from None
+        raise SpecError(f"{what} not found: {path}{near_path(path)}") from None
     except IsADirectoryError:
         raise SpecError(f"{what} {path} is a folder, not a TOML file") from None
     except OSError as exc:

@@ -60,7 +60,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from mcjax.base.validation import SpecError, check_keys, key_text, read_toml, show, suggest
+from mcjax.base.validation import SpecError, check_keys, got, key_text, read_toml, show, suggest
 from mcjax.claims.verdicts import STATISTICS
 from mcjax.study.plan import Study
 from mcjax.study.spec import MAX_BASE_SEED, MAX_SEEDS, build_spec, is_config_file
@@ -154,7 +154,7 @@ def _text(where: str, data: dict, key: str, required: bool = False) -> str:
 
 def _number(where: str, value) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise _err(where, f"must be a finite number; got {show(value)}")
+        raise _err(where, f"must be a finite number; got {got(value)}")
     return float(value)
 
 
@@ -180,7 +180,7 @@ def _sweeps(path: Path, data: dict, seeds: int | None, base_seed: int | None = N
                 if set(table) - {"spec"}:
                     raise SpecError(f"must hold spec alone, or a sweep spec's keys inline; got {', '.join(table)}")
                 if not isinstance(table["spec"], str):
-                    raise SpecError(f"spec: must be the path of a sweep spec file; got {show(table['spec'])}")
+                    raise SpecError(f"spec: must be the path of a sweep spec file; got {got(table['spec'])}")
                 spec_file = (path.parent / table["spec"]).resolve()
                 spec = read_toml(spec_file, "sweep spec")
                 if is_config_file(spec):
@@ -219,7 +219,7 @@ def _point(where: str, study: Study, at: Any, free: str | None = None) -> tuple[
         if not hit.any():
             values = list(dict.fromkeys(json.dumps(np.asarray(v).tolist()) for v in col))
             raise _err(f"{where}at.{key_text(axis)}", f"must be one of the sweep's values {', '.join(values)}; "
-                       f"got {show(value)}")
+                       f"got {got(value)}")
         keep &= hit
     ids = points["point_id"].to_numpy()[keep]
     if free is not None:
@@ -277,7 +277,7 @@ def _side(where: str, table: dict, studies: dict, *, free: str | None = None) ->
     q = table.get("q")
     if statistic == "quantile":
         if q is None or not (isinstance(q, (int, float)) and not isinstance(q, bool) and 0 < q < 1):
-            raise _err(f"{where}q", f"must be a number in (0, 1) (the quantile's level); got {show(q)}")
+            raise _err(f"{where}q", f"must be a number in (0, 1) (the quantile's level); got {got(q)}")
     elif q is not None:
         raise _err(f"{where}q", f"applies to statistic = \"quantile\" only (this side's is {statistic!r})")
     over = _number(f"{where}over", table["over"]) if "over" in table else None
@@ -319,7 +319,7 @@ def _claim(path: Path, i: int, raw: Any, studies: dict, seen: set) -> Claim:
         raise _err(f"{where}paper", f"must be the paper's figure, a number or a string; got {show(paper)}")
     paper_runs = raw.get("paper_runs")
     if paper_runs is not None and (isinstance(paper_runs, bool) or not isinstance(paper_runs, int) or paper_runs < 1):
-        raise _err(f"{where}paper_runs", f"must be the paper's run count, an integer >= 1; got {show(paper_runs)}")
+        raise _err(f"{where}paper_runs", f"must be the paper's run count, an integer >= 1; got {got(paper_runs)}")
     relation = raw.get("relation")
     if relation not in RELATIONS:
         raise _err(f"{where}relation", f"{'missing' if relation is None else 'unknown'}; allowed: "
@@ -382,14 +382,14 @@ def _claim(path: Path, i: int, raw: Any, studies: dict, seen: set) -> Claim:
     if relation == "within":
         b = raw["band"]
         if not (isinstance(b, list) and len(b) == 2):
-            raise _err(f"{where}band", f"must be [low, high]; got {show(b)}")
+            raise _err(f"{where}band", f"must be [low, high]; got {got(b)}")
         band = (_number(f"{where}band", b[0]), _number(f"{where}band", b[1]))
         if band[0] > band[1]:
             raise _err(f"{where}band", f"must be [low, high] with low <= high; got {show(b)}")
     if relation == "equal":
         tol = _number(f"{where}tolerance", raw["tolerance"])
         if tol < 0:
-            raise _err(f"{where}tolerance", f"must be >= 0; got {show(raw['tolerance'])}")
+            raise _err(f"{where}tolerance", f"must be >= 0; got {got(raw['tolerance'])}")
         band = (value - tol, value + tol)
     if relation == "consistent":
         if isinstance(paper, str) or paper is None:
@@ -427,7 +427,7 @@ def _load(path: Path, seeds: int | None, base_seed: int | None = None, shift: in
     if seeds is None and "seeds" in data:
         s = data["seeds"]
         if isinstance(s, bool) or not isinstance(s, int) or not 1 <= s <= MAX_SEEDS:
-            raise _err(f"{path.name}: seeds", f"must be an integer in [1, {MAX_SEEDS}]; got {show(s)}")
+            raise _err(f"{path.name}: seeds", f"must be an integer in [1, {MAX_SEEDS}]; got {got(s)}")
         seeds = s
     studies, files = _sweeps(path, data, seeds, base_seed, shift)
     raw = data.get("claim")

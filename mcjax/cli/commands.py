@@ -188,8 +188,11 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
     if result.stopped:
         click.echo(hint(), err=True)
         exit_now(130)
-    click.echo(f"{len(result.rows)} rows in {out_dir / 'runs'}; {result.runs_run} runs in {result.seconds:.1f} s "
-               f"({result.runs_run / max(result.seconds, 1e-9):.1f} runs/s incl. compilation)")
+    if result.runs_run:
+        click.echo(f"{len(result.rows)} rows in {out_dir / 'runs'}; {result.runs_run} runs in {result.seconds:.1f} s "
+                   f"({result.runs_run / max(result.seconds, 1e-9):.1f} runs/s incl. compilation)")
+    else:  # --resume of a sweep already whole: nothing ran, so no rate
+        click.echo(f"{len(result.rows)} rows in {out_dir / 'runs'}; the sweep was already complete (nothing to run)")
     _print_summary(result.rows, s)
     finish(stop)
 
@@ -216,7 +219,10 @@ def run(config, seeds, sets):
         from mcjax import engine, scenarios, study
 
         if not config.is_file():
-            fail(f"config file not found: {config}" if not config.exists() else f"{config} is a folder, not a file")
+            from mcjax.base.validation import near_path
+
+            fail(f"config file not found: {config}{near_path(config)}" if not config.exists()
+                 else f"{config} is a folder, not a file")
         try:
             # chunks of one batch per device: a Ctrl-C waits for little (the numbers do not depend on it)
             s = study.build_spec({"base": str(config.resolve())}, Path.cwd(), seeds=seeds, overrides=overrides,

@@ -42,8 +42,9 @@ def summary_text(df: pd.DataFrame, metadata: Mapping[str, Any], fmt: str = "text
 
     For ``"text"`` and ``"markdown"`` the table is preceded by the legend of
     :func:`mcjax.analysis.tables.legend_lines` (scenario, then one line per metric and swept axis
-    with its unit and description, then how the statistics are computed); ``"csv"`` is the
-    bare table. ``summary``: the page's :class:`mcjax.analysis.summary.Summary` of ``df`` (built
+    with its unit and description, then how the statistics are computed) and shows the swept axes in
+    the units the plots and the page show them in (:func:`mcjax.analysis.tables.in_display_units`:
+    km, deg/s); ``"csv"`` is the bare table in the dataset's units. ``summary``: the page's :class:`mcjax.analysis.summary.Summary` of ``df`` (built
     here when not given). ``width``: a terminal's columns, which the text table then fits
     (:func:`mcjax.analysis.tables.format_table`); None: one block, however wide.
 
@@ -57,8 +58,12 @@ def summary_text(df: pd.DataFrame, metadata: Mapping[str, Any], fmt: str = "text
     if df.empty:
         raise ValueError("summary_text: the runs table is empty")
     one = summary_for(df, metadata, tables.swept_axes(metadata, df.columns), summary)
-    header = tables.legend_lines(one.schema, one.axes)
-    return tables.format_table(one.table, fmt, ([f"WARNING: {warning}"] if warning else []) + header, width)
+    if fmt == "csv":  # a program's table: the dataset's units, no header
+        return tables.format_table(one.table, fmt)
+    # the axes in the units the plots and the page show them in (km, deg/s), the legend saying so
+    header = tables.legend_lines(one.schema, one.axes, display_units=True)
+    return tables.format_table(tables.in_display_units(one.table, one.schema, one.axes), fmt,
+                               ([f"WARNING: {warning}"] if warning else []) + header, width)
 
 
 def _identity(out: Path) -> dict | None:
@@ -165,8 +170,9 @@ def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
     no header) and a note on every plot.
 
     Raises:
-        ValueError: ``fmt`` is not one of :data:`FORMATS`; ``out_dir`` holds no runs (the
-            message names the folder); a part file is damaged
+        ValueError: ``fmt`` is not one of :data:`FORMATS`; ``out_dir`` does not exist (the
+            message names the sibling folder it may have meant) or holds no runs (the message
+            names the folder); a part file is damaged
             (:class:`mcjax.base.parquet.DamagedPartError`, naming it); its metadata declares no
             outputs (written by an older mcjax; the message names the folder and says what to do).
     """
@@ -174,6 +180,10 @@ def report(out_dir: str | os.PathLike, fmt: str = "text", *, plots: bool = True,
     if not isinstance(out_dir, (str, os.PathLike)) or str(out_dir) == "":
         raise TypeError(f"out_dir must be a non-empty str or os.PathLike, got {out_dir!r}")
     out = Path(out_dir)
+    if not out.exists():  # not "no runs found": there is no folder to find them in
+        from mcjax.base.validation import near_path
+
+        raise ValueError(f"folder {out_dir} does not exist{near_path(out_dir, folder=True)}")
     from mcjax.claims.folder import is_check_folder
     from mcjax.league.folder import is_league_folder
 

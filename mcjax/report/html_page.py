@@ -116,14 +116,6 @@ def html_table(headers: Sequence[str], rows: Sequence[Sequence[str]], numbers: b
     return f'<div class="scroll">{table}</div>'
 
 
-def _scaled(value: Any, factor: float) -> Any:
-    if isinstance(value, (tuple, list)):
-        return tuple(_scaled(v, factor) for v in value)
-    if isinstance(value, (int, float)) and not isinstance(value, bool) and factor != 1.0:
-        return value * factor
-    return value
-
-
 def glance(summary: pd.DataFrame, sch: tables.Schema, axes: Sequence[str]) -> pd.DataFrame:
     """The summary's headline columns as text: per point (its axes in their display units)
     and filter, the runs, the mean error
@@ -145,7 +137,7 @@ def glance(summary: pd.DataFrame, sch: tables.Schema, axes: Sequence[str]) -> pd
     out = pd.DataFrame(index=summary.index)
     for a in axes:  # in the unit the plots use
         shown, factor = tables.display(a, sch)
-        out[f"{a} [{shown}]" if shown else a] = summary[a].map(lambda v, f=factor: _scaled(v, f))
+        out[f"{a} [{shown}]" if shown else a] = summary[a].map(lambda v, f=factor: tables.scaled(v, f))
     out["filter"] = summary["filter"]
     out["runs"] = summary["n"]
     out[f"mean {e}" + (f" [{u}]" if u else "")] = [interval(r, f"{e}_mean", f"{e}_ci_low", f"{e}_ci_high")
@@ -195,7 +187,7 @@ def _axis_cells(frame: pd.DataFrame, sch: tables.Schema, axes: Sequence[str]) ->
     shown = {a: tables.display(a, sch) for a in axes}
     headers = [f"{a} [{shown[a][0]}]" if shown[a][0] else a for a in axes] + [str(c) for c in frame.columns
                                                                               if c not in axes]
-    rows = [[tables.format_number(_scaled(r[a], shown[a][1]), tables.KEY_DIGITS) for a in axes]
+    rows = [[tables.format_number(tables.scaled(r[a], shown[a][1]), tables.KEY_DIGITS) for a in axes]
             + [str(r[c]) for c in frame.columns if c not in axes] for _, r in frame.iterrows()]
     return headers, rows
 
@@ -307,11 +299,11 @@ def page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, An
                                 f"its {pct} Wilson interval" if sch.divergence else "") + ".</p>")
     g = glance(summary, sch, axes)
     parts.append(html_table(*tables.format_cells(g)[:2], numbers=True))
-    parts.append("<h3>Every statistic</h3><p>As <code>mcjax report</code> prints it (the dataset's units; "
-                 "rates as fractions); the table scrolls sideways inside its box.</p>")
-    parts.append('<ul class="legend">' + "".join(f"<li>{_e(line)}</li>"
-                                                for line in tables.legend_lines(sch, axes)) + "</ul>")
-    parts.append(html_table(*tables.format_cells(summary)[:2], numbers=True))
+    parts.append("<h3>Every statistic</h3><p>As <code>mcjax report</code> prints it (the axes in the plots' "
+                 "units; rates as fractions); the table scrolls sideways inside its box.</p>")
+    parts.append('<ul class="legend">' + "".join(f"<li>{_e(line)}</li>" for line
+                                                in tables.legend_lines(sch, axes, display_units=True)) + "</ul>")
+    parts.append(html_table(*tables.format_cells(tables.in_display_units(summary, sch, axes))[:2], numbers=True))
     parts.append("</section>")
 
     # glossary and base Params

@@ -41,7 +41,7 @@ from mcjax import scenarios
 from mcjax.contract import Scenario
 from mcjax.base.plugins import absolute_reference
 from mcjax.base.validation import (Mistakes, SpecError, check_keys, check_text, count, got, is_int, is_number, key_text,
-                                   one_line, read_toml, setting_problem, show, subtable, unknown_key)
+                                   near_path, one_line, read_toml, setting_problem, show, subtable, unknown_key)
 from mcjax.study.plan import DEFAULT_SEEDS, Study, check_memory
 from mcjax.study.sensitivity import read_sensitivity
 
@@ -344,7 +344,7 @@ def build_spec(data: dict, base_dir: str | Path, *, seeds: int | None = None, ch
     if base_path.is_dir():
         mistakes.lines.append(f"base: {data['base']!r} is a folder ({base_path}), not a config file (configs/*.toml)")
     elif not base_path.exists():
-        mistakes.lines.append(f"base: config file not found: {base_path}")
+        mistakes.lines.append(f"base: config file not found: {base_path}{near_path(data['base'], base_path)}")
     mistakes.stop()
     with mistakes.check():
         base = read_config_file(base_path)

@@ -160,8 +160,9 @@ def hold_run_folder(out_dir: Path, ident: dict, *, identity_file: str, kind: str
     first: ``resume`` needs its ``identity_file`` readable and the same values of ``ident`` under
     ``compare`` (else :class:`OutputError`: the folder holds ``other`` — "another league file" —
     or seed count); a fresh run needs it empty or missing (a folder that holds this very run is told so,
-    with ``--resume`` to finish it or print it again), ``force`` replaces a previous run of that
-    kind (:func:`start_fresh`, ``keep``: files it must not hold), and writes ``ident`` as its
+    with ``--resume`` to finish it, or to print it again when it is complete: when its table, the
+    one Parquet file at its top, ``claims.parquet`` or ``league.parquet``, is written), ``force``
+    replaces a previous run of that kind (:func:`start_fresh`, ``keep``: files it must not hold), and writes ``ident`` as its
     identity file. ``--resume`` with ``--force``: :class:`OutputError`, before the lock is taken."""
     if resume and force:
         raise OutputError("--resume and --force exclude each other")
@@ -179,9 +180,11 @@ def hold_run_folder(out_dir: Path, ident: dict, *, identity_file: str, kind: str
             if not force and out_dir.is_dir() and _contents(out_dir) and not _wrote_nothing(out_dir, identity_file):
                 saved = read_json_object(out_dir / identity_file)
                 if {k: saved.get(k) for k in compare} == {k: ident[k] for k in compare}:
+                    tables = sorted(p.name for p in out_dir.glob("*.parquet"))  # written once every sweep is whole
+                    state = (f"to print its table again (it is complete: {tables[0]} is written)" if tables else
+                             "to finish it (it is not complete: its table is not written yet)")
                     raise OutputError(f"{out_dir} already holds this {kind} (the same file and --seeds): pass --resume "
-                                      f"to finish it, or to print its table again if it is complete; --force to run it "
-                                      f"again, or choose another --out")
+                                      f"{state}; --force to run it again, or choose another --out")
             try:
                 start_fresh(out_dir, force=force, keep=keep, identity_file=identity_file, kind=kind)
             except OSError as exc:

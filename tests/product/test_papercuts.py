@@ -268,3 +268,146 @@ def test_pytest_q_ends_with_its_pass_count(tmp_path):
                           capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert done.returncode == 0, done.stdout + done.stderr
     assert re.match(r"2 passed in [\d.]+s", done.stdout.strip().splitlines()[-1]), done.stdout
+
+
+def _error(*args: str, cwd: Path | None = None) -> str:
+    """The one line a refused command prints (exit 2, no traceback), from ``cwd``."""
+    import os
+
+    here = Path.cwd()
+    try:
+        if cwd is not None:
+            os.chdir(cwd)
+        r = CliRunner().invoke(main, list(args))
+    finally:
+        os.chdir(here)
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert len(r.output.strip().splitlines()) == 1, r.output
+    return r.output.strip()
+
+
+def test_report_of_a_folder_that_does_not_exist_says_so(tmp_path):
+    """Not "no runs found" in a folder that is not there: that it does not exist, and the sibling meant."""
+    (tmp_path / "results" / "default").mkdir(parents=True)
+    (tmp_path / "results" / "other_sweep").mkdir()
+    assert _error("report", "results/defualt", cwd=tmp_path) == \
+        "error: folder results/defualt does not exist; did you mean results/default?"
+    assert _error("report", "results/zzz", cwd=tmp_path) == "error: folder results/zzz does not exist"
+    assert not (tmp_path / "results" / "defualt").exists()
+    # a folder that is there but holds no runs is still told that
+    assert "no runs found" in _error("report", "results/default", cwd=tmp_path)
+
+
+def test_a_config_path_with_a_typo_gets_the_file_it_meant(tmp_path):
+    """`mcjax run configs/sun2011.tom`, a spec's base and a spec's own path: the file beside it with the
+    closest name."""
+    (tmp_path / "configs").mkdir()
+    shutil.copy(ROOT / "configs" / "sun2011.toml", tmp_path / "configs" / "sun2011.toml")
+    shutil.copy(ROOT / "configs" / "ren2017.toml", tmp_path / "configs" / "ren2017.toml")
+    assert _error("run", "configs/sun2011.tom", cwd=tmp_path) == \
+        "error: config file not found: configs/sun2011.tom; did you mean configs/sun2011.toml?"
+    assert _error("run", "configs/nothing_like_it.toml", cwd=tmp_path) == \
+        "error: config file not found: configs/nothing_like_it.toml"
+    (tmp_path / "sweeps").mkdir()
+    (tmp_path / "sweeps" / "mine.toml").write_text('base = "../configs/sun2011.tom"\nseeds = 2\n', encoding="utf-8")
+    assert _error("sweep", "sweeps/mine.toml", "--dry-run", cwd=tmp_path) == (
+        f"error: base: config file not found: {tmp_path / 'configs' / 'sun2011.tom'}; did you mean "
+        f"../configs/sun2011.toml?")
+    assert _error("sweep", "sweeps/mien.toml", "--dry-run", cwd=tmp_path) == \
+        "error: sweep spec not found: sweeps/mien.toml; did you mean sweeps/mine.toml?"
+
+
+def test_a_sweeps_printed_table_and_its_page_agree_on_the_unit_and_the_legend_names_only_its_columns(tmp_path):
+    """turn_rate was printed in rad/s (0.0523599) while the page and the plots showed deg/s (3); the legend
+    defined anees, which the table does not show. Now both tables show the axis in deg/s, and every metric the
+    legend names is a column."""
+    import math
+
+    from tests.analysis.test_tables import make_metadata, synthetic_runs, write_dataset
+
+    grid = {"turn_rate": [math.radians(3.0), math.radians(6.0)]}
+    meta = make_metadata(grid)
+    meta["outputs"]["anees"] = {"unit": "", "description": "mean NEES over the run", "per_filter": True,
+                                "role": "nees"}
+    out = write_dataset(tmp_path / "turn", synthetic_runs(grid, seeds=4).assign(anees=4.0), meta)
+    r = CliRunner().invoke(main, ["report", str(out)])
+    assert r.exit_code == 0, r.output
+    legend, _, table = r.output.partition("\n\n")
+    header, *rows = table.splitlines()
+    assert header.split()[:2] == ["turn_rate", "filter"]
+    assert sorted({row.split()[0] for row in rows if row.split()[1:2] and row.split()[1] in meta["filters"]}) == \
+        ["3", "6"]
+    assert "turn_rate: deg/s (stored as rad/s) — target turn rate" in legend.splitlines()
+    named = [line.split(":")[0] for line in legend.splitlines()[1:-1]]  # between the scenario and the statistics
+    assert named == ["rmse", "diverged", "nonfinite", "lambda2_mean", "lambda2_min", "disconnected_steps",
+                     "turn_rate"], named
+    page = (out / "report" / "index.html").read_text(encoding="utf-8")
+    glance, every = page.split("<h3>Every statistic</h3>")
+    for part in (glance.split('id="summary"')[1], every):  # the page's two tables: the first column of each row
+        table = part.split("</table>")[0]
+        assert sorted(set(re.findall(r"<tr>\s*<td>([^<]*)</td>", table))) == ["3", "6"], table
+    assert "turn_rate: deg/s (stored as rad/s)" in every
+    # a CSV keeps the dataset's units (a program's table)
+    csv = CliRunner().invoke(main, ["report", str(out), "--format", "csv", "--no-plots"]).output
+    assert csv.splitlines()[1].startswith(f"{math.radians(3.0)!r},")
+
+
+def test_resume_of_a_complete_sweep_says_it_was_complete_not_a_rate(tmp_path):
+    """--resume of a sweep already whole printed "0 runs in 0.0 s (0.0 runs/s incl. compilation)"."""
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(f'base = "{ROOT / "configs" / "chen2013.toml"}"\nseeds = 2\n[config]\nn_steps = 20\n',
+                    encoding="utf-8")
+    out = tmp_path / "out"
+    first = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out)])
+    assert first.exit_code == 0 and re.search(r"2 runs in [\d.]+ s \([\d.]+ runs/s", first.output), first.output
+    again = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out), "--resume"])
+    assert again.exit_code == 0, again.output
+    assert f"6 rows in {out / 'runs'}; the sweep was already complete (nothing to run)" in again.output.splitlines()
+    assert "runs/s" not in again.output and "0 runs in" not in again.output
+
+
+def test_check_and_league_run_again_say_whether_their_folder_is_complete(tmp_path):
+    """Not "pass --resume to finish it, or to print its table again if it is complete": which one it is."""
+    from mcjax.study.store import hold_run_folder
+
+    out = tmp_path / "check"
+    ident = {"claims": {"paper": "P"}, "seeds": {"s": 2}}
+
+    def hold():
+        return hold_run_folder(out, ident, identity_file="check.json", kind="check", compare=("claims", "seeds"),
+                               other="the check of another claims file")
+
+    with hold():  # a check that wrote a part of its sweep, then stopped
+        (out / "s" / "runs").mkdir(parents=True)
+        (out / "s" / "runs" / "part-000000.parquet").write_bytes(b"PAR1")
+    for table, state in ((None, "to finish it (it is not complete: its table is not written yet)"),
+                         ("claims.parquet", "to print its table again (it is complete: claims.parquet is written)")):
+        if table:
+            (out / table).write_bytes(b"PAR1")
+        with pytest.raises(OutputError) as caught:
+            with hold():
+                pass
+        assert str(caught.value) == (f"{out} already holds this check (the same file and --seeds): pass --resume "
+                                     f"{state}; --force to run it again, or choose another --out")
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == ["check.json", "claims.parquet", "s"]
+
+
+def test_a_claims_files_wrong_kind_says_what_it_got_as_a_spec_does(tmp_path):
+    """`seeds = "1000"` in a claims file said `got '1000'`; a spec says it got the string, and how to write a
+    number. Both now say the same."""
+    tail = "; got the string '1000' (a number is written without quotes: 1000)"
+    spec = _spec(tmp_path).read_text(encoding="utf-8").replace("seeds = 2", 'seeds = "1000"')
+    (tmp_path / "spec.toml").write_text(spec, encoding="utf-8")
+    assert _refusal(tmp_path / "spec.toml")[0].endswith(tail)
+    claims = tmp_path / "claims.toml"
+    body = (f'paper = "P"\nseeds = "1000"\n[sweeps.s]\nbase = "{(ROOT / "configs" / "chen2013.toml").as_posix()}"\n'
+            '[[claim]]\nid = "c"\nclaim = "x"\noutput = "wind_mean_x"\nfilter = "kcf"\nrelation = "below"\n'
+            'value = 0.0\n')
+    claims.write_text(body, encoding="utf-8")
+    line = _error("check", str(claims), "--out", str(tmp_path / "out"))
+    assert line.startswith("error: claims.toml: seeds: must be an integer in [1, ") and line.endswith(tail), line
+    claims.write_text(body.replace('seeds = "1000"', "seeds = 2").replace("value = 0.0", 'value = "0.5"'),
+                      encoding="utf-8")
+    assert _error("check", str(claims), "--out", str(tmp_path / "out")).endswith(
+        "value: must be a finite number; got the string '0.5' (a number is written without quotes: 0.5)")
+    assert not (tmp_path / "out").exists()

@@ -105,7 +105,7 @@ def test_report_single_agent_without_graph(datasets):
     """(a): the report works without connectivity columns; no connectivity statistics or plot."""
     table, paths = rp.report(datasets["single"])
     assert paths.pop().name == "index.html"  # the page comes last, after the plots
-    assert "rmse: m — rmse over the run" in table and "turn_rate: rad/s — target turn rate" in table
+    assert "rmse: m — rmse over the run" in table and "turn_rate: deg/s (stored as rad/s) — target turn rate" in table
     header = _table_lines(table)[0].split()
     assert header[:4] == ["turn_rate", "filter", "n", "rmse_mean"]
     assert not any("lambda2" in h or "disconnected" in h for h in header)
@@ -143,6 +143,9 @@ def test_summary_text_matches_report(datasets):
 
 @pytest.mark.xdist_group("test_report")  # one worker builds the module fixture once
 def test_report_errors(tmp_path, datasets):
+    with pytest.raises(ValueError, match="folder .*empty does not exist"):
+        rp.report(tmp_path / "empty")
+    (tmp_path / "empty").mkdir()
     with pytest.raises(ValueError, match="no runs found in .*empty"):
         rp.report(tmp_path / "empty")
     with pytest.raises(ValueError, match="fmt='html'"):
