@@ -151,7 +151,8 @@ def check(claims, seeds, out_dir, resume, force, strict, fmt, markdown, family, 
 @click.option("--seeds", type=click.IntRange(min=1), default=None,
               help="Runs per scenario x point [default: the league file's `seeds`].")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Output folder [default: results/league_<league file name>].")
+              help="Output folder [default: results/league_<league file name>, or results/<name> when the "
+                   "name starts with league].")
 @click.option("--resume", is_flag=True, help="Finish an interrupted league in --out (the same file and --seeds).")
 @click.option("--force", is_flag=True, help="Replace an existing output folder that holds a previous league.")
 @click.option("--format", "fmt", type=click.Choice(["text", "markdown", "csv"]), default="text", show_default=True,
@@ -164,13 +165,16 @@ def league(league_file, seeds, out_dir, resume, force, fmt, markdown, executor, 
     `mcjax sweep`; every filter of a scenario runs on the same seeds), then one row per scenario x point x
     filter — the error with its interval and its rank (filters whose paired interval against the best
     overlaps zero share its rank), the error as a multiple of the floor, the divergence rate, the ANEES
-    against its band, the cost per run measured on this machine — written to OUT/league.parquet and
-    printed (docs/claims.md, "The league").
+    against its band, the cost per run of each filter alone measured on this machine (a timing pass of
+    three repeats, its runs at most --seeds) — written to OUT/league.parquet and printed
+    (docs/claims.md, "The league").
 
-    A bad league file exits 2 with one line naming the key, before anything runs. The first Ctrl-C
-    stops after the chunk in flight (exit 130) and prints the command that resumes.
+    A bad league file exits 2 with one line naming the key, before anything runs; a plugin filter the
+    file names but this Python lacks, with the command that installs it. The first Ctrl-C stops after
+    the chunk in flight, or at once in the timing pass (exit 130), and prints the command that resumes.
     """
     refuse_clashing_filters()
+    from mcjax.analysis.tables import terminal_width
     from mcjax.league import runner as lr
     from mcjax.league import table
 
@@ -185,7 +189,7 @@ def league(league_file, seeds, out_dir, resume, force, fmt, markdown, executor, 
         except lr.LeagueError as exc:
             fail(str(exc))
         out_dir = out_dir or lr.default_out_dir(league_file)
-        bars = Bars(**{k: "chunk" for k in lr.cells(checked)})
+        bars = Bars(**lr.stages(checked))
         with open_executor(executor_options(executor, scheduler, workers)) as ex, bars:
             try:
                 result = lr.run_league(checked, out_dir=out_dir, resume=resume, force=force, executor=ex,
@@ -199,5 +203,5 @@ def league(league_file, seeds, out_dir, resume, force, fmt, markdown, executor, 
         if result.stopped:
             click.echo(hint(), err=True)
             exit_now(130)
-        click.echo(table.league_text(result.table, result.meta, fmt))
+        click.echo(table.league_text(result.table, result.meta, fmt, width=terminal_width()))
         finish(stop)

@@ -29,9 +29,9 @@ import pandas as pd
 
 from mcjax.base import provenance
 from mcjax.league import table as league_table
-from mcjax.league.folder import LEAGUE_FILE, TABLE_FILE, read_timing, write_table, write_timing
+from mcjax.league.folder import LEAGUE_FILE, TABLE_FILE, read_league, read_timing, write_table, write_timing
 from mcjax.league.spec import League, LeagueError, describe, identity, load_league
-from mcjax.league.timing import timing_pass
+from mcjax.league import timing as league_timing
 from mcjax.study.execute import ChunkError, Executor
 from mcjax.study.runner import NamedSweep, SweepProgress, run_named_sweeps
 from mcjax.study.store import RESULTS_DIR, OutputError, hold_run_folder
@@ -48,24 +48,33 @@ class LeagueResult(NamedTuple):
 
     @property
     def meta(self) -> dict:
-        """What the league table's header says: title, runs per cell, the timing pass's machine."""
-        machine = "" if self.table is None else next(iter(self.table["machine"]), "")
-        return {"title": self.league.title, "seeds": self.league.seeds, "machine": machine}
+        """The league table's metadata as written (title, runs per cell, the timing pass's method and
+        machine, provenance); the league's title and runs alone when it was stopped."""
+        if self.table is None:
+            return {"title": self.league.title, "seeds": self.league.seeds}
+        return read_league(self.out_dir)[1]
 
 
 __all__ = ["ChunkError", "LeagueError", "LeagueResult", "OutputError", "build_table", "cells", "default_out_dir",
-           "load_league", "resume_hint", "run_league"]
+           "load_league", "resume_hint", "run_league", "stages"]
 
 
 def default_out_dir(league_file: str | Path) -> Path:
-    """``results/league_<name>``, the name from the league file's stem."""
+    """``results/league_<name>``, the name from the league file's stem; ``results/<name>`` when the name
+    starts with "league" already (``league_tiny.toml``: ``results/league_tiny``, not ``league_league_tiny``)."""
     name = re.sub(r"[^A-Za-z0-9._-]+", "_", Path(league_file).stem).strip("._-") or "league"
-    return RESULTS_DIR / f"league_{name}"
+    return RESULTS_DIR / (name if name.lower().startswith("league") else f"league_{name}")
 
 
 def cells(league: League) -> list[str]:
     """``"<scenario>/<point>"`` of every cell, in the order they run (the progress callback's names)."""
     return [f"{key}/{point}" for key, point in league.studies]
+
+
+def stages(league: League) -> dict[str, str]:
+    """Every name the progress callback reports, with what it counts: each cell's chunks, then each
+    scenario's timing repeats (``"timing <scenario>"``)."""
+    return {**{c: "chunk" for c in cells(league)}, **{s: "repeat" for s in league_timing.stages(league)}}
 
 
 def resume_hint(league_file: str | Path, out_dir: str | Path | None, seeds: int | None) -> str:
@@ -90,8 +99,8 @@ def run_league(league_file: str | Path | League, *, out_dir: str | Path | None =
     (:func:`mcjax.league.spec.load_league`, ``seeds`` runs per cell; or a :class:`League` already
     read), make ``out_dir`` ready (default ``results/league_<name>``; a fresh league needs it empty
     or missing, ``force`` replaces a previous league, ``resume`` needs the same file and seeds), run
-    every scenario × point (``progress("<scenario>/<point>", SweepProgress)``), the timing pass,
-    then write ``league.parquet``."""
+    every scenario × point (``progress("<scenario>/<point>", SweepProgress)``), the timing pass
+    (``progress("timing <scenario>", …)``, :mod:`mcjax.league.timing`), then write ``league.parquet``."""
     say, stop = message or (lambda _: None), should_stop or (lambda: False)
     league = league_file if isinstance(league_file, League) else load_league(league_file, seeds=seeds)
     out = Path(default_out_dir(league.path) if out_dir is None else out_dir)
@@ -109,8 +118,9 @@ def run_league(league_file: str | Path | League, *, out_dir: str | Path | None =
         rows = {(key, point): ran[f"{key}/{point}"] for key, point in league.studies}
         timing: dict = {}
         if league.timing_runs:
-            timing, stopped = timing_pass(league, read_timing(out), save=lambda t: write_timing(out, t),
-                                          message=say, should_stop=stop)
+            timing, stopped = league_timing.timing_pass(league, read_timing(out),
+                                                        save=lambda t: write_timing(out, t), message=say,
+                                                        progress=progress, should_stop=stop)
             if stopped:
                 return LeagueResult(league, out, None, True)
         table = build_table(league, rows, timing)
@@ -118,6 +128,8 @@ def run_league(league_file: str | Path | League, *, out_dir: str | Path | None =
                                               "seeds": league.seeds, "points": league.points,
                                               "machine": timing.get("machine", ""),
                                               "timing_runs": league.timing_runs,
+                                              "timing": {k: timing[k] for k in ("repeats", "repeat_runs", "load")
+                                                         if k in timing},
                                               **provenance.environment_metadata()})
     return LeagueResult(league, out, table, False)
 
@@ -130,7 +142,7 @@ def build_table(league: League, rows: dict, timing: dict) -> pd.DataFrame:
         entry = league.scenarios[key]
         r = rows[key, point].copy()
         r["filter"] = [league.filter_name(str(f)) for f in r["filter"]]
-        costs = {f: tuple(c) for f, c in (timing.get("costs") or {}).get(key, {}).items()}
+        costs = league_timing.costs(timing, key)
         out += league_table.cell_rows(key, entry.scenario, point, r,
                                       league_table.roles(study.scenario.outputs(study.config)), entry.filters,
                                       league.filters, entry.notes, costs, timing.get("machine", ""))

@@ -9,6 +9,7 @@ runs::
     chunk_size = 1000
     timing_runs = 200            # runs of each filter alone in the timing pass (0: no timing pass)
     filters = ["cif", "kcf", "local", "my_filters.py:FILTER"]   # built-in, installed or "file.py:ATTRIBUTE"
+    plugins = { diffusion_kf = "../plugins/diffusion_kf" }    # optional: where a plugin filter comes from
 
     [scenarios.flocking]         # a name of your own (it names the output folder OUT/flocking/)
     base = "../../configs/lou2013.toml"          # relative to the league file
@@ -41,8 +42,8 @@ from typing import Any, NamedTuple
 from mcjax.base.plugins import absolute_reference
 from mcjax.base.validation import SpecError, check_keys, count, key_text, read_toml, show, subtable, suggest
 
-FILE_KEYS = ("title", "description", "seeds", "base_seed", "chunk_size", "timing_runs", "filters", "scenarios",
-             "points")
+FILE_KEYS = ("title", "description", "seeds", "base_seed", "chunk_size", "timing_runs", "filters", "plugins",
+             "scenarios", "points")
 SCENARIO_KEYS = ("base", "description", "filters", "config", "params")
 POINT_KEYS = ("description", "config", "params")
 #: Runs per cell when neither the league file nor --seeds gives a number.
@@ -113,15 +114,59 @@ def _names(where: str, value, allowed: tuple | None = None) -> tuple:
     return tuple(value)
 
 
+def install_command(folder: Path) -> str:
+    """``pip install -e FOLDER``, the folder as one would type it from the current folder."""
+    import os
+    import shlex
+
+    try:
+        shown = os.path.relpath(folder)
+    except ValueError:  # another drive
+        shown = str(folder)
+    if Path(shown).parts[:1] == ("..",) and Path(shown).parts.count("..") >= len(Path.cwd().parts) - 1:
+        shown = str(folder)  # up to the root and down again: the whole path reads better
+    return f"pip install -e {shlex.quote(shown)}"
+
+
+def _plugins(path: Path, data: dict, names: tuple) -> dict:
+    """The league file's ``plugins`` table checked: ``{filter: its plugin's folder}``, each a filter of
+    the league that is not built in, each folder (relative to the league file) a Python project."""
+    from mcjax.tracking.filters.registry import BUILTIN
+
+    raw = data.get("plugins", {})
+    where = f"{path.name}: plugins"
+    if not isinstance(raw, dict):
+        raise _err(where, f"must be a table of filter name = the plugin's folder (relative to the league file), "
+                   f'e.g. plugins = {{ my_filter = "../plugins/my_filter" }}; got {show(raw)}')
+    out = {}
+    for name, folder in raw.items():
+        at = f"{where}.{key_text(name)}"
+        if name in BUILTIN:
+            raise _err(at, f"{name!r} is a built-in filter, not a plugin")
+        if name not in names:
+            raise _err(at, f"names no filter of the league (its filters: {', '.join(names)})")
+        if not isinstance(folder, str) or not folder.strip():
+            raise _err(at, f"must be the plugin's folder (relative to the league file); got {show(folder)}")
+        full = (path.parent / folder).resolve()
+        if not any((full / f).is_file() for f in ("pyproject.toml", "setup.py")):
+            raise _err(at, f"{folder!r} is not a plugin's folder: {full} holds no pyproject.toml or setup.py")
+        out[name] = full
+    return out
+
+
 def _filters(path: Path, data: dict) -> tuple[tuple, dict]:
     from mcjax.tracking.filters import registry
 
     names = _names(f"{path.name}: filters", data.get("filters"))
+    plugins = _plugins(path, data, names)
     config_names = {}
     for i, name in enumerate(names):
         try:
             registry.get(name, path.parent)
         except ValueError as exc:
+            if name in plugins and name not in registry.known():
+                raise _err(f"{path.name}: filters[{i}]", f"filter {name!r} is a plugin that is not installed: "
+                           f"{install_command(plugins[name])}") from None
             raise _err(f"{path.name}: filters[{i}]", " ".join(str(exc).split())) from None
         config_names[name] = absolute_reference(name, path.parent)  # the same file from any folder or worker
     return names, config_names

@@ -14,7 +14,8 @@ Per row (every interval 95 %):
 * ``anees`` — the average NEES (role ``nees``, ``consistency = "on"``) against the χ² band of
   ``nees_dof`` dof and its number of finite runs, and ``consistency``: its verdict;
 * ``cost_per_run_s`` — seconds per run of the scenario with that filter alone (``cost_note``), from
-  the timing pass on ``machine``.
+  the timing pass on ``machine`` (:mod:`mcjax.league.timing`): the median of its timed repeats, and
+  ``cost_low``, ``cost_high`` the lowest and highest repeat (the measurement's spread).
 
 A column the scenario does not declare (no floor, no NEES) is NaN. A league filter a scenario does
 not run has ``status`` "not run" and ``note`` says why. Pure functions of tables; no JAX.
@@ -28,7 +29,7 @@ from typing import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from mcjax.analysis import tables
+from mcjax.analysis import tables, wording
 from mcjax.analysis.statistics import chi2_band, consistency, floor_multiple, mean_ci, wilson_interval
 from mcjax.league.rank import paired_difference, paired_ranks
 
@@ -37,7 +38,7 @@ COLUMNS = ("scenario", "scenario_name", "point", "filter", "status", "note", "ru
            "rank", "rmse", "rmse_low", "rmse_high", "vs_best", "vs_best_low", "vs_best_high",
            "floor_multiple", "floor_low", "floor_high", "diverged", "divergence_rate", "divergence_low",
            "divergence_high", "anees", "nees_dof", "anees_band_low", "anees_band_high", "consistency",
-           "cost_per_run_s", "cost_note", "machine")
+           "cost_per_run_s", "cost_low", "cost_high", "cost_note", "machine")
 NAN = math.nan
 
 
@@ -107,7 +108,7 @@ def cell_rows(scenario: str, scenario_name: str, point: str, rows: pd.DataFrame,
                 row.update(anees=float(v.mean()), anees_band_low=band.low, anees_band_high=band.high,
                            consistency=consistency(float(v.mean()), band))
         if f in costs:
-            row["cost_per_run_s"], row["cost_note"] = costs[f]
+            row["cost_per_run_s"], row["cost_low"], row["cost_high"], row["cost_note"] = costs[f]
         out.append(row)
     return out
 
@@ -123,12 +124,21 @@ def frame(rows: list[dict]) -> pd.DataFrame:
 
 # ------------------------------------------------------------------ the table as a reader sees it
 
+#: What a blank cell of a filter that ran says, by column.
+NO_RANK = "no finite run"
+NO_FLOOR = "no floor"
+NO_NEES = "not computed"
+NOT_TIMED = "not timed"
+#: The note of a cell's fastest filter when no cost is starred.
+WITHIN_SPREAD = "cost differences within the measurement's spread"
+
+
 def _num(v: float) -> str:
     return "–" if v is None or not math.isfinite(v) else tables.format_number(float(v), 3)
 
 
-def _ci(m: float, lo: float, hi: float) -> str:
-    return "–" if not math.isfinite(m) else f"{_num(m)} [{_num(lo)}, {_num(hi)}]"
+def _ci(m: float, lo: float, hi: float, unit: str = "") -> str:
+    return "–" if not math.isfinite(m) else wording.quote(float(m), float(lo), float(hi), unit)
 
 
 def _best(values: pd.Series, key=lambda v: v) -> set:
@@ -140,53 +150,142 @@ def _best(values: pd.Series, key=lambda v: v) -> set:
     return set(k.index[k == k.min()])
 
 
+def fastest(cell: pd.DataFrame) -> tuple[object, bool]:
+    """``(index of the cell's fastest filter, clear)``: the lowest cost per run, and whether its range over
+    the timed repeats lies below every other filter's (a cost difference beyond the measurement's
+    spread); ``(None, False)`` with no cost."""
+    cost = pd.to_numeric(cell["cost_per_run_s"], errors="coerce").astype(float)
+    cost = cost[np.isfinite(cost)]
+    if cost.empty:
+        return None, False
+    best = cost.idxmin()
+    high = float(cell.loc[best, "cost_high"])
+    others = pd.to_numeric(cell.loc[cost.index.drop(best), "cost_low"], errors="coerce").astype(float)
+    clear = math.isfinite(high) and bool((others > high).all()) and not others.isna().any()
+    return best, clear
+
+
+def _anees(r) -> str:
+    """``"1.04, below its band [1.22, 2.97]: under-confident"``: the ANEES against its band, in words."""
+    if not math.isfinite(r["anees"]):
+        return NO_NEES
+    where = {"consistent": "inside", "under-confident": "below", "over-confident": "above"}.get(r["consistency"], "")
+    band = f"[{_num(r['anees_band_low'])}, {_num(r['anees_band_high'])}]"
+    return f"{_num(r['anees'])}, {where} its band {band}: {r['consistency']}" if where else _num(r["anees"])
+
+
+def _cost(r) -> str:
+    if not math.isfinite(r["cost_per_run_s"]):
+        return NOT_TIMED
+    ms = [1e3 * float(r[c]) for c in ("cost_per_run_s", "cost_low", "cost_high")]
+    return f"{_num(ms[0])} [{_num(ms[1])}, {_num(ms[2])}]" if all(map(math.isfinite, ms[1:])) else _num(ms[0])
+
+
 def display_table(table: pd.DataFrame) -> pd.DataFrame:
-    """The league table for reading: per scenario × point its filters by rank, each statistic with
-    its interval, ``*`` on the best of each column of the cell (lowest error, floor multiple,
-    divergence rate and cost; ANEES nearest its dof)."""
+    """The league table for reading: per scenario × point its filters by rank, each statistic with its
+    interval and unit, every blank cell saying why (:func:`legend` says what each word means), ``*``
+    on the best of each column of the cell (lowest error, floor multiple and divergence rate; ANEES
+    nearest its dof; the cost only where the fastest's range lies below every other's — else the
+    fastest's note says the differences are within the measurement's spread)."""
     parts = []
     for (_, _), cell in table.groupby(["scenario", "point"], sort=False):
         cell = cell.assign(_r=cell["rank"].astype("float").fillna(np.inf)).sort_values(["_r", "rmse"], kind="stable")
-        marks = {c: _best(cell[c]) for c in ("rmse", "floor_multiple", "divergence_rate", "cost_per_run_s")}
+        marks = {c: _best(cell[c]) for c in ("rmse", "floor_multiple", "divergence_rate")}
         marks["anees"] = _best(cell["anees"] / cell["nees_dof"].where(cell["nees_dof"] > 0), key=lambda v: abs(v - 1))
+        quick, clear = fastest(cell)
+        marks["cost"] = {quick} if clear else set()
 
         def star(col, i, text, marks=marks):
-            return text + (" *" if i in marks[col] and text != "–" else "")
+            return text + (" *" if i in marks[col] else "")
 
         for i, r in cell.iterrows():
-            run = r["status"] == "run"
-            band = f" in [{_num(r['anees_band_low'])}, {_num(r['anees_band_high'])}]" if math.isfinite(
-                r["anees_band_low"]) else ""
+            row = {"scenario": r["scenario"], "point": r["point"], "filter": r["filter"]}
+            if r["status"] != "run":
+                parts.append({**row, **dict.fromkeys(SHOWN[3:-1], "–"), "note": r["note"]})
+                continue
+            finite = math.isfinite(r["rmse"])
+            note = [] if r["cost_note"] in ("", "alone") else [f"timed {r['cost_note']}"
+                                                             if r["cost_note"].startswith("with ") else r["cost_note"]]
+            if i == quick and not clear and len(cell[np.isfinite(cell["cost_per_run_s"].astype(float))]) > 1:
+                note.append(WITHIN_SPREAD)
             parts.append({
-                "scenario": r["scenario"], "point": r["point"], "filter": r["filter"],
-                "rank": str(int(r["rank"])) if run and not pd.isna(r["rank"]) else "–",
-                f"{r['error_output'] or 'error'} [95 %]": star("rmse", i, _ci(r["rmse"], r["rmse_low"], r["rmse_high"])),
-                "x floor [95 %]": star("floor_multiple", i, _ci(r["floor_multiple"], r["floor_low"], r["floor_high"])),
-                "diverged [95 %]": star("divergence_rate", i, _ci(r["divergence_rate"], r["divergence_low"],
-                                                                  r["divergence_high"])) if run else "–",
-                "ANEES": star("anees", i, f"{_num(r['anees'])}{band} {r['consistency']}".strip())
-                if math.isfinite(r["anees"]) else "–",
-                "s/run": star("cost_per_run_s", i, _num(r["cost_per_run_s"])),
-                "note": r["note"] if not run else (r["cost_note"] or ""),
-            })
-    return pd.DataFrame(parts)
+                **row, "rank": str(int(r["rank"])) if not pd.isna(r["rank"]) else NO_RANK,
+                "error [95 %]": star("rmse", i, _ci(r["rmse"], r["rmse_low"], r["rmse_high"], r["unit"]))
+                if finite else NO_RANK,
+                "x floor [95 %]": star("floor_multiple", i, _ci(r["floor_multiple"], r["floor_low"], r["floor_high"]))
+                if math.isfinite(r["floor_multiple"]) else NO_FLOOR,
+                "diverged [95 %]": star("divergence_rate", i, wording.percent(r["divergence_rate"], r["divergence_low"],
+                                                                              r["divergence_high"]))
+                if math.isfinite(r["divergence_rate"]) else "not declared",
+                "ANEES": star("anees", i, _anees(r)) if math.isfinite(r["anees"]) else NO_NEES,
+                "ms/run [range]": star("cost", i, _cost(r)) if math.isfinite(r["cost_per_run_s"]) else NOT_TIMED,
+                "note": "; ".join(note)})
+    return pd.DataFrame(parts, columns=list(SHOWN))
 
 
-def league_text(table: pd.DataFrame, meta: Mapping, fmt: str = "text") -> str:
-    """The league table with its header lines (title, runs, the ranking rule, the machine)."""
+#: The columns of :func:`display_table`.
+SHOWN = ("scenario", "point", "filter", "rank", "error [95 %]", "x floor [95 %]", "diverged [95 %]", "ANEES",
+         "ms/run [range]", "note")
+
+
+def cost_method(meta: Mapping) -> str:
+    """How the cost columns were measured, in one sentence (from the league table's metadata)."""
+    if not meta.get("timing_runs") and not meta.get("machine"):
+        return (f"ms/run: {NOT_TIMED} (the league file's timing_runs = 0: no timing pass)")
+    t = meta.get("timing") or {}
+    repeats, runs, load = t.get("repeats"), t.get("repeat_runs"), t.get("load")
+    how = (f"the median of {repeats} timed repeats of {runs} run(s) each, after one untimed repeat that compiles "
+           f"(compilation excluded), with the lowest and highest repeat in brackets" if repeats and runs else
+           "compilation excluded")
+    return (f"ms/run: milliseconds per run of the filter alone — the scenario at the league's first point built "
+            f"with that filter as its only filter, so no other filter's work is timed (a filter the scenario runs "
+            f"only beside another is timed with it: the note says so) — {how}; measured in one process on "
+            f"{meta.get('machine') or 'this machine'}"
+            + (f", load average {load} when the timing began" if load is not None else ""))
+
+
+def legend(table: pd.DataFrame, meta: Mapping) -> list[str]:
+    """What the league table's columns, words and marks mean, one line each (the printed table's
+    header, the page's legend)."""
+    run = table[table["status"] == "run"]
+    units = "; ".join(f"{s}: {e or 'error'}" + (f" in {u}" if u else " (no unit)")
+                      for s, e, u in run[["scenario", "error_output", "unit"]].drop_duplicates("scenario")
+                      .itertuples(index=False))
+    no_floor = sorted(set(run.loc[~np.isfinite(run["floor_multiple"].astype(float)), "scenario"]))
+    no_nees = sorted(set(run.loc[~np.isfinite(run["anees"].astype(float)), "scenario"]))
+    lines = [
+        f"{meta.get('title', 'league')}: {table['scenario'].nunique()} scenario(s) x {table['point'].nunique()} "
+        f"point(s) x {table['filter'].nunique()} filter(s), {meta.get('seeds', '?')} runs per cell, the same seeds "
+        "for every filter of a cell",
+        "rank: lowest mean error first; a filter whose paired-by-seed 95 % interval of its difference to the rank's "
+        f"leader contains 0 shares its rank (it is not shown to be worse); {NO_RANK}: no rank and no error",
+        f"error: each scenario's error output, the mean over its finite runs with its 95 % Student-t interval, in "
+        f"its unit ({units or 'none ran'})",
+        "x floor: the RMS error as a multiple of the error floor's (the posterior Cramér-Rao bound), 95 % "
+        f"delta-method interval; {NO_FLOOR}: the scenario computes no floor at these settings (it needs "
+        "bound = \"on\" and noise with Fisher information)" + (f" — here {', '.join(no_floor)}" if no_floor else ""),
+        "diverged: the runs flagged diverged, in percent, 95 % Wilson interval",
+        "ANEES: the average NEES over the finite runs against the 95 % band an average of that many runs falls in "
+        "when the filter is consistent (chi-square, its middle the error's dimension): inside the band consistent, "
+        "below it under-confident (errors smaller than the filter's covariance says), above it over-confident; "
+        f"{NO_NEES}: no NEES at these settings (it needs consistency = \"on\")"
+        + (f" — here {', '.join(no_nees)}" if no_nees else ""),
+        cost_method(meta),
+        "*: the best of each column in a scenario x point (lowest error, x floor and divergence; ANEES nearest the "
+        "middle of its band); on ms/run only where the fastest's range lies below every other filter's, else its "
+        f"note says \"{WITHIN_SPREAD}\"",
+        "–: the filter did not run in this scenario (the note says why)",
+    ]
+    return lines
+
+
+def league_text(table: pd.DataFrame, meta: Mapping, fmt: str = "text", width: int | None = None) -> str:
+    """The league table with its legend (:func:`legend`) as header lines; ``width``: a terminal's columns
+    (text cut into blocks of columns and its header wrapped, :func:`mcjax.analysis.tables.format_table`)."""
     tables.check_format(fmt)
     if fmt == "csv":
         return table.to_csv(index=False)
-    machine = meta.get("machine") or "no timing pass"
-    header = [f"{meta.get('title', 'league')}: {table['scenario'].nunique()} scenario(s) x "
-              f"{table['point'].nunique()} point(s) x {table['filter'].nunique()} filter(s), "
-              f"{meta.get('seeds', '?')} runs per cell, the same seeds for every filter",
-              "rank: lowest mean error first; a filter whose paired-by-seed 95 % interval of its difference to the "
-              "rank's leader contains 0 shares its rank; * marks the best of each column in a scenario x point",
-              "intervals 95 %: error and x floor Student-t (x floor: delta method), diverged Wilson; ANEES against "
-              "its chi-square band",
-              f"s/run: seconds per run with that filter alone, on {machine}"]
     display = display_table(table)
     display["scenario"] = [s if i == 0 or s != display["scenario"].iloc[i - 1] else ""
                            for i, s in enumerate(display["scenario"])] if fmt == "text" else display["scenario"]
-    return tables.format_table(display, fmt, header)
+    return tables.format_table(display, fmt, legend(table, meta), width=width if fmt == "text" else None)

@@ -1,23 +1,39 @@
 """The timing pass of a league: the cost per run of each filter alone, measured on this machine.
 
-For each scenario of the league and each filter it runs, the scenario's sweep at the league's
-first point is built with that filter alone (or, when the scenario refuses it alone, with the
-first of its other filters it needs beside it — said in the note), run once to compile and warm
-up, then run again on ``timing_runs`` runs in this process, timed: seconds per run, compilation
-excluded. The result is stated with :func:`machine`, the machine it was measured on.
+"Alone" means the scenario built with that filter as its only filter, so the program times no other
+filter's work. For each scenario of the league and each filter it runs, the scenario's sweep at the
+league's first point is built that way (or, when the scenario refuses a filter alone, with the first
+of its other filters it needs beside it — Sun et al. 2011's planner needs the modified ICF; said in
+the note, and the cost is then of both), on :func:`repeat_runs` runs. It is run once untimed (that
+compiles the program and warms it up), then :data:`REPEATS` times, each repeat timed: per repeat,
+seconds per run with compilation excluded. The cost is the median of the repeats, and their range
+(lowest, highest) is the measurement's spread. The runs scale with the league's: ``timing_runs``
+(the file's) or the runs per cell (``--seeds``), whichever is smaller, split into the repeats — so a
+quick look times few runs.
 
-The timing pass runs here whatever the sweeps' executor (the cost is of this machine).
+The pass runs here whatever the sweeps' executor (the cost is of this machine, :func:`machine`),
+says where it is after each repeat (``progress``), and is stopped within a fraction of a second by
+``should_stop()``: the repeat in flight (a compilation too) is left to finish in the background and
+its time is not kept. What it measured is saved after each filter, so a resumed league keeps it.
 """
 
 from __future__ import annotations
 
 import os
 import platform
+import statistics
+import threading
 import time
 from typing import Callable
 
 from mcjax.base.validation import SpecError
 from mcjax.league.spec import League, cell_spec
+from mcjax.study.runner import SweepProgress
+
+#: Timed repeats of each filter (after one untimed repeat that compiles).
+REPEATS = 3
+#: How often a running repeat looks at ``should_stop()`` (seconds).
+POLL_S = 0.1
 
 
 def machine() -> str:
@@ -35,58 +51,163 @@ def machine() -> str:
             f"{len(devices)} {devices[0].platform} device(s)")
 
 
-def _study(league: League, key: str, names: list[str]):
+def load_average() -> float | None:
+    """The machine's load average over the last minute (None where the system gives none)."""
+    try:
+        return round(os.getloadavg()[0], 2)
+    except (AttributeError, OSError):
+        return None
+
+
+def repeat_runs(league: League) -> int:
+    """Runs of each timed repeat: ``timing_runs`` or the runs per cell, whichever is smaller, split into
+    :data:`REPEATS` (rounded up); 0 when the league has no timing pass."""
+    runs = min(league.timing_runs, league.seeds)
+    return -(-runs // REPEATS) if runs else 0
+
+
+def stages(league: League) -> dict[str, int]:
+    """``{"timing <scenario>": steps}`` of the progress the pass reports: one step per repeat of each filter
+    (the untimed one included); empty without a timing pass."""
+    if not league.timing_runs:
+        return {}
+    return {f"timing {key}": len(entry.filters) * (1 + REPEATS) for key, entry in league.scenarios.items()}
+
+
+def _study(league: League, key: str, names: list[str], runs: int):
     from mcjax.study.spec import build_spec
 
     source = league.source
     point = source["points"][next(iter(league.points))]
     data = {k: v for k, v in source.items() if k == "base_seed"}
     spec = cell_spec(source["scenarios"][key], point, [league.config_names[n] for n in names], data)
-    return build_spec(spec, league.path.parent, seeds=league.timing_runs, chunk_size=league.timing_runs)
+    return build_spec(spec, league.path.parent, seeds=runs, chunk_size=runs)
 
 
-def time_filter(league: League, key: str, filt: str) -> tuple[float, str]:
-    """``(seconds per run, note)`` of scenario ``key`` running ``filt`` alone (module docstring)."""
-    from mcjax.study.execute import chunk_rows
-
+def timed_study(league: League, key: str, filt: str, runs: int):
+    """``(study, note)``: scenario ``key`` with ``filt`` alone on ``runs`` runs, or with the first other
+    filter of the scenario it needs (the note says which); ``(None, why)`` when neither builds."""
     entry = league.scenarios[key]
-    study, note = None, "alone"
     for companion in [None, *(g for g in entry.filters if g != filt)]:
         try:
-            study = _study(league, key, [filt] if companion is None else [companion, filt])
-            note = "alone" if companion is None else f"with {companion} (the scenario needs it)"
-            break
+            study = _study(league, key, [filt] if companion is None else [companion, filt], runs)
         except SpecError:
             continue
+        return study, "alone" if companion is None else f"with {companion} (the scenario needs it)"
+    return None, "not timed: the scenario runs it only with other filters"
+
+
+def _unless_stopped(work: Callable[[], None], stop: Callable[[], bool]) -> bool:
+    """Run ``work()`` in a thread of its own, looking at ``stop()`` every :data:`POLL_S`: True when it
+    finished, False when ``stop()`` turned True first (the work is left to finish in the background).
+    An exception of ``work`` is raised here."""
+    failed: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            work()
+        except BaseException as exc:  # noqa: BLE001 - raised again in the caller's thread
+            failed.append(exc)
+
+    thread = threading.Thread(target=run, name="mcjax-league-timing", daemon=True)
+    thread.start()
+    while thread.is_alive():
+        thread.join(POLL_S)
+        if thread.is_alive() and stop():
+            return False
+    if failed:
+        raise failed[0]
+    return True
+
+
+def time_filter(league: League, key: str, filt: str, *, runs: int | None = None,
+                tick: Callable[[], None] | None = None,
+                should_stop: Callable[[], bool] | None = None) -> tuple[list[float], str] | None:
+    """``([seconds per run of each timed repeat], note)`` of scenario ``key`` running ``filt`` alone
+    (module docstring) on ``runs`` runs a repeat (default :func:`repeat_runs`); ``tick()`` after each
+    repeat; None when ``should_stop()`` stopped it."""
+    from mcjax.study.execute import chunk_rows
+
+    stop = should_stop or (lambda: False)
+    study, note = timed_study(league, key, filt, runs or repeat_runs(league))
     if study is None:
-        return float("nan"), "not timed: the scenario runs it only with other filters"
-    for _ in chunk_rows(study):  # compile and warm up
-        pass
-    t0 = time.perf_counter()
-    for _ in chunk_rows(study):
-        pass
-    return (time.perf_counter() - t0) / study.n_runs, note
+        return [], note
+    seconds = []
+    for i in range(1 + REPEATS):  # the first compiles and warms up, untimed
+        t0 = time.perf_counter()
+        if stop() or not _unless_stopped(lambda: [None for _ in chunk_rows(study)], stop):
+            return None
+        if i:
+            seconds.append((time.perf_counter() - t0) / study.n_runs)
+        if tick is not None:
+            tick()
+    return seconds, note
+
+
+def summary(seconds: list[float]) -> tuple[float, float, float]:
+    """``(median, lowest, highest)`` of the repeats' seconds per run (NaN for none)."""
+    if not seconds:
+        return float("nan"), float("nan"), float("nan")
+    return statistics.median(seconds), min(seconds), max(seconds)
 
 
 def timing_pass(league: League, saved: dict, *, save: Callable[[dict], None] | None = None,
                 message: Callable[[str], None] | None = None,
+                progress: Callable[[str, SweepProgress], None] | None = None,
                 should_stop: Callable[[], bool] | None = None) -> tuple[dict, bool]:
-    """``(timing, stopped)``: ``saved`` completed with every scenario × filter not timed yet
-    (``{"machine": …, "costs": {scenario: {filter: [seconds, note]}}}``); ``save(timing)`` after each
-    filter, so a stopped league keeps what it measured; ``should_stop()`` asked between filters."""
+    """``(timing, stopped)``: ``saved`` (``timing.json``) completed with every scenario × filter not timed
+    yet — ``{"machine", "load", "repeat_runs", "repeats", "costs": {scenario: {filter: {"seconds":
+    [per repeat], "note"}}}}``; what was saved with other repeats is timed again. ``save(timing)`` after
+    each filter, so a stopped league keeps what it measured; ``progress("timing <scenario>",
+    SweepProgress)`` after each repeat (chunks: repeats, runs: their runs); ``should_stop()`` looked at
+    while each repeat runs."""
     say, stop = message or (lambda _: None), should_stop or (lambda: False)
-    timing = {"machine": saved.get("machine") or machine(), "runs": league.timing_runs,
-              "costs": {k: dict(v) for k, v in (saved.get("costs") or {}).items()}}
+    tell = progress or (lambda *_: None)
+    runs = repeat_runs(league)
+    same = saved.get("repeat_runs") == runs and saved.get("repeats") == REPEATS
+    old = (saved.get("costs") or {}) if same else {}
+    timing = {"machine": (same and saved.get("machine")) or machine(),
+              "load": saved.get("load") if same and "load" in saved else load_average(),
+              "repeat_runs": runs, "repeats": REPEATS,
+              "costs": {k: {f: c for f, c in v.items() if isinstance(c, dict)} for k, v in old.items()}}
+    steps = stages(league)
     for key, entry in league.scenarios.items():
         done = timing["costs"].setdefault(key, {})
-        for filt in entry.filters:
-            if filt in done:
-                continue
+        todo = [f for f in entry.filters if f not in done]
+        stage, total = f"timing {key}", steps[f"timing {key}"]
+        at = [total - len(todo) * (1 + REPEATS)]
+
+        def tick(stage=stage, total=total, at=at) -> None:
+            tell(stage, SweepProgress(at[0], total, at[0] * runs, total * runs))
+
+        if todo:
+            tick()
+        for filt in todo:
             if stop():
                 return timing, True
-            seconds, note = time_filter(league, key, filt)
-            done[filt] = [seconds, note]
-            say(f"timing {key} / {filt}: {seconds * 1e3:.3g} ms per run ({note})")
+
+            def step(tick=tick, at=at) -> None:
+                at[0] += 1
+                tick()
+
+            got = time_filter(league, key, filt, runs=runs, tick=step, should_stop=stop)
+            if got is None:
+                return timing, True
+            seconds, note = got
+            done[filt] = {"seconds": seconds, "note": note}
+            med, low, high = summary(seconds)
+            say(f"timing {key} / {filt}: {note}" if not seconds else
+                f"timing {key} / {filt}: {med * 1e3:.3g} ms per run (repeats {low * 1e3:.3g} to "
+                f"{high * 1e3:.3g}; {note})")
             if save is not None:
                 save(timing)
     return timing, False
+
+
+def costs(timing: dict, key: str) -> dict[str, tuple[float, float, float, str]]:
+    """``{filter: (seconds per run, lowest, highest, note)}`` of scenario ``key`` from a timing pass."""
+    out = {}
+    for filt, c in ((timing.get("costs") or {}).get(key) or {}).items():
+        if isinstance(c, dict):
+            out[filt] = (*summary(list(c.get("seconds") or [])), str(c.get("note", "")))
+    return out
