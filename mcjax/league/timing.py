@@ -97,7 +97,7 @@ def timed_study(league: League, key: str, filt: str, runs: int):
     return None, "not timed: the scenario runs it only with other filters"
 
 
-def _unless_stopped(work: Callable[[], None], stop: Callable[[], bool]) -> bool:
+def run_unless_stopped(work: Callable[[], None], stop: Callable[[], bool]) -> bool:
     """Run ``work()`` in a thread of its own, looking at ``stop()`` every :data:`POLL_S`: True when it
     finished, False when ``stop()`` turned True first (the work is left to finish in the background).
     An exception of ``work`` is raised here."""
@@ -135,7 +135,7 @@ def time_filter(league: League, key: str, filt: str, *, runs: int | None = None,
     seconds = []
     for i in range(1 + REPEATS):  # the first compiles and warms up, untimed
         t0 = time.perf_counter()
-        if stop() or not _unless_stopped(lambda: [None for _ in chunk_rows(study)], stop):
+        if stop() or not run_unless_stopped(lambda: [None for _ in chunk_rows(study)], stop):
             return None
         if i:
             seconds.append((time.perf_counter() - t0) / study.n_runs)

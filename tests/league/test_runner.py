@@ -61,4 +61,78 @@ def test_the_command_times_each_filter_and_prints_every_format(league_file, tmp_
     assert shown.output.startswith(markdown.split("\n")[0]) and "| scenario | point | filter | rank |" in shown.output
     page = (out / "report" / "index.html").read_text(encoding="utf-8")
     assert "<table" in page and "tiny league" in page and page.index("<table") < page.index("</main>")
+    # the legend wraps (a list, not a box that scrolls sideways), then the table, the sweeps, the provenance
+    assert "<pre" not in page and page.index('<ul class="legend">') < page.index("<table")
+    assert "filter alone" in page and "load average" in page
+    import re
 
+    links = re.findall(r'<a href="([^"]+)">', page[page.index('id="sweeps"'):])
+    assert len(links) == 2 and all((out / "report" / href).resolve() in {(out / "wind" / p).resolve() for p in
+                                                                        ("none", "iid")} for href in links)
+    provenance = page[page.index('id="provenance"'):]
+    assert "git revision of mcjax" in provenance and str(path) in provenance
+
+
+
+#: The league table's columns that are measurements of this machine's clock.
+MEASURED = ["cost_per_run_s", "cost_low", "cost_high"]
+
+
+def test_the_timing_pass_times_three_repeats_and_a_league_stopped_in_it_resumes(league_file, tmp_path):
+    """timing_runs = 6 with 8 runs per cell: 3 timed repeats of 2 runs per filter, after one untimed;
+    the progress counts every repeat (2 filters x 4); the table's cost is the median of timing.json's
+    repeats, its range their lowest and highest. Stopped in the timing pass, the league resumes to the
+    table of one run straight through but for the measured columns, the filter timed before the stop
+    keeping what was measured."""
+    import json
+    import statistics
+
+    path = league_file(TINY.replace("timing_runs = 0", "timing_runs = 6"))
+    ticks = []
+    whole = run_league(path, out_dir=tmp_path / "whole", progress=lambda name, at: ticks.append((name, at)))
+    timed = [(at.chunks_done, at.chunks, at.runs_done) for name, at in ticks if name == "timing wind"]
+    assert timed == [(i, 8, 2 * i) for i in range(9)]
+    saved = json.loads((tmp_path / "whole" / "timing.json").read_text(encoding="utf-8"))
+    assert (saved["repeats"], saved["repeat_runs"]) == (3, 2)
+    t = whole.table.set_index(["point", "filter"])
+    for f in ("kcf", "local"):
+        seconds = saved["costs"]["wind"][f]["seconds"]
+        assert len(seconds) == 3 and all(s > 0 for s in seconds)
+        for point in ("none", "iid"):
+            assert t.loc[(point, f), "cost_per_run_s"] == statistics.median(seconds)
+            assert (t.loc[(point, f), "cost_low"], t.loc[(point, f), "cost_high"]) == (min(seconds), max(seconds))
+    meta = read_league(tmp_path / "whole")[1]
+    assert meta["timing"]["repeats"] == 3 and meta["timing"]["repeat_runs"] == 2
+
+    seen = []
+    stopped = run_league(path, out_dir=tmp_path / "killed", progress=lambda name, at: seen.append((name, at)),
+                         should_stop=lambda: any(n == "timing wind" and at.chunks_done >= 5 for n, at in seen))
+    assert stopped.stopped and not (tmp_path / "killed" / TABLE_FILE).exists()
+    kept = json.loads((tmp_path / "killed" / "timing.json").read_text(encoding="utf-8"))["costs"]["wind"]
+    assert list(kept) == ["kcf"]            # local was stopped in its second repeat
+    resumed = run_league(path, out_dir=tmp_path / "killed", resume=True)
+    pdt.assert_frame_equal(resumed.table.drop(columns=MEASURED), whole.table.drop(columns=MEASURED))
+    kcf = resumed.table[resumed.table["filter"] == "kcf"]
+    assert (kcf["cost_per_run_s"] == statistics.median(kept["kcf"]["seconds"])).all()
+
+
+def test_a_stop_in_the_timing_pass_does_not_wait_for_the_repeat_in_flight():
+    """The repeat runs in a thread of its own: a stop is acted on while it still runs (here: it waits
+    for an event the test sets only afterwards); an error of the repeat reaches the caller."""
+    import threading
+
+    import pytest
+
+    from mcjax.league.timing import run_unless_stopped
+
+    release, asked = threading.Event(), []
+    assert run_unless_stopped(lambda: release.wait(60), lambda: asked.append(1) or len(asked) >= 2) is False
+    assert not release.is_set()      # returned while the repeat was still in flight
+    release.set()
+    assert run_unless_stopped(lambda: None, lambda: False) is True
+
+    def fails():
+        raise RuntimeError("a chunk failed")
+
+    with pytest.raises(RuntimeError, match="a chunk failed"):
+        run_unless_stopped(fails, lambda: False)

@@ -78,5 +78,69 @@ def test_the_project_league_names_the_missing_plugin_in_one_line_or_reads():
         assert league.seeds == 1 and len(league.points) == 4 and len(league.scenarios) == 3
         assert all(e.notes for e in league.scenarios.values())
     else:
-        with pytest.raises(LeagueError, match=r"consensus.toml: filters\[\d+\]: .*'diffusion_kf'"):
+        with pytest.raises(LeagueError, match=r"consensus.toml: filters\[\d+\]: filter 'diffusion_kf' is a plugin "
+                                              r"that is not installed: pip install -e \S*plugins/diffusion_kf$"):
             load_league(path)
+
+
+def _plugin_folder(root, name="my_plugin_kf"):
+    folder = root / "plugins" / name
+    folder.mkdir(parents=True)
+    (folder / "pyproject.toml").write_text(f'[project]\nname = "{name}"\n', encoding="utf-8")
+    return folder
+
+
+def test_an_uninstalled_plugin_the_file_says_where_to_find_is_named_with_its_install_command(league_file, tmp_path,
+                                                                                            monkeypatch):
+    """The one line names the filter and the pip command, its folder as typed from the current folder
+    (here: the league file's folder, and one above it)."""
+    _plugin_folder(tmp_path)
+    text = TINY.replace('"kcf", "local"]', '"kcf", "local", "my_plugin_kf"]\nplugins = { my_plugin_kf = '
+                                           '"plugins/my_plugin_kf" }')
+    path = league_file(text)
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(LeagueError) as info:
+        load_league(path)
+    assert str(info.value) == ("tiny.toml: filters[2]: filter 'my_plugin_kf' is a plugin that is not installed: "
+                               "pip install -e plugins/my_plugin_kf")
+    (tmp_path / "below").mkdir()
+    monkeypatch.chdir(tmp_path / "below")
+    out = tmp_path / "out"
+    result = CliRunner().invoke(main, ["league", str(path), "--out", str(out)])
+    assert result.exit_code == 2, result.output
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert lines == ["error: tiny.toml: filters[2]: filter 'my_plugin_kf' is a plugin that is not installed: "
+                     "pip install -e ../plugins/my_plugin_kf"]
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("plugins, message", [
+    ('plugins = "plugins/my_plugin_kf"', "tiny.toml: plugins: must be a table of filter name = the plugin's folder"),
+    ('plugins = { kcf = "plugins/my_plugin_kf" }', "tiny.toml: plugins.kcf: 'kcf' is a built-in filter, not a plugin"),
+    ('plugins = { other_kf = "plugins/my_plugin_kf" }', "tiny.toml: plugins.other_kf: names no filter of the league"),
+    ('plugins = { my_plugin_kf = 3 }', "tiny.toml: plugins.my_plugin_kf: must be the plugin's folder"),
+    ('plugins = { my_plugin_kf = "plugins/nowhere" }',
+     "tiny.toml: plugins.my_plugin_kf: 'plugins/nowhere' is not a plugin's folder"),
+])
+def test_a_bad_plugins_table_is_one_line_naming_the_key(league_file, tmp_path, plugins, message):
+    _plugin_folder(tmp_path)
+    with pytest.raises(LeagueError) as info:
+        load_league(league_file(TINY.replace('"kcf", "local"]', f'"kcf", "local", "my_plugin_kf"]\n{plugins}')))
+    assert str(info.value).startswith(message) and "\n" not in str(info.value)
+
+
+def test_the_project_league_says_where_its_plugin_comes_from():
+    import tomllib
+
+    path = ROOT / "benchmarks" / "league" / "consensus.toml"
+    plugins = tomllib.loads(path.read_text(encoding="utf-8"))["plugins"]
+    assert (path.parent / plugins["diffusion_kf"] / "pyproject.toml").is_file()
+
+
+@pytest.mark.parametrize("name, folder", [("tiny.toml", "league_tiny"), ("league_tiny.toml", "league_tiny"),
+                                          ("league.toml", "league"), ("my league.toml", "league_my_league")])
+def test_the_default_folder_does_not_double_league(name, folder):
+    from mcjax.league.runner import default_out_dir
+    from mcjax.study.store import RESULTS_DIR
+
+    assert default_out_dir(f"somewhere/{name}") == RESULTS_DIR / folder
