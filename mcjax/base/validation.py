@@ -229,7 +229,11 @@ def setting_value_problem(s, value) -> str | None:
         if unknown and refuses and any(is_plugin_name(v, refuses[0]) for v in unknown):
             return f"must be among its own {', '.join(map(str, s.choices))} ({refuses[1]}); got {show(value)}"
         if unknown:
-            return bad(setting_allowed(s), value) + f" (unknown: {', '.join(map(show, unknown))})"
+            from mcjax.base.plugins import near_name  # no import of its own: a leaf as this module is
+
+            close = near_name(unknown[0], s.choices) if isinstance(unknown[0], str) else None
+            hint = f"; did you mean {close!r}?" if close else ""
+            return bad(setting_allowed(s), value) + f" (unknown: {', '.join(map(show, unknown))}{hint})"
         return bad(setting_allowed(s), value) if len(value) == 0 or len(set(value)) != len(value) else None
     if s.choices is not None:
         strings = isinstance(value, str) and all(isinstance(c, str) for c in s.choices)

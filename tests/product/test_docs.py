@@ -11,7 +11,9 @@ paper's program would take many minutes), so what is checked is everything a rea
 A ``python benchmarks/X.py --opt`` line is checked for the script and each option; ``pip
 install`` lines for the extras and packages the project declares. The README's Python
 blocks (and docs/cli.md's) run against the datasets the commands wrote. docs/library.md's
-code is run by tests/product/test_readme.py and tests/contract/test_contract.py. A block preceded by
+code is run by tests/product/test_readme.py and tests/contract/test_contract.py, its "Writing a filter" whole
+(every block, as written, from a folder outside the repository, the simulations real) by
+tests/tracking/filters/test_writing_a_filter.py. A block preceded by
 ``<!-- not run by tests/product/test_docs.py: REASON -->`` is left out (the reason names what runs
 it instead).
 """

@@ -21,12 +21,11 @@ file, module or plugin) once, in the dataset's metadata (:func:`shown_name`, :fu
 
 from __future__ import annotations
 
-import difflib
 import sys
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from mcjax.base.plugins import import_reference, module_file
+from mcjax.base.plugins import import_reference, module_file, near_name
 from mcjax.contract.filter import Filter
 from mcjax.tracking.filters.consensus import CIF, ICF, KCF, LOCAL, MODIFIED_ICF
 from mcjax.tracking.filters.robust_consensus import CI, HCMCI
@@ -71,14 +70,10 @@ def _checked(obj, ref: str, plugin: str | None = None) -> Filter:
 
 
 def did_you_mean(name: str, names) -> str:
-    """``"; did you mean 'X'?"`` for the name of ``names`` one typo away from ``name`` — a letter missing, wrong
-    or extra (:func:`difflib.get_close_matches` at 0.75), or two letters swapped ('kfc' for 'kcf') — else ``""``."""
-    names = list(names)
-    close = difflib.get_close_matches(name, names, n=1, cutoff=0.75)
-    if not close:
-        close = [n for n in names if len(n) == len(name) and sorted(n) == sorted(name)
-                 and sum(a != b for a, b in zip(n, name)) == 2]
-    return f"; did you mean {close[0]!r}?" if close else ""
+    """``"; did you mean 'X'?"`` for the name of ``names`` one typo away from ``name``
+    (:func:`mcjax.base.plugins.near_name`), else ``""``."""
+    close = near_name(name, names)
+    return f"; did you mean {close!r}?" if close else ""
 
 
 def get(name: str, base_dir: str | Path | None = None) -> Filter:

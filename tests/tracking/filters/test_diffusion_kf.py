@@ -405,7 +405,8 @@ def test_built_from_the_docs_alone_it_installs_is_listed_and_runs_in_a_league_of
     assert pip.returncode == 0, pip.stderr
     env["PYTHONPATH"] = os.pathsep.join([str(target), *[p for p in sys.path if p]])
     league, out = _tiny_league(tmp_path), tmp_path / "league"
-    commands = [["list", "filters"], ["league", str(league), "--seeds", str(SEEDS), "--out", str(out)]]
+    commands = [["list", "filters"], ["league", str(league), "--seeds", str(SEEDS), "--out", str(out)],
+                ["report", str(out)]]  # the docs' `mcjax report results/league_diffusion_league`
     run = subprocess.run([sys.executable, "-c", DRIVER, json.dumps(commands)], check=False, capture_output=True,
                          text=True, env=env, cwd=tmp_path, timeout=900)
     assert run.returncode == 0 and "REPORT " in run.stdout, run.stderr[-3000:]
@@ -448,3 +449,9 @@ def test_built_from_the_docs_alone_it_installs_is_listed_and_runs_in_a_league_of
             assert "pcrb_rmse" in _carried(ours), where  # the error floor (bound = "on")
         if point != "none":
             assert rows["links_lost"].sum() > 0, where  # the faults were drawn
+
+    reported = done["report"]  # the league's page: the table by rank, as docs/library.md says
+    assert reported["exit_code"] == 0, reported["output"][-3000:] + reported["exception"]
+    page = (out / "report" / "index.html").read_text(encoding="utf-8")
+    assert "diffusion_kf" in page and "rank" in page and not list((out / "report").glob("*.png"))
+    assert all(f in reported["output"] for f in ("kcf", "local", "diffusion_kf")), reported["output"]

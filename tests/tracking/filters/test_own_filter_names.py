@@ -93,6 +93,15 @@ def test_a_typo_of_a_filter_name_is_told_the_name(typo, meant):
         registry.get(typo)
 
 
+@pytest.mark.parametrize("typo, meant", [("modifed_icf", "modified_icf"), ("kfc", "kcf")])
+def test_a_typo_in_a_configs_filters_is_told_the_name_exit_2(tmp_path, typo, meant):
+    out = tmp_path / "out"
+    r = _cli(["sweep", str(ROOT / "sweeps" / "default.toml"), "--seeds", "1", "--out", str(out),
+              "--set", f'config.filters=["cif", "{typo}"]'], tmp_path)
+    assert r.exit_code == 2 and len(_errors(r)) == 1, r.output
+    assert _errors(r)[0].endswith(f"(unknown: '{typo}'; did you mean '{meant}'?)") and not out.exists(), r.output
+
+
 def test_a_name_far_from_every_filter_gets_no_guess():
     with pytest.raises(ValueError) as err:
         registry.get("particle")
