@@ -42,8 +42,8 @@ from typing import Any, Mapping, NamedTuple, Sequence
 import numpy as np
 import pandas as pd
 
-from mcjax.analysis import quality, tables
-from mcjax.analysis.statistics import mean_ci, wilson_interval
+from mcjax.analysis import connectivity, quality, tables
+from mcjax.analysis.statistics import wilson_interval
 from mcjax.analysis.summary import Summary, summary_for
 from mcjax.analysis.wording import MAX_CLAUSES, PCT, Grid, Point, apart, listing, ordered, percent, quote
 from mcjax.analysis.wording import where as name_points
@@ -102,9 +102,10 @@ def headlines(metadata: Mapping[str, Any] | Any, filters: Sequence[str]) -> list
     return out
 
 
-def _headline(grid: Grid, e: str, unit: str, first: str, seconds: list[str]) -> Finding | None:
+def _headline(grid: Grid, e: str, unit: str, first: str, seconds: list[str], quoted: set) -> Finding | None:
     """``first`` against each of ``seconds``: where its mean error is lower, higher, or their
-    intervals overlap, with the numbers where its lead is largest."""
+    intervals overlap, with the numbers where its lead is largest (``quoted`` is told each
+    ``(filter, point)`` whose interval it quotes)."""
     clauses, orders = [], []
     for b in seconds:
         lower, higher, overlap = [], [], []
@@ -129,6 +130,7 @@ def _headline(grid: Grid, e: str, unit: str, first: str, seconds: list[str]) -> 
 
         def numbers(key, b=b):
             r = grid.rows[key]
+            quoted.update({(first, key), (b, key)})
             return (grid.at(key, ": ") + quote(*_interval(r, first, e), unit) + " against "
                     + quote(*_interval(r, b, e), unit))
 
@@ -227,9 +229,10 @@ def _pattern_words(pattern: tuple[tuple[str, str], ...]) -> str:
                      for d, fs in by.items() if fs])
 
 
-def _trend(grid: Grid, a: str, e: str, unit: str, filters: Sequence[str]) -> Finding | None:
+def _trend(grid: Grid, a: str, e: str, unit: str, filters: Sequence[str], quoted: set = frozenset()) -> Finding | None:
     """How each filter's mean error changes from the axis' first value to its last: with one panel
-    (no other axis), each change with its numbers; with several, the panels grouped by what changes."""
+    (no other axis), each change with its numbers (a mean whose interval a headline already quoted,
+    ``quoted``: ``(filter, point)``, without it again); with several, the panels grouped by what changes."""
     i = grid.axes.index(a)
     ax = grid.shown[i]
     values = ordered(p[i] for p in grid.points)
@@ -259,7 +262,9 @@ def _trend(grid: Grid, a: str, e: str, unit: str, filters: Sequence[str]) -> Fin
             if d == "still":
                 still.append(f)
             else:
-                moves[d].append(f"{f}'s from {quote(*_interval(ra, f, e), unit)} to {quote(*_interval(rb, f, e), unit)}")
+                ends = [_again(r, f, e, unit) if (f, k) in quoted else quote(*_interval(r, f, e), unit)
+                        for r, k in ((ra, ka), (rb, kb))]
+                moves[d].append(f"{f}'s from {ends[0]} to {ends[1]}")
         said = [f"the mean {e} {way}{' for every filter' if len(m) == len(pattern) else ''}: " + "; ".join(m)
                 for way, m in moves.items() if m]
         if still:
@@ -283,6 +288,11 @@ def _trend(grid: Grid, a: str, e: str, unit: str, filters: Sequence[str]) -> Fin
     moves_ = tuple((f, grid.point(ka), grid.point(kb), d) for ka, kb, pattern in found.values()
                    for f, d in pattern if d != "still")
     return Finding(a, text, kind="trend", moves=moves_)
+
+
+def _again(rows: pd.DataFrame, f: str, e: str, unit: str) -> str:
+    """A mean whose interval a sentence above quoted: the mean alone, pointing there."""
+    return f"{tables.format_number(float(rows.loc[f, f'{e}_mean']), tables.STAT_DIGITS)}{_space(unit)} (above)"
 
 
 def _rates(grid: Grid, key: tuple, filters: Sequence[str]) -> str:
@@ -344,66 +354,6 @@ def _divergence(grid: Grid, filters: Sequence[str]) -> Finding | None:
     return Finding("", text + ".", tuple(orders), "divergence")
 
 
-def _graph(grid: Grid, data: pd.DataFrame, sch: tables.Schema) -> Finding | None:
-    """Where the comm graph disconnects (runs with a disconnected step), once per run."""
-    ds = sch.disconnected_steps
-    if not ds or not grid.axes:
-        return None
-    keys = [k for k in ("point_id", "seed_index") if k in data.columns]
-    runs = data.drop_duplicates(subset=keys) if len(keys) == 2 else data[data["filter"] == data["filter"].iloc[0]]
-    stats = {}
-    for p in grid.points:
-        g = quality.rows_at(runs, grid.axes, p)[ds].to_numpy(dtype=float)
-        g = g[np.isfinite(g)]
-        if g.size:
-            k = int((g > 0).sum())
-            stats[p] = (k, g.size, wilson_interval(k, g.size), mean_ci(g))
-    if not stats:
-        return None
-    universe = list(stats)
-    some = [p for p, st in stats.items() if st[0] > 0]
-    none = [p for p, st in stats.items() if st[0] == 0]
-    u = tables.unit(ds, sch)
-
-    def rate(p):
-        k, n, ci, _ = stats[p]
-        return percent(k / n, ci.low, ci.high)
-
-    def said(p):
-        m = stats[p][3]
-        steps = f"{ds}, {quote(m.mean, m.low, m.high, u)}" if m.low == m.high else \
-            f"{ds}: mean {quote(m.mean, m.low, m.high, u)} per run"
-        return f"in {rate(p)} of runs ({steps})"
-
-    if not some:
-        return Finding("", f"The comm graph stays connected in every run {grid.where(universe, universe)} ({ds} = 0 in all "
-                           f"{sum(st[1] for st in stats.values())} runs).", kind="graph")
-    alike: dict[str, list] = {}  # points with the same numbers are named together
-    for p in some:
-        alike.setdefault(said(p), []).append(p)
-    if len(alike) <= MAX_CLAUSES + 1:
-        text = "The comm graph disconnects at some step " + "; ".join(
-            f"{grid.at(ps[0]) if len(ps) == 1 else name_points(ps, universe, grid.shown)} {words}"
-            for words, ps in alike.items())
-    else:
-        every = [p for p in some if stats[p][0] == stats[p][1]]
-        partly = [p for p in some if stats[p][0] < stats[p][1]]
-        parts = []
-        if every:
-            parts.append(f"in every run {name_points(every, universe, grid.shown)}")
-        if partly:
-            lo = min(partly, key=lambda p: stats[p][0] / stats[p][1])
-            hi = max(partly, key=lambda p: stats[p][0] / stats[p][1])
-            parts.append(f"in some runs {name_points(partly, universe, grid.shown)} (" + (
-                f"{rate(lo)} of them" if lo == hi else f"from {rate(lo)} of them {grid.at(lo)} to {rate(hi)} "
-                                                       f"{grid.at(hi)}") + ")")
-        text = "The comm graph disconnects at some step " + "; ".join(parts)
-    if none:
-        hi = max(wilson_interval(0, stats[p][1]).high for p in none)
-        text += f", and in no run {name_points(none, universe, grid.shown)} (0 %, the interval up to {100 * hi:.1f} %)"
-    return Finding("", text + ".", kind="graph")
-
-
 # ------------------------------------------------------------------------------ the box
 
 
@@ -421,23 +371,23 @@ def box(df: pd.DataFrame, metadata: Mapping[str, Any] | tables.Schema, axes: Seq
     e, unit = sch.error, tables.unit(sch.error, sch)
     grid = Grid(summary)
     found: list[Finding] = []
+    quoted: set = set()  # (filter, point) whose mean error a headline quotes with its interval
     if len(filters) >= 2:
         firsts: dict[str, list[str]] = {}
         for a, b in headlines(metadata, filters):
             firsts.setdefault(a, []).append(b)
-        found += [f for a, bs in firsts.items() if (f := _headline(grid, e, unit, a, bs)) is not None]
+        found += [f for a, bs in firsts.items() if (f := _headline(grid, e, unit, a, bs, quoted)) is not None]
     order, chains = _orders(grid, e, filters)
     if order is not None:
         found.append(order)
     for a in grid.axes:
-        t = _trend(grid, a, e, unit, filters)
+        t = _trend(grid, a, e, unit, filters, quoted)
         if t is not None:
             found.append(t)
     if sch.divergence:
         found.append(_divergence(grid, filters))
-    g = _graph(grid, data, sch)
-    if g is not None:
-        found.append(g)
+    found += [Finding("", t, kind="graph") for t in (connectivity.disconnections(grid, data, sch),
+                                                      connectivity.mean_not_monotone(grid, data, sch, metadata)) if t]
     text = {a: ax.text for a, ax in zip(grid.axes, grid.shown)}
     entries = quality.quality_rows(data, sch, grid.axes, filters)
     found += [Finding("", t, kind=kind) for kind, t in

@@ -1,7 +1,7 @@
 """What a dataset's metadata says about its runs table: the :class:`Schema` (which column holds
 the error metric, the divergence flag, the graph statistics — by their declared *role* —, the
 filters' display order, the declarations), the swept axes, a column's unit, label and display
-unit, the filters in display order. Read from the metadata alone (the scenario's declarations,
+unit (and a summary's axes in it: :func:`in_display_units`), the filters in display order. Read from the metadata alone (the scenario's declarations,
 :mod:`mcjax.contract`); nothing names a scenario, a filter or a unit. No JAX, no matplotlib."""
 
 from __future__ import annotations
@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from typing import Any, Iterable, Mapping, NamedTuple, Sequence
 
+import numpy as np
 import pandas as pd
 
 from mcjax.base.units import display_unit
@@ -163,6 +164,31 @@ def display(name: str, metadata: Mapping[str, Any] | Schema) -> tuple[str, float
         return display_unit(u)
     except ValueError:
         return u, 1.0
+
+
+def scaled(value: Any, factor: float) -> Any:
+    """A value (a number, or a per-agent tuple of them) times ``factor``: an axis's value in its
+    display unit (:func:`display`); anything else as it is."""
+    if isinstance(value, (tuple, list)):
+        return tuple(scaled(v, factor) for v in value)
+    if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_)) \
+            and factor != 1.0:
+        return value * factor
+    return value
+
+
+def in_display_units(summary: pd.DataFrame, metadata: Mapping[str, Any] | Schema,
+                     axes: Sequence[str]) -> pd.DataFrame:
+    """``summary`` with each of ``axes`` in the unit the plots and the page show it in
+    (:func:`display`: km for a radius that declares it, degrees for radians); the same object when
+    none changes. What the printed table shows (a CSV keeps the dataset's units)."""
+    out = summary
+    for a in axes:
+        factor = display(a, metadata)[1]
+        if factor != 1.0 and a in summary.columns:
+            out = out.copy() if out is summary else out
+            out[a] = summary[a].map(lambda v, f=factor: scaled(v, f))
+    return out
 
 
 def axis_label(name: str, metadata: Mapping[str, Any] | Schema) -> str:

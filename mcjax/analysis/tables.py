@@ -55,9 +55,11 @@ from mcjax.analysis.schema import (  # noqa: F401
     declaration,
     display,
     filter_rank,
+    in_display_units,
     label,  # (re-exported: the report's modules read them here)
     ordered_filters,
     resolve_axes,
+    scaled,
     schema,
     swept_axes,
     unit,
@@ -214,31 +216,6 @@ def _unit_text(u: str) -> str:
 #: The roles whose column a summary table shows (a statistic of it: :func:`summary_columns`); the
 #: others (NEES, NIS, the floor) have tables of their own, and the legend does not name them.
 TABLE_ROLES = ("divergence", "nonfinite", "connectivity_mean", "connectivity_min", "disconnected_steps")
-
-
-def scaled(value: Any, factor: float) -> Any:
-    """A value (a number, or a per-agent tuple of them) times ``factor``: an axis's value in its
-    display unit (:func:`display`); anything else as it is."""
-    if isinstance(value, (tuple, list)):
-        return tuple(scaled(v, factor) for v in value)
-    if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_)) \
-            and factor != 1.0:
-        return value * factor
-    return value
-
-
-def in_display_units(summary: pd.DataFrame, metadata: Mapping[str, Any] | Schema,
-                     axes: Sequence[str]) -> pd.DataFrame:
-    """``summary`` with each of ``axes`` in the unit the plots and the page show it in
-    (:func:`display`: km for a radius that declares it, degrees for radians); the same object when
-    none changes. What the printed table shows (a CSV keeps the dataset's units)."""
-    out = summary
-    for a in axes:
-        factor = display(a, metadata)[1]
-        if factor != 1.0 and a in summary.columns:
-            out = out.copy() if out is summary else out
-            out[a] = summary[a].map(lambda v, f=factor: scaled(v, f))
-    return out
 
 
 def legend_lines(metadata: Mapping[str, Any] | Schema, axes: Sequence[str] = (), *,

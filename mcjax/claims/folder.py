@@ -1,6 +1,7 @@
 """The files of a check folder, read and written without JAX: ``check.json`` (what ``--resume``
 compares, with the claims file as read: :func:`claim_tables`), ``claims.parquet`` (the verdict table
-with its metadata) and where each sweep's runs are (:func:`sweep_folder`)."""
+with its metadata), where each sweep's runs are (:func:`sweep_folder`) and, for one of those
+folders, which check and claims it serves (:func:`served_claims`)."""
 
 from __future__ import annotations
 
@@ -59,3 +60,23 @@ def sweep_folder(folder: str | Path, sweep: str) -> Path:
     (``folder/range_0/<sweep>``) in a replication."""
     own = Path(folder) / sweep
     return own if own.is_dir() or not (Path(folder) / "range_0" / sweep).is_dir() else Path(folder) / "range_0" / sweep
+
+
+def _sides(raw: dict) -> list[dict]:
+    """A claim's table and the side tables inside it (``minus``, ``than``, each of ``order``)."""
+    sides = [raw, *(raw[k] for k in ("minus", "than") if isinstance(raw.get(k), dict))]
+    return sides + [o for o in raw.get("order") or () if isinstance(o, dict)]
+
+
+def served_claims(sweep_dir: str | Path) -> tuple[dict, list[str]] | None:
+    """For the folder of one of a check's sweeps (``CHECK/<sweep>``, or ``CHECK/range_<r>/<sweep>`` in a
+    replication): the check's ``check.json`` and the ids of the claims that read the sweep (a side of
+    theirs names it, or the file has this one sweep); None for any other folder."""
+    sweep_dir = Path(sweep_dir)
+    check = sweep_dir.parent
+    if not is_check_folder(check):
+        return None
+    saved = read_check(check)
+    ids = [cid for cid, raw in claim_tables(check).items()
+           if any(side.get("sweep", raw.get("sweep")) == sweep_dir.name for side in _sides(raw))]
+    return saved, ids

@@ -236,6 +236,24 @@ def _computed(df: pd.DataFrame, sch: tables.Schema, config: Mapping[str, Any]) -
                if off else ""))
 
 
+def _check_sweep_opening(out: Path) -> str | None:
+    """What a sweep of ``mcjax check`` is for, where its spec gives no description: the check's paper
+    and claims file and the claims that read it (:func:`mcjax.claims.folder.served_claims`)."""
+    from mcjax.claims.folder import served_claims
+
+    served = served_claims(out)
+    if served is None:
+        return None
+    saved, ids = served
+    claims = saved.get("claims") if isinstance(saved.get("claims"), Mapping) else {}
+    paper = claims.get("paper") if isinstance(claims.get("paper"), str) else None
+    file = Path(saved["claims_file"]).name if isinstance(saved.get("claims_file"), str) else None
+    whose = (f"{paper}'s claims" if paper else "a claims file") + (f" ({file})" if file else "")
+    serves = (f": claim {ids[0]} reads it" if len(ids) == 1 else
+              f": claims {', '.join(ids[:-1])} and {ids[-1]} read it" if ids else "")
+    return f"Sweep {out.name} of mcjax check on {whose}{serves}."
+
+
 def page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, Any], plots: Sequence[Any],
          skipped: Sequence[Any] = (), warning: str | None = None, now: datetime | None = None, *,
          summary: Summary | None = None) -> str:
@@ -266,7 +284,9 @@ def page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, An
     parts.append(f"<h1>mcjax report — {_e(title)}</h1>")
     if sch.title:
         parts.append(f'<p class="subtitle">{_e(sch.title)}</p>')
-    parts.append(f"<p>{_e(description)}</p>" if description else "<p>(The spec gives no description.)</p>")
+    opening = description or _check_sweep_opening(out)
+    if opening:  # no sentence at all where nothing says what the sweep is for
+        parts.append(f"<p>{_e(opening)}</p>")
     runs = (len(df[["point_id", "seed_index"]].drop_duplicates()) if {"point_id", "seed_index"} <= set(df.columns)
             else None)
     planned = metadata.get("n_runs")

@@ -411,3 +411,85 @@ def test_a_claims_files_wrong_kind_says_what_it_got_as_a_spec_does(tmp_path):
     assert _error("check", str(claims), "--out", str(tmp_path / "out")).endswith(
         "value: must be a finite number; got the string '0.5' (a number is written without quotes: 0.5)")
     assert not (tmp_path / "out").exists()
+
+
+def _calm_runs(grid: dict, seeds: int = 6):
+    """Synthetic runs in which no run diverged."""
+    from tests.analysis.test_tables import synthetic_runs
+
+    runs = synthetic_runs(grid, seeds=seeds)
+    runs["diverged"] = False
+    return runs
+
+
+def test_a_single_points_n_labels_clear_the_caps_and_no_divergence_is_drawn_where_none_diverged():
+    """The check's single-point page put "n=…" on the error bars' caps and drew a panel of empty divergence
+    bars: each label now sits above its bar's upper cap (its text box and the cap's apart, as drawn), and a
+    sweep in which no run diverged gets one panel and a title that says so."""
+    from matplotlib.lines import Line2D
+
+    from mcjax.report.plots import plots
+    from tests.analysis.test_tables import make_metadata, synthetic_runs
+
+    for runs, panels in ((synthetic_runs({}, seeds=8), 2), (_calm_runs({}), 1)):
+        (plot,) = list(plots(runs, make_metadata({})))
+        fig = plot.figure
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        assert len(fig.axes) == panels
+        assert ("no run diverged" in fig._suptitle.get_text()) == (panels == 1)
+        assert ("and the divergence rate" in plot.caption) == (panels == 2)
+        assert ("No run diverged" in plot.caption) == (panels == 1)
+        for ax in fig.axes:
+            labels = [t for t in ax.texts if t.get_text().startswith("n=")]
+            caps = [line for line in ax.lines if isinstance(line, Line2D) and line.get_marker() == "_"]
+            assert labels and caps
+            for t in labels:
+                box = t.get_window_extent(renderer)
+                for cap in caps:
+                    for x, y in cap.get_xydata():
+                        px, py = ax.transData.transform((x, y))
+                        assert not (box.x0 - 1 <= px <= box.x1 + 1 and box.y0 - 1 <= py <= box.y1 + 1), \
+                            (t.get_text(), (px, py), box)
+
+
+def test_a_sweep_in_which_no_run_diverged_gets_no_empty_divergence_figures():
+    from mcjax.report.plots import Plot, Skipped, plots
+    from tests.analysis.test_tables import make_metadata
+
+    grid = {"comm_radius": [50e3, 100e3], "eps": [0.1, 1.0]}
+    made = list(plots(_calm_runs(grid), make_metadata(grid)))
+    names = [p.name for p in made if isinstance(p, Plot)]
+    left = {s.name: s.reason for s in made if isinstance(s, Skipped)}
+    assert not [n for n in names if "diverg" in n], names
+    assert {"divergence_vs_comm_radius.png", "rmse_nondiverged_vs_eps.png", "heatmap_divergence_comm_radius__eps.png",
+            "heatmap_rmse_nondiverged_comm_radius__eps.png"} <= set(left)
+    assert all(reason.startswith("no run diverged") for reason in left.values()), left
+
+
+def test_a_checks_sweep_page_opens_with_what_it_is_for(tmp_path):
+    """The page of a sweep that `mcjax check` ran (no description in its inline spec) opened with "(The spec
+    gives no description.)": it now names the check and the claims that read the sweep; a sweep with no
+    description that no check ran has no such sentence."""
+    import json
+
+    from tests.analysis.test_tables import make_metadata, synthetic_runs, write_dataset
+
+    grid = {"comm_radius": [50e3, 100e3]}
+    check = tmp_path / "check"
+    source = {"paper": "Sun et al. 2011", "sweeps": {"table1": {}, "other": {}},
+              "claim": [{"id": "icf-diverges", "sweep": "table1"}, {"id": "elsewhere", "sweep": "other"},
+                        {"id": "paired", "sweep": "other", "minus": {"sweep": "table1"}}]}
+    for folder in (check / "table1", tmp_path / "plain"):
+        write_dataset(folder, synthetic_runs(grid, seeds=4), make_metadata(grid))
+    (check / "check.json").write_text(json.dumps({"claims": source, "claims_file": "/x/sun2011.toml"}),
+                                      encoding="utf-8")
+    for folder in (check / "table1", tmp_path / "plain"):
+        r = CliRunner().invoke(main, ["report", str(folder)])
+        assert r.exit_code == 0, r.output
+    page = (check / "table1" / "report" / "index.html").read_text(encoding="utf-8")
+    assert "no description" not in page
+    assert ("<p>Sweep table1 of mcjax check on Sun et al. 2011&#x27;s claims (sun2011.toml): claims icf-diverges "
+            "and paired read it.</p>") in page
+    plain = (tmp_path / "plain" / "report" / "index.html").read_text(encoding="utf-8")
+    assert "no description" not in plain and "mcjax check on" not in plain

@@ -21,13 +21,16 @@ __all__ = ["bar_figure"]
 def bar_figure(summary: pd.DataFrame, sch: Schema, colors: Mapping[Any, str]) -> tuple[Figure, str]:
     """Single sweep point: bars per filter of the mean error (all runs and, with a
     divergence flag, non-divergent runs) and of the divergence rate; a bar resting on fewer
-    than :data:`MIN_RUNS` runs is hatched, without interval; n is written on every bar."""
+    than :data:`MIN_RUNS` runs is hatched, without interval; n is written on every bar, above
+    its interval's cap. Where no run diverged, the divergence panel and the non-divergent bars
+    (the same runs) are left out and the title says so."""
     e, u = sch.error, unit(sch.error, sch)
     filters = ordered_filters(summary["filter"], sch.filters)
     s = summary.set_index("filter").loc[filters]
     x = np.arange(len(filters))
     cols = [colors[f] for f in filters]
-    panels = 2 if sch.divergence else 1
+    diverging = bool(sch.divergence) and int(np.nansum(s["diverged"].to_numpy(dtype=float))) > 0
+    panels = 2 if diverging else 1
     fig = new_figure((max(7.0, 1.6 * len(filters) + 3) if panels == 2 else max(4.5, 1.0 * len(filters) + 2.5),
                        4.6))
     axs = np.atleast_1d(fig.subplots(1, panels))
@@ -47,12 +50,13 @@ def bar_figure(summary: pd.DataFrame, sch: Schema, colors: Mapping[Any, str]) ->
             if not okay:
                 r.set_alpha(0.25)
                 r.set_hatch("xx")
-        for xv, mv, nv in zip(xs, mean, n):
+        top = np.nan_to_num(mean) + np.nan_to_num(err[1])  # the upper cap (the bar's top without one)
+        for xv, mv, tv, nv in zip(xs, mean, top, n):
             if np.isfinite(mv):
-                ax.annotate(f"n={nv}", (xv, mv), textcoords="offset points", xytext=(0, 2), ha="center",
-                            fontsize=7)
+                ax.annotate(f"n={nv}", (xv, tv), textcoords="offset points", xytext=(0, 3), ha="center",
+                            va="bottom", fontsize=7)
 
-    if sch.divergence:
+    if diverging:
         w = 0.38
         bars(ax1, x - w / 2, s[f"{e}_mean"], s[f"{e}_ci_low"], s[f"{e}_ci_high"], s["n_err"], w, color=cols)
         bars(ax1, x + w / 2, s[f"{e}_ok_mean"], s[f"{e}_ok_ci_low"], s[f"{e}_ok_ci_high"], s["n_ok_err"], w,
@@ -69,7 +73,7 @@ def bar_figure(summary: pd.DataFrame, sch: Schema, colors: Mapping[Any, str]) ->
     ax1.set_ylabel(with_unit(f"mean {e}", u))
     ax1.set_title(f"Mean {e} ({PCT} t-interval)", fontsize="medium")
     ax1.grid(True, axis="y", alpha=0.3, which="both")
-    if sch.divergence:
+    if diverging:
         ax2 = axs[1]
         bars(ax2, x, s["div_rate"], s["div_ci_low"], s["div_ci_high"], s["n"], 0.6, color=cols)
         top = min(1.05, max(0.05, 1.12 * float(np.nanmax(np.r_[s["div_ci_high"].to_numpy(dtype=float), 0.0]))))
@@ -80,10 +84,13 @@ def bar_figure(summary: pd.DataFrame, sch: Schema, colors: Mapping[Any, str]) ->
         ax2.set_title(f"Divergence rate ({PCT} Wilson interval)", fontsize="medium")
         ax2.grid(True, axis="y", alpha=0.3)
         percent_ticks(ax2.yaxis)
-    what = f"{e} and divergence" if sch.divergence else e
-    fig.suptitle(f"Single sweep point: {what} per filter\n{n_range(summary['n'], 'filter')}; "
+    what = f"{e} and divergence" if diverging else e
+    calm = "; no run diverged" if sch.divergence and not diverging else ""
+    fig.suptitle(f"Single sweep point: {what} per filter{calm}\n{n_range(summary['n'], 'filter')}; "
                  f"n on each bar: the runs it rests on", fontsize="medium")
     text = "The n above each bar is the number of runs it rests on."
+    if calm:
+        text += " No run diverged, so no divergence rate is drawn."
     if few_total:
         text += f" {few_total} bar(s) rest on fewer than {MIN_RUNS} runs: hatched, without interval."
     return fig, text

@@ -151,6 +151,9 @@ def plots(df: pd.DataFrame, metadata: Mapping[str, Any] | Schema,
     With no plot axis (a single point): ``summary_bars.png``, bars per filter of the mean
     error (95 % t-interval) and divergence rate (95 % Wilson interval).
 
+    Where no run diverged, the divergence figures and the non-divergent runs' (every run's) are
+    left out, each with a :class:`Skipped` record saying so.
+
     ``summary``: the page's :class:`mcjax.analysis.summary.Summary` of ``df`` (built here when
     not given): the figures draw its numbers.
 
@@ -174,12 +177,16 @@ def plots(df: pd.DataFrame, metadata: Mapping[str, Any] | Schema,
     u = unit(e, sch)
     xaxes = _plot_axes(data, summary.plot_axes, sch)
     plot_axes = list(xaxes)
+    # no run diverged: no divergence rate to draw, and the non-divergent runs are every run
+    calm = bool(sch.divergence) and int(summary.table["diverged"].sum()) == 0
+    if calm:
+        why = f"no run diverged ({sch.divergence} false in all {len(summary.data)} rows)"
     if not xaxes:
         s = _summary_with_counts(summary, [])
         fig, text = bar_figure(s, sch, colors)
         yield Plot("summary_bars.png", fig, f"One sweep point: the mean {err_label} per filter over all runs"
-                   + (" and over the non-divergent runs, and the divergence rate" if sch.divergence else "")
-                   + f" ({PCT} intervals). " + text)
+                   + (" and over the non-divergent runs, and the divergence rate" if sch.divergence and not calm
+                      else "") + f" ({PCT} intervals). " + text)
         return
     for name, xa in xaxes.items():
         others = [o for o in plot_axes if o != name]
@@ -212,7 +219,10 @@ def plots(df: pd.DataFrame, metadata: Mapping[str, Any] | Schema,
             yield Plot(f"{_safe(e)}_vs_{tag}.png", fig,
                        f"Mean {err_label} over the runs with a finite {e}, against {x_text}, one line per "
                        f"filter; shaded: its {PCT} Student-t interval.{where} {text}")
-            if sch.divergence:
+            if calm:
+                yield Skipped(f"{_safe(e)}_nondiverged_vs_{tag}.png", f"{why}: the same as {_safe(e)}_vs_{tag}.png")
+                yield Skipped(f"divergence_vs_{tag}.png", f"{why}: every rate is 0")
+            elif sch.divergence:
                 fig, text = line_figure(
                     s, xa, sch, colors,
                     Stat(f"{e}_ok_mean", f"{e}_ok_ci_low", f"{e}_ok_ci_high", "n_ok_err", False),
@@ -267,7 +277,9 @@ def plots(df: pd.DataFrame, metadata: Mapping[str, Any] | Schema,
         tag = f"{_safe(na)}__{_safe(nb)}"
         grid_text = f"{axis_label(na, sch)} × {axis_label(nb, sch)}"
         extra = f" Cells {pooled}." if pooled else ""
-        if sch.divergence:
+        if calm:
+            yield Skipped(f"heatmap_divergence_{tag}.png", f"{why}: every rate is 0")
+        elif sch.divergence:
             fig, text = heatmap_figure(s, a, b, sch, Stat("div_rate", "div_ci_low", "div_ci_high", "n", True),
                                         title=f"Divergence rate over {na} × {nb}", cbar_label="divergence rate",
                                         pooled=pooled)
@@ -278,7 +290,9 @@ def plots(df: pd.DataFrame, metadata: Mapping[str, Any] | Schema,
                                     pooled=pooled)
         yield Plot(f"heatmap_{_safe(e)}_{tag}.png", fig,
                    f"Mean {err_label} (runs with a finite {e}) over {grid_text}, one panel per filter.{extra} {text}")
-        if sch.divergence:
+        if calm:
+            yield Skipped(f"heatmap_{_safe(e)}_nondiverged_{tag}.png", f"{why}: the same as heatmap_{_safe(e)}_{tag}.png")
+        elif sch.divergence:
             fig, text = heatmap_figure(
                 s, a, b, sch, Stat(f"{e}_ok_mean", f"{e}_ok_ci_low", f"{e}_ok_ci_high", "n_ok_err", False),
                 title=f"Mean {e} of non-divergent runs over {na} × {nb}",
