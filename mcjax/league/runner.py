@@ -109,6 +109,8 @@ def run_league(league_file: str | Path | League, *, out_dir: str | Path | None =
                          other="another league file", resume=resume, force=force, keep=[league.path.resolve()],
                          warn=warn):
         say(describe(league))
+        # the timing pass's compilations on the core the sweeps leave idle
+        warmup = league_timing.Warmup(league, read_timing(out), stop) if league.timing_runs else None
         ran = run_named_sweeps([NamedSweep(f"{key}/{point}", out / key / point, study, columns=_columns(study))
                                 for (key, point), study in league.studies.items()],
                                resume=resume, executor=executor, message=say, warn=warn, progress=progress,
@@ -120,7 +122,7 @@ def run_league(league_file: str | Path | League, *, out_dir: str | Path | None =
         if league.timing_runs:
             timing, stopped = league_timing.timing_pass(league, read_timing(out),
                                                         save=lambda t: write_timing(out, t), message=say,
-                                                        progress=progress, should_stop=stop)
+                                                        progress=progress, should_stop=stop, warmup=warmup)
             if stopped:
                 return LeagueResult(league, out, None, True)
         table = build_table(league, rows, timing)

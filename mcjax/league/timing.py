@@ -11,6 +11,11 @@ seconds per run with compilation excluded. The cost is the median of the repeats
 (the file's) or the runs per cell (``--seeds``), whichever is smaller, split into the repeats — so a
 quick look times few runs.
 
+Each filter alone is a program of its own to compile: most of the pass's time. :class:`Warmup` runs
+the untimed repeats (the compilations) in a thread of its own while the league's sweeps run — a
+sweep of at most 100 runs keeps one core busy, so the other compiles — and the timing pass waits for
+it to finish before it times anything, so no compilation runs beside a timed repeat.
+
 The pass runs here whatever the sweeps' executor (the cost is of this machine, :func:`machine`),
 says where it is after each repeat (``progress``), and is stopped within a fraction of a second by
 ``should_stop()``: the repeat in flight (a compilation too) is left to finish in the background and
@@ -120,20 +125,78 @@ def run_unless_stopped(work: Callable[[], None], stop: Callable[[], bool]) -> bo
     return True
 
 
+def _kept(saved: dict, runs: int) -> dict:
+    """``{scenario: {filter: cost}}`` of a saved timing pass that can be kept (the same repeats)."""
+    if saved.get("repeat_runs") != runs or saved.get("repeats") != REPEATS:
+        return {}
+    return {k: {f: c for f, c in v.items() if isinstance(c, dict)} for k, v in (saved.get("costs") or {}).items()}
+
+
+class Warmup:
+    """The untimed first repeat of every filter of ``league`` still to time (none in ``saved``, the
+    folder's ``timing.json``), run one after the other in a daemon thread started here; ``stop()``
+    looked at between them. :meth:`ready` hands the timing pass the study each warmed."""
+
+    def __init__(self, league: League, saved: dict, should_stop: Callable[[], bool] | None = None) -> None:
+        runs, kept = repeat_runs(league), _kept(saved, repeat_runs(league))
+        self._todo = [(key, f) for key, entry in league.scenarios.items() for f in entry.filters
+                      if f not in kept.get(key, {})] if runs else []
+        self._league, self._runs, self._stop = league, runs, should_stop or (lambda: False)
+        self._done: dict = {}
+        self._thread = threading.Thread(target=self._run, name="mcjax-league-warmup", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        from mcjax.study.execute import chunk_rows
+
+        for key, filt in self._todo:
+            if self._stop():
+                return
+            try:
+                study, note = timed_study(self._league, key, filt, self._runs)
+                if study is not None:
+                    for _ in chunk_rows(study):
+                        pass
+            except Exception:  # noqa: BLE001 - the timing pass warms this filter itself, and meets the error
+                continue
+            self._done[key, filt] = (study, note)
+
+    def wait(self, should_stop: Callable[[], bool]) -> bool:
+        """Wait until every warm-up is done (True), or ``should_stop()`` (False)."""
+        while self._thread.is_alive():
+            self._thread.join(POLL_S)
+            if self._thread.is_alive() and should_stop():
+                return False
+        return True
+
+    def pending(self) -> int:
+        """How many filters are still to warm up."""
+        return len([k for k in self._todo if k not in self._done]) if self._thread.is_alive() else 0
+
+    def ready(self, key: str, filt: str):
+        """``(study, note)`` of the filter warmed up here, or None."""
+        return self._done.get((key, filt))
+
+
 def time_filter(league: League, key: str, filt: str, *, runs: int | None = None,
-                tick: Callable[[], None] | None = None,
-                should_stop: Callable[[], bool] | None = None) -> tuple[list[float], str] | None:
+                tick: Callable[[], None] | None = None, should_stop: Callable[[], bool] | None = None,
+                warm: tuple | None = None) -> tuple[list[float], str] | None:
     """``([seconds per run of each timed repeat], note)`` of scenario ``key`` running ``filt`` alone
     (module docstring) on ``runs`` runs a repeat (default :func:`repeat_runs`); ``tick()`` after each
-    repeat; None when ``should_stop()`` stopped it."""
+    repeat; None when ``should_stop()`` stopped it. ``warm``: ``(study, note)`` whose untimed repeat
+    ran already (:class:`Warmup`)."""
     from mcjax.study.execute import chunk_rows
 
     stop = should_stop or (lambda: False)
-    study, note = timed_study(league, key, filt, runs or repeat_runs(league))
+    study, note = warm or timed_study(league, key, filt, runs or repeat_runs(league))
     if study is None:
         return [], note
     seconds = []
     for i in range(1 + REPEATS):  # the first compiles and warms up, untimed
+        if i == 0 and warm is not None:
+            if tick is not None:
+                tick()
+            continue
         t0 = time.perf_counter()
         if stop() or not run_unless_stopped(lambda: [None for _ in chunk_rows(study)], stop):
             return None
@@ -154,22 +217,25 @@ def summary(seconds: list[float]) -> tuple[float, float, float]:
 def timing_pass(league: League, saved: dict, *, save: Callable[[dict], None] | None = None,
                 message: Callable[[str], None] | None = None,
                 progress: Callable[[str, SweepProgress], None] | None = None,
-                should_stop: Callable[[], bool] | None = None) -> tuple[dict, bool]:
+                should_stop: Callable[[], bool] | None = None, warmup: Warmup | None = None) -> tuple[dict, bool]:
     """``(timing, stopped)``: ``saved`` (``timing.json``) completed with every scenario × filter not timed
     yet — ``{"machine", "load", "repeat_runs", "repeats", "costs": {scenario: {filter: {"seconds":
     [per repeat], "note"}}}}``; what was saved with other repeats is timed again. ``save(timing)`` after
     each filter, so a stopped league keeps what it measured; ``progress("timing <scenario>",
     SweepProgress)`` after each repeat (chunks: repeats, runs: their runs); ``should_stop()`` looked at
-    while each repeat runs."""
+    while each repeat runs. ``warmup``: the untimed repeats run beside the sweeps, waited for first."""
     say, stop = message or (lambda _: None), should_stop or (lambda: False)
     tell = progress or (lambda *_: None)
     runs = repeat_runs(league)
+    if warmup is not None:
+        if warmup.pending():
+            say(f"timing: waiting for the compilation of {warmup.pending()} filter(s) alone")
+        if not warmup.wait(stop):
+            return {}, True
     same = saved.get("repeat_runs") == runs and saved.get("repeats") == REPEATS
-    old = (saved.get("costs") or {}) if same else {}
     timing = {"machine": (same and saved.get("machine")) or machine(),
               "load": saved.get("load") if same and "load" in saved else load_average(),
-              "repeat_runs": runs, "repeats": REPEATS,
-              "costs": {k: {f: c for f, c in v.items() if isinstance(c, dict)} for k, v in old.items()}}
+              "repeat_runs": runs, "repeats": REPEATS, "costs": _kept(saved, runs)}
     steps = stages(league)
     for key, entry in league.scenarios.items():
         done = timing["costs"].setdefault(key, {})
@@ -190,7 +256,8 @@ def timing_pass(league: League, saved: dict, *, save: Callable[[dict], None] | N
                 at[0] += 1
                 tick()
 
-            got = time_filter(league, key, filt, runs=runs, tick=step, should_stop=stop)
+            got = time_filter(league, key, filt, runs=runs, tick=step, should_stop=stop,
+                              warm=None if warmup is None else warmup.ready(key, filt))
             if got is None:
                 return timing, True
             seconds, note = got

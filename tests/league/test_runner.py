@@ -136,3 +136,20 @@ def test_a_stop_in_the_timing_pass_does_not_wait_for_the_repeat_in_flight():
 
     with pytest.raises(RuntimeError, match="a chunk failed"):
         run_unless_stopped(fails, lambda: False)
+
+
+def test_the_warm_up_compiles_every_filter_still_to_time_and_skips_those_timed(league_file):
+    """The untimed repeats run in the background (beside the sweeps): every filter of the tiny league
+    warmed on 2 runs, none of those a saved timing.json holds with the same repeats."""
+    from mcjax.league.spec import load_league
+    from mcjax.league.timing import REPEATS, Warmup
+
+    league = load_league(league_file(TINY.replace("timing_runs = 0", "timing_runs = 6")))
+    warm = Warmup(league, {})
+    assert warm.wait(lambda: False) and warm.pending() == 0
+    assert all(warm.ready("wind", f)[0].n_runs == 2 and warm.ready("wind", f)[1] == "alone" for f in ("kcf", "local"))
+    saved = {"repeat_runs": 2, "repeats": REPEATS, "costs": {"wind": {"kcf": {"seconds": [1, 1, 1], "note": "alone"}}}}
+    part = Warmup(league, saved)
+    assert part.wait(lambda: False) and part.ready("wind", "kcf") is None and part.ready("wind", "local") is not None
+    other = Warmup(league, {**saved, "repeat_runs": 5})   # other repeats: timed again
+    assert other.wait(lambda: False) and other.ready("wind", "kcf") is not None
