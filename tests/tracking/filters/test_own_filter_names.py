@@ -125,6 +125,15 @@ def test_two_filters_of_one_name_are_refused_in_one_line_before_anything_is_writ
     assert sc.Config(filters=("kcf", a)).filters == ("kcf", a)  # one of them alone runs; the config keeps the reference
 
 
+def test_a_league_of_two_filters_of_one_name_is_refused_in_one_line(own):
+    (own / "twins.toml").write_text(f'seeds = 2\nfilters = ["kcf", "own.py:MINE", "twin.py:MINE"]\n'
+                                    f'[scenarios.wind_formation]\nbase = "{ROOT / "configs" / "chen2013.toml"}"\n'
+                                    f'[points.none]\ndescription = "no faults"\n')
+    r = _cli(["league", "twins.toml", "--out", str(own / "league")], own)
+    assert r.exit_code == 2 and len(_errors(r)) == 1 and "both named 'my_local'" in r.output, r.output
+    assert not (own / "league").exists()
+
+
 def _entry_point(monkeypatch, name, value):
     point = importlib.metadata.EntryPoint(name=name, value=value, group=registry.ENTRY_POINT_GROUP)
     real = importlib.metadata.entry_points
