@@ -188,6 +188,7 @@ def display_table(table: pd.DataFrame) -> pd.DataFrame:
     nearest its dof; the cost only where the fastest's range lies below every other's — else the
     fastest's note says the differences are within the measurement's spread)."""
     parts = []
+    table = table.assign(**{c: NAN for c in ("cost_low", "cost_high") if c not in table})  # a league before 2026-12-07
     for (_, _), cell in table.groupby(["scenario", "point"], sort=False):
         cell = cell.assign(_r=cell["rank"].astype("float").fillna(np.inf)).sort_values(["_r", "rmse"], kind="stable")
         marks = {c: _best(cell[c]) for c in ("rmse", "floor_multiple", "divergence_rate")}
@@ -206,7 +207,8 @@ def display_table(table: pd.DataFrame) -> pd.DataFrame:
             finite = math.isfinite(r["rmse"])
             note = [] if r["cost_note"] in ("", "alone") else [f"timed {r['cost_note']}"
                                                              if r["cost_note"].startswith("with ") else r["cost_note"]]
-            if i == quick and not clear and len(cell[np.isfinite(cell["cost_per_run_s"].astype(float))]) > 1:
+            if i == quick and not clear and math.isfinite(r["cost_high"]) and \
+                    len(cell[np.isfinite(cell["cost_per_run_s"].astype(float))]) > 1:
                 note.append(WITHIN_SPREAD)
             parts.append({
                 **row, "rank": str(int(r["rank"])) if not pd.isna(r["rank"]) else NO_RANK,

@@ -74,3 +74,10 @@ def test_the_text_and_markdown_lead_with_the_legend_and_the_method():
     assert "filter alone" in words and "load average 1.5" in words
     assert max(len(line) for line in text.splitlines()) <= 80
     assert league_text(t, meta, "markdown").startswith("- t: 1 scenario(s) x 1 point(s) x 3 filter(s), 10 runs")
+
+
+def test_a_league_table_written_before_the_cost_ranges_still_reads():
+    """league.parquet of 2026-12-06 had one cost per filter and no range: shown, never starred."""
+    old = table({"a": (1e-3, 0.9e-3, 1.1e-3, "alone"), "b": (2e-3, 1.2e-3, 2.2e-3, "alone")})
+    shown = display_table(old.drop(columns=["cost_low", "cost_high"])).set_index("filter")
+    assert list(shown.loc[["a", "b"], "ms/run [range]"]) == ["1", "2"] and (shown.loc[["a", "b"], "note"] == "").all()
