@@ -63,6 +63,7 @@ import numpy as np
 from mcjax.base.validation import SpecError, check_keys, got, key_text, read_toml, show, suggest
 from mcjax.claims.verdicts import STATISTICS
 from mcjax.study.plan import Study
+from mcjax.study.rows import shown_filters
 from mcjax.study.spec import MAX_BASE_SEED, MAX_SEEDS, build_spec, is_config_file
 from mcjax.study.sweep_tables import load_checked, named_tables
 
@@ -268,9 +269,11 @@ def _side(where: str, table: dict, studies: dict, *, free: str | None = None) ->
             raise _err(f"{where}filter", f"missing; output {output} is per filter, the sweep runs "
                        f"{', '.join(filters)}")
         filt = filters[0]  # a per-run output: every filter's row holds the same value
-    elif filt not in filters:
+    elif filt not in filters and filt not in shown_filters(study.scenario, study.config):
         raise _err(f"{where}filter", f"must be one of the filters the sweep runs, {', '.join(filters)}; got "
                    f"{show(filt)}")
+    if filt in filters:  # the rows' name for it: a filter of one's own by its record's name
+        filt = shown_filters(study.scenario, study.config)[filters.index(filt)]
     statistic = table.get("statistic", "mean")
     if statistic not in STATISTICS:
         raise _err(f"{where}statistic", f"must be one of {', '.join(STATISTICS)}; got {show(statistic)}")

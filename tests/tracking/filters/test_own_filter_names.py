@@ -134,6 +134,50 @@ def test_a_league_of_two_filters_of_one_name_is_refused_in_one_line(own):
     assert not (own / "league").exists()
 
 
+def test_a_claim_names_a_filter_of_ones_own_by_its_reference_or_its_name(own):
+    """A claims file's ``filter`` may be the reference its sweep's config wrote or the record's name; either
+    selects the rows the dataset shows by the name (Chen & Lu 2013, 12 steps, 4 runs)."""
+    import math
+
+    from mcjax.claims.spec import load_claims
+
+    (own / "claims.toml").write_text(f"""
+paper = "a test"
+seeds = 4
+[sweeps.s]
+base = "{(ROOT / 'configs' / 'chen2013.toml').as_posix()}"
+config = {{ n_steps = 12, filters = ["kcf", "own.py:MINE"] }}
+
+[[claim]]
+id = "kcf-below-mine"
+claim = "consensus beats each UAV's own filter"
+where = "nowhere"
+paper = "-"
+output = "rmse"
+filter = "kcf"
+minus = {{ filter = "{(own / 'own.py').as_posix()}:MINE" }}
+relation = "below"
+value = 0.0
+
+[[claim]]
+id = "mine-by-name"
+claim = "each UAV's own filter stays below 20 m/s"
+where = "nowhere"
+paper = "-"
+output = "rmse"
+filter = "my_local"
+relation = "below"
+value = 20.0
+""")
+    claims = load_claims(own / "claims.toml")
+    assert [c.side.minus.filter if c.side.minus else c.side.filter for c in claims.claims] == ["my_local", "my_local"]
+    r = _cli(["check", "claims.toml", "--out", str(own / "checked")], own)
+    assert r.exit_code in (0, 1) and "Traceback" not in r.output, r.output
+    verdicts = pd.read_parquet(own / "checked" / "claims.parquet")
+    assert list(verdicts["runs"]) == [4, 4] and all(math.isfinite(v) for v in verdicts["value"]), verdicts.T
+    assert "(my_local)" in verdicts["statistic"][1] and "own.py" not in " ".join(verdicts["statistic"])
+
+
 def _entry_point(monkeypatch, name, value):
     point = importlib.metadata.EntryPoint(name=name, value=value, group=registry.ENTRY_POINT_GROUP)
     real = importlib.metadata.entry_points
