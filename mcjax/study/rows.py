@@ -86,6 +86,13 @@ def run_rows(scenario: Scenario, cfg, outputs: Mapping[str, Any], keys: Mapping[
     return df.sort_values(order, kind="stable").reset_index(drop=True)
 
 
+def shown_metadata(scenario: Scenario, cfg) -> dict:
+    """``scenario.metadata(cfg)`` as a dataset carries it: the filters by the names the rows show them by
+    (:func:`_shown`) — what a summary of rows made without a dataset (``mcjax run``'s table, a tune's
+    evaluation) reads the filters' order and words from."""
+    return _shown(scenario, cfg, scenario.metadata(cfg))
+
+
 def _shown(scenario: Scenario, cfg, meta: dict) -> dict:
     """The scenario's metadata with its filters by their shown names, and, for a filter of one's own, its
     record's title as its description and where it came from (``filter_sources``)."""
@@ -151,7 +158,7 @@ def part_metadata(study: Study, chunk_size: int) -> dict:
     order), the spec, config, seeds and provenance — everything ``mcjax report`` needs."""
     from mcjax.base import provenance
 
-    meta = _shown(study.scenario, study.config, study.scenario.metadata(study.config))
+    meta = shown_metadata(study.scenario, study.config)
     extra = declarations(study.scenario, study.config, study.sensitivity)
     meta["outputs"] = {**meta["outputs"], **{k: o.as_json() for k, o in extra.items()}}
     ran = {**study.source, "seeds": study.seeds, "chunk_size": study.chunk_size}  # --seeds merged as --set is
