@@ -46,7 +46,9 @@ class Traits(NamedTuple):
     predicted estimates into a mailbox); False for a filter that shares nothing or is centralised.
     ``weights``: the consensus weights it needs — ``"any"`` (the scenario's choice is used) or
     ``"doubly_stochastic"`` (it uses Metropolis weights of the links that carried a message, whatever
-    the scenario's choice).
+    the scenario's choice: the step asks for them itself, ``consensus_matrix(options, adjacency,
+    "metropolis")``; the trait changes no option it is given, and tells the scenarios to refuse a set-up
+    where such weights do not mean what the filter assumes).
     ``consensus_only``: it fuses by consensus alone, so it needs at least one consensus step."""
 
     centralised: bool = False
@@ -92,7 +94,7 @@ class Filter:
     """One filter (module docstring); hashed by identity. Checked when it is built: a one-line
     ValueError names the field."""
 
-    name: str              # the name a config's ``filters`` list and the datasets' ``filter`` column use
+    name: str              # the name the datasets' ``filter`` column, the tables and the pages show it by
     title: str             # one line: what it is
     reference: str         # where it comes from (a paper), or "ours"
     step: Callable         # step(model: Model, posterior, measurements) -> posterior
