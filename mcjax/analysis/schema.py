@@ -1,7 +1,7 @@
 """What a dataset's metadata says about its runs table: the :class:`Schema` (which column holds
 the error metric, the divergence flag, the graph statistics — by their declared *role* —, the
 filters' display order, the declarations), the swept axes, a column's unit, label and display
-unit (and a summary's axes in it: :func:`in_display_units`), the filters in display order. Read from the metadata alone (the scenario's declarations,
+unit (and a summary's axes in the tables' units: :func:`in_table_units`), the filters in display order. Read from the metadata alone (the scenario's declarations,
 :mod:`mcjax.contract`); nothing names a scenario, a filter or a unit. No JAX, no matplotlib."""
 
 from __future__ import annotations
@@ -177,14 +177,26 @@ def scaled(value: Any, factor: float) -> Any:
     return value
 
 
-def in_display_units(summary: pd.DataFrame, metadata: Mapping[str, Any] | Schema,
-                     axes: Sequence[str]) -> pd.DataFrame:
-    """``summary`` with each of ``axes`` in the unit the plots and the page show it in
-    (:func:`display`: km for a radius that declares it, degrees for radians); the same object when
-    none changes. What the printed table shows (a CSV keeps the dataset's units)."""
+def table_unit(name: str, metadata: Mapping[str, Any] | Schema) -> tuple[str, float]:
+    """``(unit, factor)`` a column is printed in by the summary tables: an angle in degrees
+    (:data:`mcjax.base.units.DEFAULT_DISPLAY`, as the plots and the page show it: radians are read
+    by no one), every other unit as declared (metres as the spec writes them; the plots may show
+    km: :func:`display`)."""
+    u = unit(name, metadata)
+    try:
+        return display_unit(u)
+    except ValueError:
+        return u, 1.0
+
+
+def in_table_units(summary: pd.DataFrame, metadata: Mapping[str, Any] | Schema,
+                   axes: Sequence[str]) -> pd.DataFrame:
+    """``summary`` with each of ``axes`` in its :func:`table_unit` (an angle in degrees); the same
+    object when none changes. What the printed table and the page's full table show (a CSV keeps
+    the dataset's units)."""
     out = summary
     for a in axes:
-        factor = display(a, metadata)[1]
+        factor = table_unit(a, metadata)[1]
         if factor != 1.0 and a in summary.columns:
             out = out.copy() if out is summary else out
             out[a] = summary[a].map(lambda v, f=factor: scaled(v, f))

@@ -17,7 +17,7 @@ about the columns is :mod:`mcjax.analysis.schema`'s; its names below are re-expo
 * :func:`summary_columns`, :func:`summarize` -- one row per (swept axes..., filter) with the
   statistics of :mod:`mcjax.analysis.statistics`.
 * :func:`legend_lines` -- one line per metric the table shows and per axis: its unit and description;
-  :func:`in_display_units` -- the axes in the unit the plots and the page show them in.
+  :func:`in_table_units` -- the axes in the tables' units (an angle in degrees, :func:`table_unit`).
 * :func:`format_table`, :func:`format_cells`, :func:`format_number` -- rendering (one number
   format for every table and plot).
 
@@ -55,13 +55,14 @@ from mcjax.analysis.schema import (  # noqa: F401
     declaration,
     display,
     filter_rank,
-    in_display_units,
+    in_table_units,
     label,  # (re-exported: the report's modules read them here)
     ordered_filters,
     resolve_axes,
     scaled,
     schema,
     swept_axes,
+    table_unit,
     unit,
 )
 from mcjax.analysis.statistics import CONFIDENCE, mean_ci, wilson_interval
@@ -84,7 +85,8 @@ __all__ = [
     "legend_lines",
     "TABLE_ROLES",
     "scaled",
-    "in_display_units",
+    "in_table_units",
+    "table_unit",
     "check_format",
     "format_number",
     "format_cells",
@@ -219,12 +221,12 @@ TABLE_ROLES = ("divergence", "nonfinite", "connectivity_mean", "connectivity_min
 
 
 def legend_lines(metadata: Mapping[str, Any] | Schema, axes: Sequence[str] = (), *,
-                 display_units: bool = False) -> list[str]:
+                 table_units: bool = False) -> list[str]:
     """Lines to print above a summary table: the scenario, then one line per metric the table
     shows (``"rmse: <unit> — <description>"``, :data:`TABLE_ROLES`) and per axis, then how the
-    statistics columns are computed. ``display_units``: the table shows its axes in their display
-    units (:func:`in_display_units`), which the axes' lines then name (``"turn_rate: deg/s
-    (stored as rad/s)"``)."""
+    statistics columns are computed. ``table_units``: the table shows its axes in the tables' units
+    (:func:`in_table_units`: an angle in degrees), which the axes' lines then name (``"turn_rate:
+    deg/s (stored as rad/s)"``)."""
     sch = schema(metadata)
     lines = []
     if sch.scenario:
@@ -234,7 +236,7 @@ def legend_lines(metadata: Mapping[str, Any] | Schema, axes: Sequence[str] = (),
         decl = declaration(name, sch)
         desc = str(decl.get("description") or "").strip()
         stored = _unit_text(unit(name, sch))
-        shown = _unit_text(display(name, sch)[0]) if display_units and name in axes else stored
+        shown = _unit_text(table_unit(name, sch)[0]) if table_units and name in axes else stored
         text = shown if shown == stored else f"{shown} (stored as {stored})"
         lines.append(f"{name}: {text}" + (f" — {desc}" if desc else ""))
     pct = f"{100 * CONFIDENCE:g} %"

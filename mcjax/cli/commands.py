@@ -189,8 +189,9 @@ def _sweep(spec, out_dir, seeds, chunk_size, sets, dry_run, resume, force, state
         click.echo(hint(), err=True)
         exit_now(130)
     if result.runs_run:
+        rate = result.runs_run / max(result.seconds, 1e-9)  # a few runs that took long: 0.048, not 0.0
         click.echo(f"{len(result.rows)} rows in {out_dir / 'runs'}; {result.runs_run} runs in {result.seconds:.1f} s "
-                   f"({result.runs_run / max(result.seconds, 1e-9):.1f} runs/s incl. compilation)")
+                   f"({f'{rate:.1f}' if rate >= 0.95 else f'{rate:.2g}'} runs/s incl. compilation)")
     else:  # --resume of a sweep already whole: nothing ran, so no rate
         click.echo(f"{len(result.rows)} rows in {out_dir / 'runs'}; the sweep was already complete (nothing to run)")
     _print_summary(result.rows, s)

@@ -42,9 +42,9 @@ def summary_text(df: pd.DataFrame, metadata: Mapping[str, Any], fmt: str = "text
 
     For ``"text"`` and ``"markdown"`` the table is preceded by the legend of
     :func:`mcjax.analysis.tables.legend_lines` (scenario, then one line per metric and swept axis
-    with its unit and description, then how the statistics are computed) and shows the swept axes in
-    the units the plots and the page show them in (:func:`mcjax.analysis.tables.in_display_units`:
-    km, deg/s); ``"csv"`` is the bare table in the dataset's units. ``summary``: the page's :class:`mcjax.analysis.summary.Summary` of ``df`` (built
+    with its unit and description, then how the statistics are computed) and shows an angle in
+    degrees, as the plots and the page do (:func:`mcjax.analysis.tables.in_table_units`);
+    ``"csv"`` is the bare table in the dataset's units. ``summary``: the page's :class:`mcjax.analysis.summary.Summary` of ``df`` (built
     here when not given). ``width``: a terminal's columns, which the text table then fits
     (:func:`mcjax.analysis.tables.format_table`); None: one block, however wide.
 
@@ -60,9 +60,9 @@ def summary_text(df: pd.DataFrame, metadata: Mapping[str, Any], fmt: str = "text
     one = summary_for(df, metadata, tables.swept_axes(metadata, df.columns), summary)
     if fmt == "csv":  # a program's table: the dataset's units, no header
         return tables.format_table(one.table, fmt)
-    # the axes in the units the plots and the page show them in (km, deg/s), the legend saying so
-    header = tables.legend_lines(one.schema, one.axes, display_units=True)
-    return tables.format_table(tables.in_display_units(one.table, one.schema, one.axes), fmt,
+    # an angle in degrees, as the plots and the page show it (rad/s read by no one), the legend saying so
+    header = tables.legend_lines(one.schema, one.axes, table_units=True)
+    return tables.format_table(tables.in_table_units(one.table, one.schema, one.axes), fmt,
                                ([f"WARNING: {warning}"] if warning else []) + header, width)
 
 

@@ -319,11 +319,11 @@ def page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, An
                                 f"its {pct} Wilson interval" if sch.divergence else "") + ".</p>")
     g = glance(summary, sch, axes)
     parts.append(html_table(*tables.format_cells(g)[:2], numbers=True))
-    parts.append("<h3>Every statistic</h3><p>As <code>mcjax report</code> prints it (the axes in the plots' "
-                 "units; rates as fractions); the table scrolls sideways inside its box.</p>")
+    parts.append("<h3>Every statistic</h3><p>As <code>mcjax report</code> prints it (the units of its legend: "
+                 "an angle in degrees; rates as fractions); the table scrolls sideways inside its box.</p>")
     parts.append('<ul class="legend">' + "".join(f"<li>{_e(line)}</li>" for line
-                                                in tables.legend_lines(sch, axes, display_units=True)) + "</ul>")
-    parts.append(html_table(*tables.format_cells(tables.in_display_units(summary, sch, axes))[:2], numbers=True))
+                                                in tables.legend_lines(sch, axes, table_units=True)) + "</ul>")
+    parts.append(html_table(*tables.format_cells(tables.in_table_units(summary, sch, axes))[:2], numbers=True))
     parts.append("</section>")
 
     # glossary and base Params

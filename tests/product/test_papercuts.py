@@ -319,8 +319,8 @@ def test_a_config_path_with_a_typo_gets_the_file_it_meant(tmp_path):
 
 def test_a_sweeps_printed_table_and_its_page_agree_on_the_unit_and_the_legend_names_only_its_columns(tmp_path):
     """turn_rate was printed in rad/s (0.0523599) while the page and the plots showed deg/s (3); the legend
-    defined anees, which the table does not show. Now both tables show the axis in deg/s, and every metric the
-    legend names is a column."""
+    defined anees, which the table does not show. Now the printed table and both of the page's tables show an
+    angle in degrees, and every metric the legend names is a column."""
     import math
 
     from tests.analysis.test_tables import make_metadata, synthetic_runs, write_dataset
@@ -350,6 +350,11 @@ def test_a_sweeps_printed_table_and_its_page_agree_on_the_unit_and_the_legend_na
     # a CSV keeps the dataset's units (a program's table)
     csv = CliRunner().invoke(main, ["report", str(out), "--format", "csv", "--no-plots"]).output
     assert csv.splitlines()[1].startswith(f"{math.radians(3.0)!r},")
+    # a length stays as the spec writes it (the README's table: 50000), its legend line unchanged
+    grid = {"comm_radius": [50e3, 100e3]}
+    out = write_dataset(tmp_path / "radius", synthetic_runs(grid, seeds=4), make_metadata(grid))
+    printed = CliRunner().invoke(main, ["report", str(out), "--no-plots"]).output
+    assert re.search(r"^\s*50000\s+kf\s", printed, flags=re.M) and "comm_radius: m — " in printed, printed
 
 
 def test_resume_of_a_complete_sweep_says_it_was_complete_not_a_rate(tmp_path):
@@ -360,6 +365,7 @@ def test_resume_of_a_complete_sweep_says_it_was_complete_not_a_rate(tmp_path):
     out = tmp_path / "out"
     first = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out)])
     assert first.exit_code == 0 and re.search(r"2 runs in [\d.]+ s \([\d.]+ runs/s", first.output), first.output
+    assert "(0.0 runs/s" not in first.output  # two runs in a few seconds: 0.22, not 0.0
     again = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(out), "--resume"])
     assert again.exit_code == 0, again.output
     assert f"6 rows in {out / 'runs'}; the sweep was already complete (nothing to run)" in again.output.splitlines()
