@@ -25,7 +25,7 @@ import sys
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from mcjax.base.plugins import import_reference, module_file, near_name
+from mcjax.base.plugins import absolute_reference, import_reference, module_file, near_name
 from mcjax.contract.filter import Filter
 from mcjax.tracking.filters.consensus import CIF, ICF, KCF, LOCAL, MODIFIED_ICF
 from mcjax.tracking.filters.robust_consensus import CI, HCMCI
@@ -69,6 +69,12 @@ def _checked(obj, ref: str, plugin: str | None = None) -> Filter:
     return obj
 
 
+def _key(name: str, base_dir) -> str:
+    """What a filter asked for as ``name`` is kept under: a relative ``FILE.py:ATTR`` made absolute (against
+    ``base_dir``, else the current folder), so that one name read from two folders is two files."""
+    return absolute_reference(name, Path.cwd() if base_dir is None else base_dir)
+
+
 def did_you_mean(name: str, names) -> str:
     """``"; did you mean 'X'?"`` for the name of ``names`` one typo away from ``name``
     (:func:`mcjax.base.plugins.near_name`), else ``""``."""
@@ -79,15 +85,16 @@ def did_you_mean(name: str, names) -> str:
 def get(name: str, base_dir: str | Path | None = None) -> Filter:
     """The filter called ``name`` (module docstring); a one-line ValueError otherwise (an unknown name with
     the known ones and a did-you-mean, a plugin, file or module that fails to import, an object that is not a
-    Filter, a reference to a record named like a built-in or an installed plugin). A built-in name is always the built-in: an installed plugin
-    whose entry point takes one is refused by :func:`clashes`, not resolved. Plugins and
-    references are imported once per process."""
+    Filter, a reference to a record named like a built-in or an installed plugin). A built-in name is always
+    the built-in: an installed plugin whose entry point takes one is refused by :func:`clashes`, not resolved.
+    Plugins and references are imported once per process (a relative file by its absolute path)."""
     if not isinstance(name, str):
         raise ValueError(f"filter must be a name, one of {', '.join(known())} (or 'file.py:ATTRIBUTE'); got {name!r}")
     if name in BUILTIN:
         return BUILTIN[name]
-    if name in _FOUND:
-        return _FOUND[name][0]
+    key = _key(name, base_dir)
+    if key in _FOUND:
+        return _FOUND[key][0]
     plugins = _plugin_points()
     if name in plugins:
         point = plugins[name]
@@ -104,7 +111,7 @@ def get(name: str, base_dir: str | Path | None = None) -> Filter:
     else:
         raise ValueError(f"filter must be one of {', '.join(known())} (or 'file.py:ATTRIBUTE'); got {name!r}"
                          f"{did_you_mean(name, known())}")
-    _FOUND[name] = found
+    _FOUND[key] = found
     return found[0]
 
 
@@ -124,7 +131,8 @@ def _distribution(point) -> str:
 
 def origin(name: str) -> str | None:
     """Where the filter asked for as ``name`` came from (a plugin, a file, a module); None for a built-in."""
-    return _FOUND[name][1] if name in _FOUND else None
+    key = _key(name, None)
+    return _FOUND[key][1] if key in _FOUND else None
 
 
 def shown_name(name: str, own=()) -> str:
