@@ -236,8 +236,9 @@ def cost_method(meta: Mapping) -> str:
         return (f"ms/run: {NOT_TIMED} (the league file's timing_runs = 0: no timing pass)")
     t = meta.get("timing") or {}
     repeats, runs, load = t.get("repeats"), t.get("repeat_runs"), t.get("load")
-    how = (f"the median of {repeats} timed repeats of {runs} run(s) each, after one untimed repeat that compiles "
-           f"(compilation excluded), with the lowest and highest repeat in brackets" if repeats and runs else
+    how = (f"the median of {repeats} timed repeats of {runs} run(s) each (one batch), after one untimed repeat "
+           f"that compiles (compilation excluded), with the lowest and highest repeat in brackets; a run costs less "
+           f"in a larger batch, so compare costs within one league" if repeats and runs else
            "compilation excluded")
     return (f"ms/run: milliseconds per run of the filter alone — the scenario at the league's first point built "
             f"with that filter as its only filter, so no other filter's work is timed (a filter the scenario runs "

@@ -13,8 +13,9 @@ quick look times few runs.
 
 Each filter alone is a program of its own to compile: most of the pass's time. :class:`Warmup` runs
 the untimed repeats (the compilations) in a thread of its own while the league's sweeps run — a
-sweep of at most 100 runs keeps one core busy, so the other compiles — and the timing pass waits for
-it to finish before it times anything, so no compilation runs beside a timed repeat.
+sweep of at most 100 runs keeps one core busy, so the other compiles — and in two once they are
+done; the timing pass waits for every one to finish before it times anything, so no compilation
+runs beside a timed repeat.
 
 The pass runs here whatever the sweeps' executor (the cost is of this machine, :func:`machine`),
 says where it is after each repeat (``progress``), and is stopped within a fraction of a second by
@@ -134,24 +135,35 @@ def _kept(saved: dict, runs: int) -> dict:
 
 class Warmup:
     """The untimed first repeat of every filter of ``league`` still to time (none in ``saved``, the
-    folder's ``timing.json``), run one after the other in a daemon thread started here; ``stop()``
-    looked at between them. :meth:`ready` hands the timing pass the study each warmed."""
+    folder's ``timing.json``), taken in turn from one queue by daemon threads: one started here (beside
+    the sweeps, which keep one core busy), one more per :meth:`wait` (the sweeps done, every core
+    compiles); ``stop()`` looked at between filters. :meth:`ready` hands the timing pass the study each
+    warmed."""
 
     def __init__(self, league: League, saved: dict, should_stop: Callable[[], bool] | None = None) -> None:
         runs, kept = repeat_runs(league), _kept(saved, repeat_runs(league))
         self._todo = [(key, f) for key, entry in league.scenarios.items() for f in entry.filters
                       if f not in kept.get(key, {})] if runs else []
+        self._queue = list(self._todo)
         self._league, self._runs, self._stop = league, runs, should_stop or (lambda: False)
         self._done: dict = {}
-        self._thread = threading.Thread(target=self._run, name="mcjax-league-warmup", daemon=True)
-        self._thread.start()
+        self._lock = threading.Lock()
+        self._threads: list[threading.Thread] = []
+        self._start()
+
+    def _start(self) -> None:
+        thread = threading.Thread(target=self._run, name="mcjax-league-warmup", daemon=True)
+        self._threads.append(thread)
+        thread.start()
 
     def _run(self) -> None:
         from mcjax.study.execute import chunk_rows
 
-        for key, filt in self._todo:
-            if self._stop():
-                return
+        while not self._stop():
+            with self._lock:
+                if not self._queue:
+                    return
+                key, filt = self._queue.pop(0)
             try:
                 study, note = timed_study(self._league, key, filt, self._runs)
                 if study is not None:
@@ -162,16 +174,22 @@ class Warmup:
             self._done[key, filt] = (study, note)
 
     def wait(self, should_stop: Callable[[], bool]) -> bool:
-        """Wait until every warm-up is done (True), or ``should_stop()`` (False)."""
-        while self._thread.is_alive():
-            self._thread.join(POLL_S)
-            if self._thread.is_alive() and should_stop():
-                return False
+        """Wait until every warm-up is done (True), or ``should_stop()`` (False); a second thread
+        takes from the queue meanwhile."""
+        with self._lock:
+            if self._queue:
+                self._start()
+        for thread in list(self._threads):
+            while thread.is_alive():
+                thread.join(POLL_S)
+                if thread.is_alive() and should_stop():
+                    return False
         return True
 
     def pending(self) -> int:
         """How many filters are still to warm up."""
-        return len([k for k in self._todo if k not in self._done]) if self._thread.is_alive() else 0
+        alive = any(t.is_alive() for t in self._threads)
+        return len([k for k in self._todo if k not in self._done]) if alive else 0
 
     def ready(self, key: str, filt: str):
         """``(study, note)`` of the filter warmed up here, or None."""
