@@ -3,7 +3,12 @@ README's .venv in it; a folder left by a sweep that wrote nothing is reused with
 without mcjax.configure(); no undated timing in a sweep file's comments; the stored-program warning reads
 as English. Issue 61's: the README states the divergence rule the code applies and the suite's size and
 time once, dated; an xdist worker ends before execnet interrupts it; an unknown key's line is short; a
-wrong kind says what it got; a spec's mistakes one per line; a complete dataset run again is told so."""
+wrong kind says what it got; a spec's mistakes one per line; a complete dataset run again is told so.
+Issue 67's: `pytest -q` ends with its pass count; a report of a missing folder and a mistyped path get the
+name meant; a resumed complete sweep prints no rate; check and league say which --resume applies; a
+claims file's wrong kind reads as a spec's; the table and the page agree on an angle's unit; a check's
+sweep page says what it is for, keeps n off the caps and draws no empty divergence bars (the default
+page's λ2 and repeated intervals: tests/analysis/test_connectivity.py)."""
 
 import gc
 import re
