@@ -20,6 +20,17 @@ def docs_example(folder: Path) -> Path:
     return folder / "static_sensors.toml"
 
 
+def closed_loop(name: str) -> bool:
+    """Whether a case's config steers by its estimates (a planner): its rows are judged as a closed loop's
+    (tests/golden/rule.py)."""
+    from mcjax.study import build_spec
+
+    base = ROOT / "configs" / f"{name}.toml"
+    if not base.is_file():
+        return False
+    return getattr(build_spec({"base": str(base)}, ROOT, seeds=1).config, "planner", "none") not in ("none", None)
+
+
 def case_rows(name: str):
     """The tidy rows of one case."""
     import tempfile

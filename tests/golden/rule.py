@@ -7,13 +7,18 @@ is judged by statistics, not by its bits. Matched on their keys (the same runs, 
 
 * the divergence flags agree in at least 99.9 % of run x filter pairs (with fewer than 1,000 pairs: all);
 * in every row whose run x filter neither side flags diverged, every floating-point output agrees to
-  ``RTOL`` relative to the larger of the two values and of one unit of the output (a value far below its
-  unit, such as a converged formation error of 2e-6 m computed from positions of kilometres, or λ2 of a
-  graph in pieces, carries the rounding of the larger numbers it came from), NaN where the other has
-  NaN, and every count, flag and label is equal;
+  ``RTOL`` relative between two programs on one machine, ``OTHER_CPU_RTOL`` between CPU models (the
+  stored-row tests' default), measured normwise: against the output's largest magnitude over those rows, and at
+  least one unit of the output — an error of 4.6 m is a difference of coordinates of 10^5 m and carries
+  their rounding (on AVX2 code a centralised filter's final error in the legacy sweep moved by 1.6e-7 m,
+  3.5e-8 of itself, 2e-10 of its column's largest; a converged formation error of 2e-6 m moved by
+  4e-12 m) — NaN where the other has NaN; and every count, flag and label is equal;
 * over the runs that diverged, each filter's (and point's) mean and median error lie inside the other's
   95 % intervals (a t interval for the mean, the binomial order-statistic interval for the median),
-  where a cell holds at least two such runs.
+  where a cell holds at least two such runs;
+* in a closed loop (a planner steers by the estimates, so rounding moves the paths), the rule judges by
+  statistics: each cell's mean and median error over all its runs inside the other's 95 % intervals,
+  and each run that did not diverge within ``CLOSED_LOOP_RTOL`` besides.
 
 Per-step series (``t`` among the keys) follow the flag of their run x filter. On the machine that wrote
 the rows nothing moves at all: ``MCJAX_GOLDEN_EXACT=1`` makes the stored-row tests compare bits instead
@@ -28,8 +33,17 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-#: Relative agreement of a run that did not diverge.
+#: Relative agreement (normwise) of a run that did not diverge, between two programs on one machine: the
+#: design's rule for a restructuring.
 RTOL = 1e-9
+#: ... between one program on two CPU models, as the stored-row tests compare: XLA's other vector code moved
+#: Sun et al. 2011's open loop in the legacy sweep (10 steps, estimates still converging from 200 m off) by
+#: up to 1.5e-9 normwise in the ANEES on AVX2 against AVX-512 (2026-12-07), so 1e-9 cannot hold there.
+OTHER_CPU_RTOL = 1e-8
+#: ... in a closed loop (a planner steers by the estimates): judged by statistics under the rule; each run
+#: that did not diverge is held here to 1e-6 besides (AVX2 against AVX-512 moved Sun et al. 2011's closed
+#: loop by 9.7e-9 at most in 30 steps under faults, 2026-12-07), so that a change of equations still shows.
+CLOSED_LOOP_RTOL = 1e-6
 #: Share of run x filter pairs whose divergence flag may differ.
 FLIP_SHARE = 1e-3
 KEYS = ("point_id", "seed_index", "filter", "t")
@@ -51,10 +65,14 @@ def _run_flags(df: pd.DataFrame, flag: str) -> pd.DataFrame:
 
 
 def compare(got: pd.DataFrame, stored: pd.DataFrame, *, flags: pd.DataFrame | None = None,
-            error: str = "rmse", flag: str = "diverged") -> list[str]:
+            error: str = "rmse", flag: str = "diverged", closed_loop: bool = False,
+            rtol: float = OTHER_CPU_RTOL) -> list[str]:
     """What breaks the rule between ``got`` (this machine) and ``stored`` (another), one line each; an
     empty list when the rows agree. Compares the stored columns. ``flags``: the run x filter divergence
-    flags of both sides (columns ``flag`` and ``flag + '_stored'``), for per-step series that carry none."""
+    flags of both sides (columns ``flag`` and ``flag + '_stored'``), for per-step series that carry none.
+    ``closed_loop``: the rows of a closed loop; ``rtol``: ``RTOL`` for two programs on one machine (module
+    docstring)."""
+    rtol = max(rtol, CLOSED_LOOP_RTOL) if closed_loop else rtol
     got, stored = _tidy(got), _tidy(stored)
     keys = [k for k in KEYS if k in stored.columns]
     columns = [c for c in stored.columns if c not in keys]
@@ -85,16 +103,18 @@ def compare(got: pd.DataFrame, stored: pd.DataFrame, *, flags: pd.DataFrame | No
         if x.dtype.kind == "f" or y.dtype.kind == "f":
             x, y = x.astype(float), y.astype(float)
             nan = np.isnan(x) | np.isnan(y)
-            tol = RTOL * np.maximum(np.maximum(np.abs(x), np.abs(y)), 1.0)
-            bad = (np.isnan(x) != np.isnan(y)) | (~nan & (np.abs(x - y) > tol))
+            scale = max(np.max(np.abs(x[~nan]), initial=0.0), np.max(np.abs(y[~nan]), initial=0.0), 1.0)
+            bad = (np.isnan(x) != np.isnan(y)) | (~nan & (np.abs(x - y) > rtol * scale))
             if bad.any():
-                rel = (np.abs(x - y) / np.maximum(np.maximum(np.abs(x), np.abs(y)), 1.0))[~nan]
+                rel = np.max(np.abs(x - y)[~nan], initial=0.0) / scale
                 problems.append(f"{c}: {int(bad.sum())} of {len(x)} rows of runs that did not diverge differ by "
-                                f"more than {RTOL:g} relative (largest {np.max(rel, initial=0.0):.3g})")
+                                f"more than {rtol:g} of the column's largest {scale:.6g} (largest {rel:.3g})")
         elif not (pd.Series(x).astype(str).to_numpy() == pd.Series(y).astype(str).to_numpy()).all():
             problems.append(f"{c}: a count, flag or label differs in a run that did not diverge")
     if error in columns and "t" not in keys:
-        problems += _diverged_statistics(both[a & b], error, keys)
+        problems += _statistics(both[a & b], error, keys, "diverged runs'")
+        if closed_loop:
+            problems += _statistics(both, error, keys, "runs'")
     return problems
 
 
@@ -110,9 +130,9 @@ def _interval_median(v: np.ndarray) -> tuple[float, float]:
     return v[lo], v[hi]
 
 
-def _diverged_statistics(diverged: pd.DataFrame, error: str, keys: list[str]) -> list[str]:
+def _statistics(rows_of: pd.DataFrame, error: str, keys: list[str], which: str) -> list[str]:
     out = []
-    for cell, rows in diverged.groupby([k for k in ("point_id", "filter") if k in keys]):
+    for cell, rows in rows_of.groupby([k for k in ("point_id", "filter") if k in keys]):
         x, y = rows[error].to_numpy(float), rows[f"{error}_stored"].to_numpy(float)
         x, y = x[np.isfinite(x) & np.isfinite(y)], y[np.isfinite(x) & np.isfinite(y)]
         if len(x) < 2:
@@ -120,7 +140,7 @@ def _diverged_statistics(diverged: pd.DataFrame, error: str, keys: list[str]) ->
         for name, centre, interval in (("mean", np.mean, _interval_mean), ("median", np.median, _interval_median)):
             (lo_x, hi_x), (lo_y, hi_y) = interval(x), interval(y)
             if not (lo_y <= centre(x) <= hi_y and lo_x <= centre(y) <= hi_x):
-                out.append(f"{cell}: the diverged runs' {name} {error} {centre(x):.6g} against the stored "
+                out.append(f"{cell}: the {which} {name} {error} {centre(x):.6g} against the stored "
                            f"{centre(y):.6g}, outside each other's 95 % intervals")
     return out
 

@@ -29,7 +29,7 @@ import pytest
 from mcjax.scenarios.kit import faults
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "golden"))
-from golden_cases import CASES, FAULT_CASES, case_rows, fault_rows  # noqa: E402
+from golden_cases import CASES, FAULT_CASES, case_rows, closed_loop, fault_rows  # noqa: E402
 from rule import compare  # noqa: E402
 
 STORED = Path(__file__).resolve().parents[1] / "golden"
@@ -37,13 +37,13 @@ STORED = Path(__file__).resolve().parents[1] / "golden"
 EXACT = os.environ.get("MCJAX_GOLDEN_EXACT") == "1"
 
 
-def _agree(got: pd.DataFrame, stored: pd.DataFrame, flags: pd.DataFrame | None = None):
+def _agree(name: str, got: pd.DataFrame, stored: pd.DataFrame, flags: pd.DataFrame | None = None):
     got = got[list(stored.columns)].reset_index(drop=True)
     if EXACT:
         pd.testing.assert_frame_equal(got, stored, check_exact=True, check_dtype=True)
         return
     assert list(got.dtypes) == list(stored.dtypes)
-    problems = compare(got, stored, flags=flags)
+    problems = compare(got, stored, flags=flags, closed_loop=closed_loop(name))
     assert not problems, "\n".join(problems)
 
 
@@ -61,7 +61,7 @@ def test_rows_agree_with_the_stored_ones_by_the_golden_row_rule(name):
     got = case_rows(name)
     assert len(stored) > 0
     assert set(got.columns) - set(stored.columns) <= set(faults.SUMMARY_OUTPUTS)
-    _agree(got, stored)
+    _agree(name, got, stored)
 
 
 @pytest.mark.parametrize("name", FAULT_CASES)
@@ -71,4 +71,4 @@ def test_rows_under_faults_and_their_series_agree_with_the_stored_ones(name):
     for got, file in ((runs, f"{name}_faults.parquet"), (series, f"{name}_faults_timeseries.parquet")):
         stored = pd.read_parquet(STORED / file)
         assert len(stored) > 0 and set(stored.columns) <= set(got.columns), file
-        _agree(got, stored, None if got is runs else _flags(runs, stored_runs))
+        _agree(name, got, stored, None if got is runs else _flags(runs, stored_runs))
