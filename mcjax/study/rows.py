@@ -66,8 +66,8 @@ def run_rows(scenario: Scenario, cfg, outputs: Mapping[str, Any], keys: Mapping[
     """Tidy rows, one per run and filter, of a batch's reduced ``outputs`` (each (runs, F) or
     (runs,), as declared by ``scenario.outputs(cfg)``). ``keys``: per-run key columns (e.g.
     ``point_id``, ``seed_index``, swept values, a benchmark's case) — arrays of length runs or
-    scalars. Columns: ``scenario``, the keys, ``filter`` (its shown name, :func:`shown_filters`), then the outputs in declaration
-    order, then ``extra`` (declarations of outputs the study adds: sensitivity columns).
+    scalars. Columns: ``scenario``, the keys, ``filter`` (its shown name, :func:`shown_filters`), then the
+    outputs in declaration order, then ``extra`` (declarations of outputs the study adds: sensitivity columns).
     Sorted by point, seed and filter."""
     declared = {**scenario.outputs(cfg), **(extra or {})}
     _check_declared(outputs, declared, scenario, "reduce")
