@@ -52,9 +52,11 @@ def _print_summary(df, spec) -> None:
     """The report's table of a sweep's rows (per point and filter), from the declarations."""
     from mcjax.analysis.tables import terminal_width
     from mcjax.report import summary_text
+    from mcjax.study.rows import shown_metadata
 
     # the declarations and the spec are all the table needs (no provenance, no git call); it fits the terminal
-    click.echo(summary_text(df, {**spec.scenario.metadata(spec.config), "spec": spec.source}, width=terminal_width()))
+    click.echo(summary_text(df, {**shown_metadata(spec.scenario, spec.config), "spec": spec.source},
+                            width=terminal_width()))
 
 
 class Commands(click.Group):
@@ -231,8 +233,10 @@ def run(config, seeds, sets):
         except study.SpecError as exc:
             fail(str(exc))
         configure()
+        from mcjax.study.rows import shown_filters
+
         click.echo(f"scenario {scenarios.describe(s.scenario)}: {s.n_points} point(s) x {s.seeds} seed(s) = "
-                   f"{s.n_runs} runs, filters {', '.join(s.config.filters)}")
+                   f"{s.n_runs} runs, filters {', '.join(shown_filters(s.scenario, s.config))}")
         df = study.run_sweep(s, should_stop=stop.is_set)
         if stop.is_set():
             click.echo(f"interrupted: {len(df) // max(len(s.config.filters), 1)} of {s.n_runs} run(s) done, "

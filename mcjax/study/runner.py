@@ -26,6 +26,7 @@ from mcjax import configure, scenarios
 from mcjax.base import parquet
 from mcjax.study.execute import Executor, run_sweep
 from mcjax.study.plan import Study
+from mcjax.study.rows import shown_filters
 from mcjax.study.spec import load_spec
 from mcjax.study.store import IDENTITY_FILE, default_out_dir, prepare_output, read_identity
 
@@ -80,7 +81,7 @@ def sweep_headline(study: Study) -> str:
     """One line: the scenario, points × seeds = runs, the chunk plan and the filters."""
     return (f"scenario {scenarios.describe(study.scenario)}: {study.n_points} point(s) x {study.seeds} seed(s) = "
             f"{study.n_runs} runs, {len(study.plan)} chunk(s) of {study.chunk_runs}, filters "
-            f"{', '.join(study.config.filters)}")
+            f"{', '.join(shown_filters(study.scenario, study.config))}")
 
 
 def summary_columns(study: Study) -> list[str]:

@@ -218,6 +218,7 @@ def test_a_sweep_shows_it_by_its_name_and_keeps_where_it_came_from_once(own, mon
     r = _cli(["sweep", str(ROOT / "sweeps" / "default.toml"), "--seeds", "3", "--out", str(out),
               "--set", 'config.filters=["modified_icf", "own.py:MINE"]'], own)
     assert r.exit_code == 0, r.output
+    assert r.output.splitlines()[0].endswith("filters modified_icf, my_local"), r.output  # the headline
     table = r.output.strip().split("\n\n")[-1]
     assert "my_local" in table and "own.py" not in table, table  # the printed summary
     rows = pd.read_parquet(out / "runs")
