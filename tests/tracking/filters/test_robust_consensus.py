@@ -266,6 +266,9 @@ def test_unknown_kind_is_refused():
     states = init_states(("ci",), jnp.zeros(4), jnp.eye(4), n)
     meas = Measurements(jnp.full((n, 2), jnp.nan), jnp.zeros((n, 2)), jnp.zeros((n, n)), jnp.broadcast_to(jnp.eye(2), (n, 2, 2)))
     F, Q = cv_model()
-    expected = f"filter must be one of {', '.join(FILTER_KINDS)} (or 'file.py:ATTRIBUTE'); got 'cii'; did you mean 'ci'?"
+    from mcjax.tracking.filters.registry import known  # the built-in filters, then any plugin installed here
+
+    assert tuple(known()[:len(FILTER_KINDS)]) == FILTER_KINDS
+    expected = f"filter must be one of {', '.join(known())} (or 'file.py:ATTRIBUTE'); got 'cii'; did you mean 'ci'?"
     with pytest.raises(ValueError, match=re.escape(expected)):
         filter_step(("cii",), FilterOptions(), position, jnp.array([False, False]), states, meas, F, Q, 0.0)
