@@ -138,7 +138,8 @@ def run_league(league_file: str | Path | League, *, out_dir: str | Path | None =
 
 def build_table(league: League, rows: dict, timing: dict) -> pd.DataFrame:
     """The league table of every cell's runs (``rows``: (scenario, point) → the sweep's rows) and
-    the timing pass's costs."""
+    the timing pass's costs; each filter shown by its record's name, as the datasets show it (a file the
+    league file names ``"my_ekf.py:MY_EKF"`` is ``my_ekf``)."""
     out = []
     for (key, point), study in league.studies.items():
         entry = league.scenarios[key]
@@ -148,4 +149,8 @@ def build_table(league: League, rows: dict, timing: dict) -> pd.DataFrame:
         out += league_table.cell_rows(key, entry.scenario, point, r,
                                       league_table.roles(study.scenario.outputs(study.config)), entry.filters,
                                       league.filters, entry.notes, costs, timing.get("machine", ""))
-    return league_table.frame(out)
+    from mcjax.tracking.filters.registry import shown_name  # resolved already, when the league file was read
+
+    table = league_table.frame(out)
+    table["filter"] = [shown_name(league.config_names.get(f, f)) for f in table["filter"]]  # a record's name
+    return table

@@ -134,6 +134,19 @@ def test_a_league_of_two_filters_of_one_name_is_refused_in_one_line(own):
     assert not (own / "league").exists()
 
 
+def test_a_league_table_shows_a_filter_of_ones_own_by_its_records_name(own):
+    """The league file names the file (``own.py:MINE``); its table, as every dataset, shows ``my_local``
+    (Chen & Lu 2013, 8 steps, 3 runs, no timing pass)."""
+    (own / "mine.toml").write_text(f'seeds = 3\ntiming_runs = 0\nfilters = ["kcf", "own.py:MINE"]\n'
+                                   f'[scenarios.wind]\nbase = "{ROOT / "configs" / "chen2013.toml"}"\n'
+                                   f'config = {{ n_steps = 8 }}\n[points.none]\ndescription = "no faults"\n')
+    r = _cli(["league", "mine.toml", "--out", str(own / "league")], own)
+    assert r.exit_code == 0, r.output
+    table = pd.read_parquet(own / "league" / "league.parquet")
+    assert sorted(table["filter"]) == ["kcf", "my_local"]
+    assert "my_local" in r.output and "own.py" not in r.output
+
+
 def test_a_claim_names_a_filter_of_ones_own_by_its_reference_or_its_name(own):
     """A claims file's ``filter`` may be the reference its sweep's config wrote or the record's name; either
     selects the rows the dataset shows by the name (Chen & Lu 2013, 12 steps, 4 runs)."""
