@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import html
 import os
-from datetime import datetime, timezone
+from datetime import datetime
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
@@ -125,17 +125,12 @@ def page(out_dir: str | os.PathLike, table: pd.DataFrame, meta: Mapping[str, Any
                      f"{_e(forest.caption)}</figcaption></figure>")
     parts.append("</section>")
     parts.append('<section id="sweeps"><h2>Each sweep\'s report</h2>' + _links(out, sweep_pages) + "</section>")
-    now = now or datetime.now(timezone.utc)
     rows = [["claims file", str(meta.get("claims_file", "?"))], ["runs per point", seeds or "?"]]
     if meta.get("base_seed") is not None:
         rows.append(["base seed (--base-seed)", str(meta["base_seed"])])
     if meta.get("replicate"):
         rows.append(["seed ranges (--replicate)", str(meta["replicate"])])
-    rows += [[name, str(meta[key]).lower() if isinstance(meta[key], bool) else str(meta[key])]
-             for key, name in PROVENANCE if key in meta]
-    rows.append(["report written (UTC)", now.astimezone(timezone.utc).isoformat(timespec="seconds")])
-    parts.append('<section id="provenance"><h2>Provenance</h2>' + html_page.html_table(["what", "value"], rows)
-                 + "</section>")
+    parts.append(html_page.provenance_section(rows, meta, PROVENANCE, now))
     parts.append(html_page.FOOT)
     return "\n".join(parts)
 

@@ -377,6 +377,17 @@ def head(title: str) -> str:
 FOOT = "</main>\n</body>\n</html>\n"
 
 
+def provenance_section(rows: Sequence[Sequence[str]], meta: Mapping[str, Any], labels: Sequence[tuple[str, str]],
+                       now: datetime | None = None) -> str:
+    """A page's provenance section: ``rows`` (what, value) first, then each ``(key, label)`` of ``labels`` that
+    ``meta`` holds (a flag as ``true``/``false``), then when the report was written (``now``, UTC)."""
+    now = now or datetime.now(timezone.utc)
+    shown = [*rows, *([name, str(meta[key]).lower() if isinstance(meta[key], bool) else str(meta[key])]
+                      for key, name in labels if key in meta)]
+    shown.append(["report written (UTC)", now.astimezone(timezone.utc).isoformat(timespec="seconds")])
+    return '<section id="provenance"><h2>Provenance</h2>' + html_table(["what", "value"], shown) + "</section>"
+
+
 def write_page(out_dir: str | os.PathLike, df: pd.DataFrame, metadata: Mapping[str, Any], plots: Sequence[Any],
                skipped: Sequence[Any] = (), warning: str | None = None, *, summary: Summary | None = None) -> Path:
     """Write :func:`page` (of the page's ``summary``, when given) to ``OUT/report/index.html``

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import html
 import os
-from datetime import datetime, timezone
+from datetime import datetime
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -65,16 +65,11 @@ def page(out: Path, table: pd.DataFrame, meta: Mapping[str, Any], now: datetime 
              "--format csv</code> gives every column (the intervals' ends, the paired difference to the leader, "
              "the costs in seconds).</p></section>",
              '<section id="sweeps"><h2>Each cell\'s sweep</h2>' + _sweeps(out, table) + "</section>"]
-    now = now or datetime.now(timezone.utc)
     info = [["league file", str(meta.get("league_file", "?"))], ["runs per cell", str(meta.get("seeds", "?"))],
             ["fault points", ", ".join(f"{k} ({v})" if v != k else k for k, v in (meta.get("points") or {}).items())
              or "?"],
             ["cost measured on", str(meta.get("machine") or "not timed (timing_runs = 0)")]]
-    info += [[name, str(meta[key]).lower() if isinstance(meta[key], bool) else str(meta[key])]
-             for key, name in PROVENANCE if key in meta]
-    info.append(["report written (UTC)", now.astimezone(timezone.utc).isoformat(timespec="seconds")])
-    parts.append('<section id="provenance"><h2>Provenance</h2>' + html_page.html_table(["what", "value"], info)
-                 + "</section>")
+    parts.append(html_page.provenance_section(info, meta, PROVENANCE, now))
     parts.append(html_page.FOOT)
     return "\n".join(parts)
 
