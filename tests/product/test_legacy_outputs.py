@@ -72,9 +72,12 @@ def test_an_earlier_tune_is_resumed_to_the_uninterrupted_trace_and_reported(tmp_
             "dropped_runs"]
     resumed, whole = pd.read_parquet(old / "trace.parquet"), pd.read_parquet(fresh / "trace.parquet")
     assert list(whole["step"]) == [0, 1, 2]
-    pd.testing.assert_frame_equal(resumed[cols], whole[cols], check_exact=True)
-    pd.testing.assert_frame_equal(resumed[cols].iloc[:1], before[cols], check_exact=True)
+    pd.testing.assert_frame_equal(resumed[cols].iloc[:1], before[cols], check_exact=True)  # the step it kept
+    # the earlier machine's step 0 and this one's may differ in rounding (another CPU model's vector code), and
+    # the steps after it with them: the rule's 1e-8 across CPU models (tests/golden/rule.py)
+    pd.testing.assert_frame_equal(resumed[cols], whole[cols], check_exact=False, rtol=1e-8, atol=1e-12)
     keys = ["point_id", "seed_index", "filter"]
-    pd.testing.assert_frame_equal(_sorted(read_table(old), keys), _sorted(read_table(fresh), keys), check_exact=True)
+    problems = compare(_sorted(read_table(old), keys), _sorted(read_table(fresh), keys))
+    assert not problems, "\n".join(problems)
     r = _cli("report", str(old), "--no-plots")
     assert "initial" in r.output or "comm_radius" in r.output
