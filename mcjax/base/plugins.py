@@ -6,7 +6,6 @@ Running it runs that code (docs/cli.md, "What a spec may run"). No JAX of its ow
 
 from __future__ import annotations
 
-import difflib
 import importlib
 import importlib.util
 import sys
@@ -24,17 +23,6 @@ def absolute_reference(ref, base_dir: str | Path):
     if sep and where.endswith(".py") and not Path(where).is_absolute():
         return f"{(Path(base_dir) / where).resolve()}:{attr}"
     return ref
-
-
-def near_name(name: str, names) -> str | None:
-    """The one of ``names`` a typo away from ``name`` — a letter missing, wrong or extra
-    (:func:`difflib.get_close_matches` at 0.75), or two letters swapped ('kfc' for 'kcf') — else None."""
-    names = [str(n) for n in names]
-    close = difflib.get_close_matches(name, names, n=1, cutoff=0.75)
-    if not close:
-        close = [n for n in names if len(n) == len(name) and sorted(n) == sorted(name)
-                 and sum(a != b for a, b in zip(n, name)) == 2]
-    return close[0] if close else None
 
 
 def module_file(module) -> str:

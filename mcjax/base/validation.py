@@ -80,6 +80,17 @@ def suggest(key, allowed) -> str:
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
+def near_name(name: str, names) -> str | None:
+    """The one of ``names`` a typo away from ``name`` — a letter missing, wrong or extra
+    (:func:`difflib.get_close_matches` at 0.75), or two letters swapped ('kfc' for 'kcf') — else None."""
+    names = [str(n) for n in names]
+    close = difflib.get_close_matches(name, names, n=1, cutoff=0.75)
+    if not close:
+        close = [n for n in names if len(n) == len(name) and sorted(n) == sorted(name)
+                 and sum(a != b for a, b in zip(n, name)) == 2]
+    return close[0] if close else None
+
+
 def near_path(written, actual=None, *, folder: bool = False) -> str:
     """``"; did you mean X?"`` for a path that does not exist: the file (with ``folder``, the
     folder) beside it whose name is closest to its own (:mod:`difflib`), written as the user wrote
@@ -229,8 +240,6 @@ def setting_value_problem(s, value) -> str | None:
         if unknown and refuses and any(is_plugin_name(v, refuses[0]) for v in unknown):
             return f"must be among its own {', '.join(map(str, s.choices))} ({refuses[1]}); got {show(value)}"
         if unknown:
-            from mcjax.base.plugins import near_name  # no import of its own: a leaf as this module is
-
             close = near_name(unknown[0], s.choices) if isinstance(unknown[0], str) else None
             hint = f"; did you mean {close!r}?" if close else ""
             return bad(setting_allowed(s), value) + f" (unknown: {', '.join(map(show, unknown))}{hint})"

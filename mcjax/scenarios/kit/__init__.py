@@ -26,7 +26,7 @@ from mcjax.scenarios.kit.outputs import (GRAPH_OUTPUTS, declarations, error_item
 from mcjax.scenarios.kit.sensing import (Sensed, filter_update, hold_filters, kcf_mailbox, link, sense_and_link, shield_filters, soft_team_measurements,
                                          team_measurements)
 from mcjax.scenarios.kit.settings import (DTYPES, agents, cast, check_common, common_settings, param_value, per_run,
-                                          typed)
+                                          shown_filter_names, typed)
 
 
 def aliases(scenario) -> tuple:
@@ -41,4 +41,4 @@ __all__ = ["GRAPH_OUTPUTS", "declarations", "error_items", "error_outputs", "err
            "error_series_outputs", "error_summary", "graph_items", "team_weights", "training_errors",
            "training_weights", "Sensed", "filter_update", "hold_filters", "kcf_mailbox", "link", "sense_and_link", "shield_filters", "soft_team_measurements",
            "team_measurements", "DTYPES", "agents", "cast", "check_common", "common_settings", "param_value",
-           "per_run", "typed", "aliases"]
+           "per_run", "shown_filter_names", "typed", "aliases"]

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcjax.contract import Setting
-from mcjax.tracking.filters.registry import ENTRY_POINT_GROUP, FILTER_KINDS, get, same_names
+from mcjax.tracking.filters.registry import ENTRY_POINT_GROUP, FILTER_KINDS, get, same_names, shown_name
 
 DTYPES = ("float64", "float32")
 
@@ -59,6 +59,12 @@ def check_common(cfg) -> None:
         twice = same_names(cfg.filters, tuple(setting.choices or ()))
         if twice:
             raise ValueError(twice)
+
+
+def shown_filter_names(filters, own=FILTER_KINDS) -> str:
+    """``filters`` as a refusal names them: by the names the datasets show (a filter of one's own by its
+    record's name; ``own``: the scenario's own filter kinds, shown as written)."""
+    return ", ".join(shown_name(f, own) for f in filters)
 
 
 def param_value(Params, cfg, values: dict, name: str) -> np.ndarray:

@@ -13,7 +13,7 @@ from mcjax.scenarios.kit import bound as kit_bound
 from mcjax.scenarios.kit import consistency as kit_consistency
 from mcjax.scenarios.kit import faults
 from mcjax.tracking.filters.consensus import KCF_GAINS
-from mcjax.tracking.filters.registry import get, shown_name
+from mcjax.tracking.filters.registry import get
 from mcjax.tracking.filters.steps import delayed_sender
 
 NAME = "flocking"
@@ -27,23 +27,22 @@ START_LAYOUTS = ("uniform", "lattice")
 INTEGRATORS = ("dopri5", "rk4")
 
 
-def _shown(filters) -> str:
-    """Filters by the names the datasets show (a filter of one's own by its record's name)."""
-    return ", ".join(shown_name(f, FILTER_KINDS) for f in filters)
-
-
 def _check(cfg) -> None:
     kit.check_common(cfg)
+
+    def names(filters) -> str:  # as the datasets show them (a filter of one's own by its record's name)
+        return kit.shown_filter_names(filters, FILTER_KINDS)
+
     robust = [f for f in cfg.filters if get(f).traits.weights == "doubly_stochastic"]
     if robust and cfg.filter_nodes != "all":
-        raise ValueError(f"filter_nodes must be 'all' with the filters {_shown(robust)}: they need doubly stochastic "
+        raise ValueError(f"filter_nodes must be 'all' with the filters {names(robust)}: they need doubly stochastic "
                          f"weights (traits.weights = 'doubly_stochastic'), and take the weights' average as the "
                          f"whole flock's, which holds only when every node runs the filter; with filter_nodes = "
                          f"'sensing' the type-II nodes run none and sit in the consensus as isolated nodes; got "
                          f"filter_nodes = {cfg.filter_nodes!r}")
     early = [f for f in cfg.filters if not get(f).traits.late_messages]
     if early and cfg.message_delay > 0:
-        raise ValueError(f"message_delay must be 0 with the filters {_shown(early)}: they take no late messages "
+        raise ValueError(f"message_delay must be 0 with the filters {names(early)}: they take no late messages "
                          f"(traits.late_messages = False: they average this step's information, which a late "
                          f"message cannot join); got {cfg.message_delay}")
     if cfg.message_delay > 0:

@@ -15,7 +15,7 @@ from mcjax.scenarios.kit import consistency as kit_consistency
 from mcjax.scenarios.kit import faults
 from mcjax.scenarios.sun2011.objectives import ROBUSTNESS_PATHS, ROBUSTNESS_PENALTIES
 from mcjax.scenarios.sun2011.planner import planner_options
-from mcjax.tracking.filters.registry import FILTER_KINDS, get, shown_name
+from mcjax.tracking.filters.registry import FILTER_KINDS, get
 from mcjax.tracking.filters.steps import delayed_sender
 
 NAME = "leader_follower"
@@ -31,13 +31,12 @@ EXCHANGES = ("dense", "sparse", "auto")
 SPARSE_ABOVE = 20
 
 
-def _shown(filters) -> str:
-    """Filters by the names the datasets show (a filter of one's own by its record's name)."""
-    return ", ".join(shown_name(f, FILTER_KINDS) for f in filters)
-
-
 def _check(cfg) -> None:
     kit.check_common(cfg)
+
+    def names(filters) -> str:  # as the datasets show them (a filter of one's own by its record's name)
+        return kit.shown_filter_names(filters, FILTER_KINDS)
+
     if cfg.planner != "none":
         if "modified_icf" not in cfg.filters:
             raise ValueError("filters must include 'modified_icf' when a planner is on: "
@@ -45,7 +44,7 @@ def _check(cfg) -> None:
         planner_options(cfg)  # validates the planner budget
     robust = [f for f in cfg.filters if get(f).traits.consensus_only]
     if robust and cfg.consensus_steps < 1:
-        raise ValueError(f"consensus_steps must be an integer >= 1 with the filters {_shown(robust)} (traits."
+        raise ValueError(f"consensus_steps must be an integer >= 1 with the filters {names(robust)} (traits."
                          f"consensus_only: they fuse by consensus only); got {cfg.consensus_steps}")
     if cfg.message_delay > 0:
         other = [f for f in cfg.filters if not get(f).traits.late_messages]
@@ -54,9 +53,9 @@ def _check(cfg) -> None:
             planner = ("; so the planner, which needs modified_icf, must be 'none'" if "modified_icf" in other
                        else "")
             raise ValueError(f"filters must be among {', '.join(late)} when message_delay > 0, or a filter whose "
-                             f"traits.late_messages is True: {_shown(other)} take no late messages (they average "
+                             f"traits.late_messages is True: {names(other)} take no late messages (they average "
                              f"this step's information, which a late message cannot join{planner}); got "
-                             f"{_shown(other)}")
+                             f"{names(other)}")
         delayed_sender(cfg.filters)  # one mailbox
         if cfg.kcf_gain == "prior_consensus":
             raise ValueError("kcf_gain must be gamma_M or mu_P when message_delay > 0 (prior_consensus averages "

@@ -25,7 +25,8 @@ import sys
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from mcjax.base.plugins import absolute_reference, import_reference, module_file, near_name
+from mcjax.base.plugins import absolute_reference, import_reference, module_file
+from mcjax.base.validation import near_name
 from mcjax.contract.filter import Filter
 from mcjax.tracking.filters.consensus import CIF, ICF, KCF, LOCAL, MODIFIED_ICF
 from mcjax.tracking.filters.robust_consensus import CI, HCMCI
@@ -77,7 +78,7 @@ def _key(name: str, base_dir) -> str:
 
 def did_you_mean(name: str, names) -> str:
     """``"; did you mean 'X'?"`` for the name of ``names`` one typo away from ``name``
-    (:func:`mcjax.base.plugins.near_name`), else ``""``."""
+    (:func:`mcjax.base.validation.near_name`), else ``""``."""
     close = near_name(name, names)
     return f"; did you mean {close!r}?" if close else ""
 
