@@ -6,7 +6,6 @@ scenarios that take the filter (issue 67, items 3 and 4)."""
 
 from __future__ import annotations
 
-import importlib.metadata
 from pathlib import Path
 
 import pandas as pd
@@ -15,6 +14,7 @@ from click.testing import CliRunner
 
 from mcjax.cli import main
 from mcjax.tracking.filters import registry
+from tests.tracking.filters import fake_plugins
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -191,21 +191,9 @@ value = 20.0
     assert "(my_local)" in verdicts["statistic"][1] and "own.py" not in " ".join(verdicts["statistic"])
 
 
-def _entry_point(monkeypatch, name, value):
-    point = importlib.metadata.EntryPoint(name=name, value=value, group=registry.ENTRY_POINT_GROUP)
-    real = importlib.metadata.entry_points
-
-    def entry_points(**kw):
-        return [point] if kw.get("group") == registry.ENTRY_POINT_GROUP else real(**kw)
-
-    monkeypatch.setattr(registry, "entry_points", entry_points)
-    monkeypatch.setattr(importlib.metadata, "entry_points", entry_points)
-    monkeypatch.setattr(registry, "_FOUND", {})
-
-
 def test_a_file_record_named_like_an_installed_plugin_is_refused(own, monkeypatch):
     monkeypatch.syspath_prepend(str(own))
-    _entry_point(monkeypatch, "my_local", "twin:MINE")  # an installed plugin of that name, another record
+    fake_plugins.install(monkeypatch, "my_local", "twin:MINE")  # an installed plugin of that name, another record
     with pytest.raises(ValueError, match="is named 'my_local', the name of the installed plugin twin:MINE"):
         registry.get(f"{own / 'own.py'}:MINE")
     assert registry.get("my_local").title == "another file, the same name"  # the plugin itself resolves
@@ -292,7 +280,7 @@ def test_the_flock_refuses_a_filter_needing_doubly_stochastic_weights_in_the_tra
 
 def test_list_filters_names_only_the_scenarios_that_take_it(own, monkeypatch):
     monkeypatch.syspath_prepend(str(own))
-    _entry_point(monkeypatch, "my_average", "own:AVERAGING")
+    fake_plugins.install(monkeypatch, "my_average", "own:AVERAGING")
     r = CliRunner().invoke(main, ["list", "filters"])
     assert r.exit_code == 0, r.output
     block = r.output.split("\nmy_average ")[1].split("\n")

@@ -2,25 +2,16 @@
 built-in's) and never silent: every command that runs filters refuses to start in one line, exit 2, and
 ``mcjax list filters`` names it."""
 
-import importlib.metadata
-
 import pytest
 from click.testing import CliRunner
 
 from mcjax.tracking.filters import registry
+from tests.tracking.filters import fake_plugins
 
 
 @pytest.fixture
 def clashing_plugin(monkeypatch):
-    point = importlib.metadata.EntryPoint(name="local", value="their_pkg:THEIR_LOCAL", group=registry.ENTRY_POINT_GROUP)
-    real = importlib.metadata.entry_points
-
-    def entry_points(**kw):
-        return [point] if kw.get("group") == registry.ENTRY_POINT_GROUP else real(**kw)
-
-    monkeypatch.setattr(registry, "entry_points", entry_points)
-    monkeypatch.setattr(importlib.metadata, "entry_points", entry_points)
-    monkeypatch.setattr(registry, "_FOUND", {})
+    fake_plugins.install(monkeypatch, "local", "their_pkg:THEIR_LOCAL")
 
 
 def test_a_plugin_named_like_a_built_in_is_never_resolved_and_is_named_in_one_line(clashing_plugin):
